@@ -1,0 +1,10 @@
+"""Root of the ``geoloc`` console script. Each command group lives in its own module."""
+
+from __future__ import annotations
+
+import typer
+
+from cli import map as map_cmd
+
+app = typer.Typer(no_args_is_help=True, help="Map-based visual geolocation: maps, simulation, analysis, service.")
+app.add_typer(map_cmd.app, name="map")

@@ -1,0 +1,39 @@
+"""``geoloc map ...``: inspect map files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+app = typer.Typer(no_args_is_help=True, help="Inspect map files (OSM XML/.bz2/.pbf, GeoJSON).")
+
+
+@app.command("info")
+def info(path: Path, as_json: bool = typer.Option(False, "--json", help="Print JSON instead of text.")) -> None:
+    """Load a map and print its buildings, facades, named buildings, bounding box and repair counts."""
+    from geoloc.osm import MapLoadError, load_map, map_summary
+
+    try:
+        summary = map_summary(load_map(path))
+    except MapLoadError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    if as_json:
+        typer.echo(json.dumps(summary, indent=2))
+        return
+    bbox = summary["bbox_wgs84"]
+    typer.echo(f"map            {summary['source']} ({summary['report']['format']})")
+    typer.echo(f"buildings      {summary['buildings']}")
+    typer.echo(f"facades        {summary['facades']}")
+    typer.echo(f"named          {summary['named_buildings']} (e.g. {', '.join(summary['named_examples'][:5])})")
+    typer.echo(f"trees          {summary['trees']}    street polylines {summary['streets']}")
+    typer.echo(
+        f"bbox (WGS84)   lat {bbox['min_lat']:.6f} .. {bbox['max_lat']:.6f}, "
+        f"lon {bbox['min_lon']:.6f} .. {bbox['max_lon']:.6f}"
+    )
+    x0, y0, x1, y1 = summary["extent_m"]
+    typer.echo(f"extent         {x1 - x0:.0f} m x {y1 - y0:.0f} m (local frame)")
+    typer.echo(f"heights        {summary['height_sources']}")
+    typer.echo("repairs        " + ", ".join(f"{k}={v}" for k, v in summary["report"].items() if k != "format"))

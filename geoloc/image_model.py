@@ -1,0 +1,126 @@
+"""The image model: what a photo says about facades, per angular column bin.
+
+The likelihood compares this with the map panoramas. Columns are binned by viewing angle
+(``bin_deg``, default 0.5 deg, the panorama bearing step), so a camera yaw selects a contiguous
+window of a panorama. Bin ``k`` covers column angles ``offsets_deg[k] +- bin_deg / 2`` (right of the
+optical axis, see :mod:`geoloc.camera`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from geoloc.camera import Intrinsics, wrap_orientation_deg
+
+DEFAULT_BIN_DEG = 0.5
+
+
+@dataclass
+class ImageModel:
+    """Per angular bin of one image.
+
+    offsets_deg: (K,) bin centres, deg right of the optical axis, multiples of ``bin_deg``.
+    facade_present: (K,) in [0, 1]; 0 = no facade hypothesis in that bin, else its confidence.
+    orientation_deg: (K,) facade orientation theta_hat relative to the camera (deg, [-90, 90)),
+        meaningful where ``facade_present > 0``.
+    identity_building_ids: (M,) building ids the identity columns refer to (or ``None``).
+    identity_prob: (K, M) probability that the facade in bin k belongs to each of those buildings
+        (rows may sum to less than 1: the rest is "unknown"), or ``None`` for geometry only.
+    """
+
+    offsets_deg: np.ndarray
+    facade_present: np.ndarray
+    orientation_deg: np.ndarray
+    identity_building_ids: np.ndarray | None = None
+    identity_prob: np.ndarray | None = None
+    bin_deg: float = DEFAULT_BIN_DEG
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        k = len(self.offsets_deg)
+        if self.facade_present.shape != (k,) or self.orientation_deg.shape != (k,):
+            raise ValueError("facade_present and orientation_deg must have one value per bin")
+        if (self.identity_prob is None) != (self.identity_building_ids is None):
+            raise ValueError("identity_prob and identity_building_ids go together")
+        if self.identity_prob is not None and self.identity_prob.shape != (
+            k,
+            len(self.identity_building_ids),
+        ):
+            raise ValueError("identity_prob must be (bins, buildings)")
+
+    @property
+    def n_bins(self) -> int:
+        return len(self.offsets_deg)
+
+    @property
+    def has_identity(self) -> bool:
+        return self.identity_prob is not None
+
+    def without_identity(self) -> ImageModel:
+        """The geometry-only version of this model."""
+        return ImageModel(self.offsets_deg, self.facade_present, self.orientation_deg, bin_deg=self.bin_deg)
+
+
+def bin_offsets_deg(intrinsics: Intrinsics, bin_deg: float = DEFAULT_BIN_DEG) -> np.ndarray:
+    """Centres (deg) of the angular bins that cover the image's horizontal field of view.
+
+    Bins are centred on multiples of ``bin_deg`` so that they align with panorama bearings.
+    """
+    half = intrinsics.hfov_deg / 2.0
+    n = int(np.floor(half / bin_deg))
+    return np.arange(-n, n + 1) * bin_deg
+
+
+def column_bins(intrinsics: Intrinsics, offsets_deg: np.ndarray, bin_deg: float = DEFAULT_BIN_DEG) -> np.ndarray:
+    """For each pixel column, the index of its angular bin in ``offsets_deg`` (-1 if outside)."""
+    angles = intrinsics.column_angle_deg(np.arange(intrinsics.width) + 0.5)
+    index = np.round((angles - offsets_deg[0]) / bin_deg).astype(int)
+    index[(index < 0) | (index >= len(offsets_deg))] = -1
+    return index
+
+
+def image_model_from_columns(
+    intrinsics: Intrinsics,
+    column_present: np.ndarray,
+    column_orientation_deg: np.ndarray,
+    column_identity_prob: np.ndarray | None = None,
+    identity_building_ids: np.ndarray | None = None,
+    bin_deg: float = DEFAULT_BIN_DEG,
+) -> ImageModel:
+    """Bin per-pixel-column facade evidence into an :class:`ImageModel`.
+
+    column_present: (W,) confidence in [0, 1] that a facade covers the column.
+    column_orientation_deg: (W,) theta_hat per column (deg), used where present.
+    column_identity_prob: optional (W, M) identity probabilities per column.
+    Orientations are averaged as doubled angles (they are defined modulo 180), weighted by
+    confidence; presence and identities are averaged over the columns of a bin.
+    """
+    offsets = bin_offsets_deg(intrinsics, bin_deg)
+    bins = column_bins(intrinsics, offsets, bin_deg)
+    valid = bins >= 0
+    k = len(offsets)
+    counts = np.bincount(bins[valid], minlength=k).astype(float)
+    safe_counts = np.maximum(counts, 1.0)
+    present = np.clip(np.asarray(column_present, dtype=float), 0.0, 1.0)
+    present_sum = np.bincount(bins[valid], weights=present[valid], minlength=k)
+    doubled = np.radians(2.0 * np.asarray(column_orientation_deg, dtype=float))
+    doubled = np.where(np.isfinite(doubled), doubled, 0.0)
+    c = np.bincount(bins[valid], weights=(present * np.cos(doubled))[valid], minlength=k)
+    s = np.bincount(bins[valid], weights=(present * np.sin(doubled))[valid], minlength=k)
+    orientation = wrap_orientation_deg(np.degrees(np.arctan2(s, c)) / 2.0)
+    identity = None
+    if column_identity_prob is not None:
+        prob = np.asarray(column_identity_prob, dtype=float)
+        identity = np.zeros((k, prob.shape[1]))
+        np.add.at(identity, bins[valid], prob[valid])
+        identity /= safe_counts[:, None]
+    return ImageModel(
+        offsets_deg=offsets,
+        facade_present=present_sum / safe_counts,
+        orientation_deg=orientation,
+        identity_building_ids=None if identity is None else np.asarray(identity_building_ids),
+        identity_prob=identity,
+        bin_deg=bin_deg,
+    )

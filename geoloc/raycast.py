@@ -1,0 +1,257 @@
+"""Ray-cast panoramas: for many positions at once, what the map shows along every bearing.
+
+For each position we cast rays over 360 deg at ``bearing_step_deg`` and keep the nearest facade
+hit per bearing (farther facades are occluded): facade id, building id, distance (m) and the
+bearing of the facade's outward normal. A camera yaw and field of view select a window of the
+panorama (see :func:`panorama_window`), so nothing is re-cast per yaw.
+
+Method (vectorised numpy): facades are binned into square cells; for a chunk of positions the
+facades within ``max_range_m`` are found through the cells, each (position, facade) pair is
+turned into the range of bearings the facade spans seen from that position, the pairs are
+expanded into (position, bearing, facade) samples, the ray/segment distance is computed for all
+samples at once, and a scatter-min over a packed (distance, facade) integer key picks the
+nearest facade per (position, bearing). Cost grows with the facades near each position, not
+with the size of the map.
+
+Only facades facing the position (outward normal towards it) are considered: the back of a
+wall cannot be seen from outside, and positions inside buildings are not meaningful camera
+positions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geoloc.osm import CityMap, Facades
+
+DEFAULT_BEARING_STEP_DEG = 0.5
+DEFAULT_MAX_RANGE_M = 250.0
+_DIST_SCALE = 100.0  # distances are packed as integer centimetres
+_FACADE_BITS = 24  # up to 16.7 M facades per map
+
+
+@dataclass
+class Panoramas:
+    """Nearest facade hit per (position, bearing).
+
+    positions: (P, 2) local metres. bearings_deg: (N,) clockwise from north, ``i * step``.
+    facade_id, building_id: (P, N) int32, -1 where the ray hits nothing within range.
+    distance_m: (P, N) float32, inf where nothing is hit.
+    normal_bearing_deg: (P, N) float32 bearing of the hit facade's outward normal, NaN if none.
+    """
+
+    positions: np.ndarray
+    bearings_deg: np.ndarray
+    facade_id: np.ndarray
+    building_id: np.ndarray
+    distance_m: np.ndarray
+    normal_bearing_deg: np.ndarray
+    max_range_m: float
+
+    @property
+    def bearing_step_deg(self) -> float:
+        return float(360.0 / len(self.bearings_deg))
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def subset(self, index: np.ndarray) -> Panoramas:
+        """The panoramas of some positions."""
+        return Panoramas(
+            self.positions[index],
+            self.bearings_deg,
+            self.facade_id[index],
+            self.building_id[index],
+            self.distance_m[index],
+            self.normal_bearing_deg[index],
+            self.max_range_m,
+        )
+
+
+class FacadeIndex:
+    """Facades binned into square cells for range queries."""
+
+    def __init__(self, facades: Facades, cell_m: float = 25.0) -> None:
+        self.facades = facades
+        self.cell_m = cell_m
+        lo = np.minimum(facades.start, facades.end)
+        hi = np.maximum(facades.start, facades.end)
+        self.origin = lo.min(axis=0) - cell_m
+        c0 = np.floor((lo - self.origin) / cell_m).astype(np.int64)
+        c1 = np.floor((hi - self.origin) / cell_m).astype(np.int64)
+        self.shape = tuple(c1.max(axis=0) + 2)
+        # Every facade is entered in each cell its bounding box touches.
+        span = c1 - c0 + 1
+        counts = span[:, 0] * span[:, 1]
+        owner = np.repeat(np.arange(len(facades)), counts)
+        local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        cx = c0[owner, 0] + local % span[owner, 0]
+        cy = c0[owner, 1] + local // span[owner, 0]
+        cell = cx * self.shape[1] + cy
+        order = np.argsort(cell, kind="stable")
+        self.cell_facades = owner[order]
+        self.cell_start = np.searchsorted(cell[order], np.arange(self.shape[0] * self.shape[1] + 1))
+
+    def facades_near(self, center: np.ndarray, radius_m: float) -> np.ndarray:
+        """Ids of facades whose bounding box may lie within ``radius_m`` of any of the (P, 2) ``center``s."""
+        lo = np.floor((center.min(axis=0) - radius_m - self.origin) / self.cell_m).astype(int)
+        hi = np.floor((center.max(axis=0) + radius_m - self.origin) / self.cell_m).astype(int)
+        lo = np.clip(lo, 0, np.array(self.shape) - 1)
+        hi = np.clip(hi, 0, np.array(self.shape) - 1)
+        if np.any(hi < lo):
+            return np.zeros(0, dtype=np.int64)
+        xs, ys = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+        cells = (xs * self.shape[1] + ys).ravel()
+        starts, ends = self.cell_start[cells], self.cell_start[cells + 1]
+        lengths = ends - starts
+        index = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
+        return np.unique(self.cell_facades[index])
+
+
+def cast_panoramas(
+    city_map: CityMap,
+    positions: np.ndarray,
+    bearing_step_deg: float = DEFAULT_BEARING_STEP_DEG,
+    max_range_m: float = DEFAULT_MAX_RANGE_M,
+    chunk_m: float = 60.0,
+    index: FacadeIndex | None = None,
+) -> Panoramas:
+    """Ray-cast panoramas at local ``positions`` (P, 2) metres.
+
+    ``bearing_step_deg`` must divide 360. Positions are processed in spatial tiles of ``chunk_m``
+    so that each tile only considers the facades within ``max_range_m`` of it.
+    """
+    n_bearings = int(round(360.0 / bearing_step_deg))
+    if not np.isclose(n_bearings * bearing_step_deg, 360.0):
+        raise ValueError(f"bearing step {bearing_step_deg} deg does not divide 360")
+    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+    n_pos = len(positions)
+    facades = city_map.facades
+    index = index or FacadeIndex(facades)
+    best = np.full(n_pos * n_bearings, np.iinfo(np.int64).max, dtype=np.int64)
+
+    tile = np.floor(positions / chunk_m).astype(np.int64)
+    _, tile_id = np.unique(tile, axis=0, return_inverse=True)
+    order = np.argsort(tile_id.ravel(), kind="stable")
+    bounds = np.flatnonzero(np.diff(tile_id.ravel()[order])) + 1
+    for members in np.split(order, bounds):
+        near = index.facades_near(positions[members], max_range_m)
+        if len(near):
+            _cast_tile(positions, members, facades, near, n_bearings, max_range_m, best)
+
+    best = best.reshape(n_pos, n_bearings)
+    hit = best != np.iinfo(np.int64).max
+    facade_id = np.where(hit, best & ((1 << _FACADE_BITS) - 1), -1).astype(np.int32)
+    distance = np.where(hit, (best >> _FACADE_BITS) / _DIST_SCALE, np.inf).astype(np.float32)
+    safe = np.maximum(facade_id, 0)
+    building_id = np.where(hit, facades.building_id[safe], -1).astype(np.int32)
+    # Wrap after the cast: 359.99999999 would otherwise become 360.0 in float32.
+    normal_bearing = np.where(hit, facades.normal_bearing_deg[safe], np.nan).astype(np.float32) % np.float32(360.0)
+    bearings = np.arange(n_bearings) * bearing_step_deg
+    return Panoramas(positions, bearings, facade_id, building_id, distance, normal_bearing, max_range_m)
+
+
+def _cast_tile(
+    positions: np.ndarray,
+    members: np.ndarray,
+    facades: Facades,
+    near: np.ndarray,
+    n_bearings: int,
+    max_range_m: float,
+    best: np.ndarray,
+) -> None:
+    """Scatter-min the nearest hits of facades ``near`` seen from ``positions[members]`` into ``best``."""
+    step = 360.0 / n_bearings
+    origin = positions[members][:, None, :]  # (p, 1, 2)
+    a = facades.start[near][None] - origin  # (p, f, 2) endpoints relative to the camera
+    b = facades.end[near][None] - origin
+    normal = facades.normal[near][None]
+    # Facing test: the camera is on the outer side of the facade's line.
+    facing = np.einsum("pfk,pfk->pf", -a, np.broadcast_to(normal, a.shape)) > 1e-6
+    # Distance from the camera to the segment, to drop far facades early.
+    ab = b - a
+    t = np.clip(-np.einsum("pfk,pfk->pf", a, ab) / np.einsum("pfk,pfk->pf", ab, ab), 0.0, 1.0)
+    closest = a + t[..., None] * ab
+    within = facing & (np.hypot(closest[..., 0], closest[..., 1]) <= max_range_m)
+    p_idx, f_idx = np.nonzero(within)
+    if len(p_idx) == 0:
+        return
+    a, b = a[p_idx, f_idx], b[p_idx, f_idx]
+    # Bearings of the two endpoints; the facade spans the short arc between them (it faces the camera).
+    bear_a = np.degrees(np.arctan2(a[:, 0], a[:, 1])) % 360.0
+    bear_b = np.degrees(np.arctan2(b[:, 0], b[:, 1])) % 360.0
+    lo = np.minimum(bear_a, bear_b)
+    hi = np.maximum(bear_a, bear_b)
+    wraps = hi - lo > 180.0
+    lo, hi = np.where(wraps, hi, lo), np.where(wraps, lo + 360.0, hi)
+    first = np.ceil(lo / step - 1e-9).astype(np.int64)
+    last = np.floor(hi / step + 1e-9).astype(np.int64)
+    count = np.maximum(last - first + 1, 0)
+    total = int(count.sum())
+    if total == 0:
+        return
+    pair = np.repeat(np.arange(len(p_idx)), count)
+    k = first[pair] + (np.arange(total) - np.repeat(np.cumsum(count) - count, count))
+    theta = np.radians(k * step)
+    ray = np.column_stack([np.sin(theta), np.cos(theta)])
+    # Ray r(s) = s * ray hits segment a + u (b - a): solve with 2D cross products.
+    a_s, ab_s = a[pair], (b - a)[pair]
+    denom = ray[:, 0] * ab_s[:, 1] - ray[:, 1] * ab_s[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (a_s[:, 0] * ab_s[:, 1] - a_s[:, 1] * ab_s[:, 0]) / denom
+    ok = np.isfinite(s) & (s > 0.0) & (s <= max_range_m)
+    dist_cm = np.round(s[ok] * _DIST_SCALE).astype(np.int64)
+    key = (dist_cm << _FACADE_BITS) | near[f_idx[pair[ok]]].astype(np.int64)
+    cell = members[p_idx[pair[ok]]].astype(np.int64) * n_bearings + (k[ok] % n_bearings)
+    np.minimum.at(best, cell, key)
+
+
+def panorama_window(panoramas: Panoramas, yaw_deg: np.ndarray, offsets_deg: np.ndarray) -> np.ndarray:
+    """Bearing indices (Y, K) seen by cameras with yaws ``yaw_deg`` (Y,) at column offsets ``offsets_deg`` (K,).
+
+    Yaws and offsets are rounded to the panorama's bearing step.
+    """
+    step = panoramas.bearing_step_deg
+    n = len(panoramas.bearings_deg)
+    yaw_idx = np.round(np.asarray(yaw_deg, float) / step).astype(np.int64)
+    off_idx = np.round(np.asarray(offsets_deg, float) / step).astype(np.int64)
+    return (yaw_idx[:, None] + off_idx[None, :]) % n
+
+
+def cast_all_hits(
+    city_map: CityMap,
+    position: np.ndarray,
+    bearings_deg: np.ndarray,
+    max_range_m: float = DEFAULT_MAX_RANGE_M,
+    index: FacadeIndex | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every facade hit along rays from one position (for rendering, where taller buildings behind show).
+
+    Returns (ray_index, facade_id, distance_m) of all hits of facing facades within range, sorted by
+    ray then distance. Bearings may be arbitrary (not on a grid).
+    """
+    facades = city_map.facades
+    index = index or FacadeIndex(facades)
+    origin = np.asarray(position, dtype=float).reshape(1, 2)
+    near = index.facades_near(origin, max_range_m)
+    bearings = np.radians(np.asarray(bearings_deg, dtype=float))
+    if len(near) == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty, np.zeros(0)
+    a = facades.start[near] - origin
+    b = facades.end[near] - origin
+    facing = np.einsum("fk,fk->f", -a, facades.normal[near]) > 1e-6
+    near, a, b = near[facing], a[facing], b[facing]
+    ray = np.column_stack([np.sin(bearings), np.cos(bearings)])  # (R, 2)
+    ab = b - a
+    denom = ray[:, None, 0] * ab[None, :, 1] - ray[:, None, 1] * ab[None, :, 0]  # (R, F)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (a[None, :, 0] * ab[None, :, 1] - a[None, :, 1] * ab[None, :, 0]) / denom
+        u = (a[None, :, 0] * ray[:, None, 1] - a[None, :, 1] * ray[:, None, 0]) / denom
+    ok = np.isfinite(s) & (s > 0) & (s <= max_range_m) & (u >= 0) & (u <= 1)
+    ray_i, fac_i = np.nonzero(ok)
+    dist = s[ray_i, fac_i]
+    order = np.lexsort((dist, ray_i))
+    return ray_i[order], near[fac_i[order]], dist[order]
