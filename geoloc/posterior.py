@@ -3,8 +3,10 @@
 A :class:`PoseGrid` is a regular grid of candidate camera positions in the local frame; cells
 whose centre lies inside a building footprint are not candidates. The likelihood of all
 candidates x yaws (:func:`geoloc.likelihood.pose_likelihood`) becomes a posterior by
-``posterior ∝ prior * likelihood ** sharpness`` normalised over grid x yaws (``sharpness`` = 1
-is the paper's plain normalisation). The heatmap is the posterior summed over yaws. The top-N
+``posterior ∝ prior * likelihood ** sharpness`` normalised over grid x yaws. ``sharpness`` = 1
+is the paper's plain normalisation; the likelihood is a similarity in [0, 1], not a calibrated
+density, and plain normalisation lets the many mediocre yaws of a position outweigh one excellent
+pose elsewhere, so the default sharpens it (``DEFAULT_SHARPNESS``). The heatmap is the posterior summed over yaws. The top-N
 poses are the most probable positions (heatmap) picked greedily with a minimum separation so that
 the N answers are distinct places; each carries the most probable yaw at that position.
 """
@@ -16,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoloc.osm import CityMap
+
+DEFAULT_SHARPNESS = 8.0
 
 
 @dataclass
@@ -83,7 +87,9 @@ def grid_around(
     )
 
 
-def pose_posterior(likelihood: np.ndarray, prior: np.ndarray | None = None, sharpness: float = 1.0) -> np.ndarray:
+def pose_posterior(
+    likelihood: np.ndarray, prior: np.ndarray | None = None, sharpness: float = DEFAULT_SHARPNESS
+) -> np.ndarray:
     """Normalise a (P, Y) likelihood (times an optional prior broadcastable to it) to sum to 1.
 
     An all-zero likelihood gives the (normalised) prior, or a uniform distribution.

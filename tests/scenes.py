@@ -17,7 +17,7 @@ def square_building() -> CityMap:
 
 
 def l_shaped_building() -> CityMap:
-    """An L: a 40 m x 10 m bar along x (y in 0..10) plus a 10 m x 30 m bar along y (x in 0..10)."""
+    """An L: a 50 m x 10 m bar along x (y in 0..10) plus a 10 m x 30 m bar along y (x in 0..10)."""
     return city_map_from_footprints([L_RING], heights_m=[12.0])
 
 
@@ -30,11 +30,12 @@ def street_canyon() -> CityMap:
     return city_map_from_footprints(blocks, heights_m=[18.0] * len(blocks))
 
 
-L_RING = np.array([[0, 0], [40, 0], [40, 10], [10, 10], [10, 40], [0, 40]], dtype=float)
+# Arms of different lengths (50 m east, 30 m north), so the L has no mirror symmetry either.
+L_RING = np.array([[0, 0], [50, 0], [50, 10], [10, 10], [10, 30], [0, 30]], dtype=float)
 
 
 def twin_buildings() -> CityMap:
-    """Two identical L-shaped buildings 200 m apart (West at x -100..-60, East at x 100..140).
+    """Two identical L-shaped buildings 200 m apart (West at x -100..-50, East at x 100..150).
 
     An L has no rotational symmetry, so each view of one building is unique to it up to the twin:
     geometry alone cannot tell the twins apart, identities can.

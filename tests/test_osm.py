@@ -89,7 +89,7 @@ def test_square_facades_analytic() -> None:
 def test_l_shape_has_six_facades_with_one_concave_corner() -> None:
     f = l_shaped_building().facades
     assert len(f) == 6
-    assert np.isclose(f.length_m.sum(), 40 + 10 + 30 + 30 + 10 + 40, atol=1e-6)
+    assert np.isclose(f.length_m.sum(), 50 + 10 + 40 + 20 + 10 + 30, atol=1e-6)
 
 
 def test_osm_xml_bz2_and_geojson(tmp_path: Path) -> None:

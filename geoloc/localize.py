@@ -1,0 +1,234 @@
+"""Query geolocation: a probability map over positions x yaws and the top-N distinct poses.
+
+Candidate positions are a regular grid (paper: 10 m, 120 yaws) over the places that can see the
+identified buildings: cells outside footprints within ``search_radius_m`` of any building the
+photo's identities name. With no identified building the region comes from the position prior,
+and with neither the whole map is searched. A position prior (GPS with a radius) and a heading prior
+multiply the likelihood; the answer says which priors were used.
+
+Optionally (``refine_cell_m``) the best positions are re-scored on a finer grid around them
+(coarse-to-fine); the heatmap stays on the coarse grid.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+from shapely.ops import unary_union
+
+from geoloc.image_model import ImageModel
+from geoloc.labeling import heading_prior
+from geoloc.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, pose_likelihood
+from geoloc.osm import CityMap
+from geoloc.posterior import (
+    DEFAULT_SHARPNESS,
+    PoseGrid,
+    RankedPose,
+    make_grid,
+    pose_posterior,
+    position_heatmap,
+    top_poses,
+)
+from geoloc.raycast import cast_panoramas
+
+DEFAULT_QUERY_CELL_M = 10.0
+DEFAULT_SEARCH_RADIUS_M = 80.0
+MIN_BUILDING_PROBABILITY = 0.05  # identity mass a building needs (max over columns) to define the search region
+
+
+@dataclass
+class PositionPrior:
+    """A prior on the camera position: Gaussian around (x_m, y_m) with ``radius_m`` as 2 sigma."""
+
+    x_m: float
+    y_m: float
+    radius_m: float
+
+    def weights(self, positions: np.ndarray) -> np.ndarray:
+        d2 = np.sum((positions - np.array([self.x_m, self.y_m])) ** 2, axis=1)
+        return np.exp(-0.5 * d2 / (self.radius_m / 2.0) ** 2)
+
+
+@dataclass
+class Localization:
+    """The answer for one query (local frame).
+
+    grid: the candidate grid; positions: (P, 2) its valid cells; posterior: (P, Y) over positions x yaws.
+    heatmap: (rows, cols) probability per grid cell (summed over yaws). poses: top-N distinct poses.
+    search: how the candidate region was chosen and which priors were applied.
+    """
+
+    grid: PoseGrid
+    positions: np.ndarray
+    yaws_deg: np.ndarray
+    posterior: np.ndarray
+    heatmap: np.ndarray
+    poses: list[RankedPose]
+    search: dict = field(default_factory=dict)
+    timings_ms: dict = field(default_factory=dict)
+
+
+def identified_buildings(image_model: ImageModel, min_probability: float = MIN_BUILDING_PROBABILITY) -> list[int]:
+    """Building ids whose identity probability reaches ``min_probability`` in some column bin."""
+    if not image_model.has_identity:
+        return []
+    peak = image_model.identity_prob.max(axis=0) if image_model.identity_prob.size else np.zeros(0)
+    return [int(b) for b in np.asarray(image_model.identity_building_ids)[peak >= min_probability]]
+
+
+def search_grid(
+    city_map: CityMap,
+    building_ids: list[int],
+    cell_m: float,
+    search_radius_m: float,
+    position_prior: PositionPrior | None,
+) -> tuple[PoseGrid, str]:
+    """Candidate grid and a word on how it was chosen ("identified_buildings", "position_prior", "whole_map")."""
+    if building_ids:
+        region = unary_union([city_map.buildings[b].polygon for b in building_ids]).buffer(search_radius_m)
+        reason = "identified_buildings"
+        if position_prior is not None:
+            circle = shapely.Point(position_prior.x_m, position_prior.y_m).buffer(position_prior.radius_m * 1.5)
+            if region.intersects(circle):
+                region = region.intersection(circle)
+    elif position_prior is not None:
+        region = shapely.Point(position_prior.x_m, position_prior.y_m).buffer(position_prior.radius_m * 1.5)
+        reason = "position_prior"
+    else:
+        region = shapely.box(*city_map.bounds_m)
+        reason = "whole_map"
+    min_x, min_y, max_x, max_y = region.bounds
+    # Snap the grid to multiples of the cell so that grids of different queries share positions.
+    origin = np.floor(np.array([min_x, min_y]) / cell_m) * cell_m
+    grid = make_grid(city_map, (origin[0], origin[1], max_x, max_y), cell_m)
+    inside_region = shapely.contains_xy(region, *grid.positions.T)
+    grid.valid[grid.valid] = inside_region
+    return grid, reason
+
+
+def localize(
+    city_map: CityMap,
+    image_model: ImageModel,
+    *,
+    use_identity: bool = True,
+    candidate_buildings: list[int] | None = None,
+    position_prior: PositionPrior | None = None,
+    prior_yaw_deg: float | None = None,
+    cell_m: float = DEFAULT_QUERY_CELL_M,
+    search_radius_m: float = DEFAULT_SEARCH_RADIUS_M,
+    n_yaws: int = 120,
+    sigma_m: float = DEFAULT_SIGMA_M,
+    normalization: str = "weighted",
+    sharpness: float = DEFAULT_SHARPNESS,
+    top_n: int = 10,
+    min_separation_m: float | None = None,
+    refine_cell_m: float | None = None,
+) -> Localization:
+    """Localise a photo from its image model (with identities, from transfer) on the map.
+
+    candidate_buildings: the buildings that define the search region (default: those the image model's
+    identities name). With ``use_identity=False`` the same region is searched with the geometry-only
+    likelihood (the paper's baseline). prior_yaw_deg: local bearing. min_separation_m: between the
+    top-N answers (default: the grid cell).
+    """
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    buildings = identified_buildings(image_model) if candidate_buildings is None else list(candidate_buildings)
+    grid, reason = search_grid(city_map, buildings, cell_m, search_radius_m, position_prior)
+    positions = grid.positions
+    yaws = default_yaws_deg(n_yaws)
+    search = {
+        "region": reason,
+        "buildings": buildings,
+        "positions": int(len(positions)),
+        "yaws": n_yaws,
+        "cell_m": cell_m,
+        "identity": bool(use_identity and image_model.has_identity),
+        "position_prior": position_prior is not None,
+        "heading_prior": prior_yaw_deg is not None,
+    }
+    if len(positions) == 0:
+        raise ValueError("no candidate positions: the search region lies entirely inside buildings")
+    timings["grid"] = 1e3 * (time.perf_counter() - t0)
+
+    t0 = time.perf_counter()
+    panoramas = cast_panoramas(city_map, positions, bearing_step_deg=image_model.bin_deg)
+    timings["raycast"] = 1e3 * (time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    likelihood = pose_likelihood(
+        panoramas, image_model, yaws, sigma_m=sigma_m, use_identity=use_identity, normalization=normalization
+    )
+    timings["likelihood"] = 1e3 * (time.perf_counter() - t0)
+
+    prior = _prior(positions, yaws, position_prior, prior_yaw_deg)
+    posterior = pose_posterior(likelihood, prior, sharpness)
+    separation = cell_m if min_separation_m is None else min_separation_m
+    poses = top_poses(positions, posterior, yaws, n=top_n, min_separation_m=separation)
+    if refine_cell_m:
+        t0 = time.perf_counter()
+        poses = _refine(city_map, image_model, poses, cell_m, refine_cell_m, yaws, use_identity, sigma_m, normalization)
+        timings["refine"] = 1e3 * (time.perf_counter() - t0)
+        search["refine_cell_m"] = refine_cell_m
+    heatmap = grid.to_image(position_heatmap(posterior))
+    return Localization(grid, positions, yaws, posterior, heatmap, poses, search, timings)
+
+
+def _prior(
+    positions: np.ndarray, yaws: np.ndarray, position_prior: PositionPrior | None, prior_yaw_deg: float | None
+) -> np.ndarray | None:
+    if position_prior is None and prior_yaw_deg is None:
+        return None
+    prior = np.ones((len(positions), len(yaws)))
+    if position_prior is not None:
+        prior *= position_prior.weights(positions)[:, None]
+    if prior_yaw_deg is not None:
+        prior *= heading_prior(yaws, prior_yaw_deg)[None, :]
+    return prior
+
+
+def _refine(
+    city_map: CityMap,
+    image_model: ImageModel,
+    poses: list[RankedPose],
+    cell_m: float,
+    refine_cell_m: float,
+    yaws: np.ndarray,
+    use_identity: bool,
+    sigma_m: float,
+    normalization: str,
+) -> list[RankedPose]:
+    """Move each ranked position to the best of a finer grid within one coarse cell around it."""
+    n = int(np.floor(cell_m / 2.0 / refine_cell_m))
+    offsets = np.arange(-n, n + 1) * refine_cell_m
+    local = np.stack(np.meshgrid(offsets, offsets), axis=-1).reshape(-1, 2)
+    candidates = np.concatenate([local + [p.x_m, p.y_m] for p in poses])
+    owner = np.repeat(np.arange(len(poses)), len(local))
+    keep = ~city_map.inside_buildings(candidates)
+    candidates, owner = candidates[keep], owner[keep]
+    panoramas = cast_panoramas(city_map, candidates, bearing_step_deg=image_model.bin_deg)
+    lik = pose_likelihood(
+        panoramas, image_model, yaws, sigma_m=sigma_m, use_identity=use_identity, normalization=normalization
+    )
+    best_yaw = lik.argmax(axis=1)
+    score = lik.max(axis=1)
+    refined = []
+    for i, pose in enumerate(poses):
+        mine = np.flatnonzero(owner == i)
+        if len(mine) == 0:
+            refined.append(pose)
+            continue
+        j = mine[np.argmax(score[mine])]
+        refined.append(
+            RankedPose(
+                pose.rank,
+                float(candidates[j, 0]),
+                float(candidates[j, 1]),
+                float(yaws[best_yaw[j]]),
+                pose.probability,
+                pose.pose_probability,
+            )
+        )
+    return refined
