@@ -6,9 +6,10 @@ candidates x yaws (:func:`geoloc.likelihood.pose_likelihood`) becomes a posterio
 ``posterior ∝ prior * likelihood ** sharpness`` normalised over grid x yaws. ``sharpness`` = 1
 is the paper's plain normalisation; the likelihood is a similarity in [0, 1], not a calibrated
 density, and plain normalisation lets the many mediocre yaws of a position outweigh one excellent
-pose elsewhere, so the default sharpens it (``DEFAULT_SHARPNESS``). The heatmap is the posterior summed over yaws. The top-N
-poses are the most probable positions (heatmap) picked greedily with a minimum separation so that
-the N answers are distinct places; each carries the most probable yaw at that position.
+pose elsewhere, so the default sharpens it (``DEFAULT_SHARPNESS``). The heatmap is the posterior
+summed over yaws. The top-N poses are the most probable positions (heatmap) picked greedily with a
+minimum separation so that the N answers are distinct places; each carries the most probable yaw at
+that position.
 """
 
 from __future__ import annotations
