@@ -5,6 +5,10 @@ from __future__ import annotations
 import typer
 
 from cli import map as map_cmd
+from cli import serve as serve_cmd
+from cli import sim as sim_cmd
 
 app = typer.Typer(no_args_is_help=True, help="Map-based visual geolocation: maps, simulation, analysis, service.")
 app.add_typer(map_cmd.app, name="map")
+app.add_typer(sim_cmd.app, name="sim")
+serve_cmd.register(app)

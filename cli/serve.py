@@ -1,0 +1,77 @@
+"""``geoloc serve`` (API + workers) and ``geoloc worker`` (workers alone), both supervised."""
+
+from __future__ import annotations
+
+import logging
+
+import typer
+
+
+def serve(
+    host: str = typer.Option("127.0.0.1", help="Address to listen on (non-loopback needs GEOLOC_API_KEYS)."),
+    port: int = typer.Option(8000, help="Port to listen on."),
+    workers: int = typer.Option(2, "--workers", "-w", min=0, help="Worker processes to run beside the API."),
+    log_level: str = typer.Option("info", help="Log level (debug, info, warning, error)."),
+) -> None:
+    """Start the REST API and N worker processes; restart any that die; stop all on Ctrl-C/SIGTERM."""
+    from service.settings import SettingsError, is_loopback_host, load_settings
+    from workers.supervisor import Supervisor, api_spec, worker_spec
+
+    _setup_logging(log_level)
+    try:
+        settings = load_settings()
+    except SettingsError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    if not settings.auth_enabled and not is_loopback_host(host):
+        typer.echo(
+            f"error: refusing to listen on {host}: no API keys are configured. Set GEOLOC_API_KEYS "
+            "(e.g. 'mykey:read+write') or use a loopback host such as 127.0.0.1.",
+            err=True,
+        )
+        raise typer.Exit(2)
+    _prepare_database(settings.database_path)
+    typer.echo(f"geoloc: API on http://{host}:{port} with {workers} worker(s); data in {settings.data_dir}", err=True)
+    specs = [api_spec(host, port, log_level), *(worker_spec(i, log_level) for i in range(workers))]
+    raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
+
+
+def worker(
+    concurrency: int = typer.Option(1, "--concurrency", "-c", min=1, help="Worker processes to run."),
+    log_level: str = typer.Option("info", help="Log level (debug, info, warning, error)."),
+) -> None:
+    """Run worker processes alone against the database in GEOLOC_DATA_DIR (the API may run elsewhere)."""
+    from service.settings import SettingsError, load_settings
+    from workers.supervisor import Supervisor, worker_spec
+
+    _setup_logging(log_level)
+    try:
+        settings = load_settings()
+    except SettingsError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    _prepare_database(settings.database_path)
+    typer.echo(f"geoloc: {concurrency} worker(s) on {settings.database_path}", err=True)
+    specs = [worker_spec(i, log_level) for i in range(concurrency)]
+    raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
+
+
+def _setup_logging(level: str) -> None:
+    logging.basicConfig(level=level.upper(), format="%(asctime)s %(levelname)s [supervisor] %(message)s")
+
+
+def _prepare_database(path: object) -> None:
+    """Apply migrations once before the children start (they re-check, idempotently)."""
+    from db import connect, migrate
+
+    db = connect(path)  # type: ignore[arg-type]
+    try:
+        migrate(db)
+    finally:
+        db.close()
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``serve`` and ``worker`` to the root command."""
+    app.command("serve")(serve)
+    app.command("worker")(worker)

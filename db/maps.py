@@ -1,0 +1,216 @@
+"""Maps, their buildings and facades.
+
+A map row holds the source file's path (relative to ``GEOLOC_DATA_DIR``, kept so that workers can
+reload the full :class:`geoloc.osm.CityMap` with ``geoloc.osm.load_map``), checksum, WGS84 bounding
+box, the local frame's origin, counts and the loader's repair report. Buildings are rows (footprint
+as WGS84 GeoJSON for the API and local-frame WKB for the method). Facades are one compressed npz
+blob per map with the arrays of :class:`geoloc.osm.Facades` (start, end, normal,
+normal_bearing_deg, length_m, building_id).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+import sqlite_utils
+
+from db.blobs import pack_arrays, unpack_arrays
+
+
+@dataclass
+class BuildingRow:
+    """One building as stored."""
+
+    building_id: int
+    osm_id: str | None
+    name: str | None
+    height_m: float | None
+    footprint_geojson: dict[str, Any]
+    footprint_local_wkb: bytes | None = None
+
+
+@dataclass
+class MapContent:
+    """What a loaded map contributes to the database (built by :func:`map_content_from_city_map`)."""
+
+    bbox_wgs84: tuple[float, float, float, float]  # min_lat, min_lon, max_lat, max_lon
+    origin_lat: float
+    origin_lon: float
+    buildings: list[BuildingRow]
+    facade_arrays: dict[str, np.ndarray]
+    repair_report: dict[str, Any]
+
+
+def map_content_from_city_map(city_map: Any) -> MapContent:
+    """Convert a ``geoloc.osm.CityMap`` into rows (duck-typed: db does not import geoloc)."""
+    import shapely
+    from shapely.geometry import mapping
+
+    frame = city_map.frame
+
+    def to_wgs84(coords: np.ndarray) -> np.ndarray:
+        lat, lon = frame.to_wgs84(coords[:, 0], coords[:, 1])
+        return np.round(np.column_stack([lon, lat]), 7)
+
+    buildings = [
+        BuildingRow(
+            building_id=int(b.building_id),
+            osm_id=str(b.osm_id) if b.osm_id is not None else None,
+            name=b.name,
+            height_m=float(b.height_m) if b.height_m is not None else None,
+            footprint_geojson=mapping(shapely.transform(b.polygon, to_wgs84)),
+            footprint_local_wkb=shapely.to_wkb(b.polygon),
+        )
+        for b in city_map.buildings
+    ]
+    facades = city_map.facades
+    facade_arrays = {f.name: np.asarray(getattr(facades, f.name)) for f in fields(facades)}
+    report = city_map.report.as_dict() if hasattr(city_map.report, "as_dict") else dict(city_map.report)
+    return MapContent(
+        bbox_wgs84=tuple(float(v) for v in city_map.bbox_wgs84),  # type: ignore[arg-type]
+        origin_lat=float(frame.origin_lat),
+        origin_lon=float(frame.origin_lon),
+        buildings=buildings,
+        facade_arrays=facade_arrays,
+        repair_report=report,
+    )
+
+
+def _decode_map(row: dict[str, Any]) -> dict[str, Any]:
+    row = dict(row)
+    row["repair_report"] = json.loads(row["repair_report"] or "{}")
+    row["bbox_wgs84"] = (row["min_lat"], row["min_lon"], row["max_lat"], row["max_lon"])
+    return row
+
+
+def insert_map(
+    db: sqlite_utils.Database,
+    *,
+    name: str,
+    source_filename: str,
+    source_format: str,
+    source_path: str,
+    sha256: str,
+    size_bytes: int,
+    content: MapContent,
+) -> int:
+    """Insert a map with its buildings and facades; returns the map id. Call inside a transaction."""
+    min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
+    facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
+    cursor = db.execute(
+        "INSERT INTO maps (name, source_filename, source_format, source_path, sha256, size_bytes,"
+        " min_lat, min_lon, max_lat, max_lon, origin_lat, origin_lon, building_count, facade_count,"
+        " repair_report, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        (
+            name,
+            source_filename,
+            source_format,
+            source_path,
+            sha256,
+            size_bytes,
+            min_lat,
+            min_lon,
+            max_lat,
+            max_lon,
+            content.origin_lat,
+            content.origin_lon,
+            len(content.buildings),
+            facade_count,
+            json.dumps(content.repair_report),
+            time.time(),
+        ),
+    )
+    map_id = int(cursor.lastrowid)
+    db.conn.executemany(
+        "INSERT INTO buildings (map_id, building_id, osm_id, name, height_m, footprint_geojson,"
+        " footprint_local_wkb) VALUES (?, ?, ?, ?, ?, ?, ?)",
+        [
+            (
+                map_id,
+                b.building_id,
+                b.osm_id,
+                b.name,
+                b.height_m,
+                json.dumps(b.footprint_geojson),
+                b.footprint_local_wkb,
+            )
+            for b in content.buildings
+        ],
+    )
+    db.execute(
+        "INSERT INTO facades (map_id, facade_count, arrays_npz) VALUES (?, ?, ?)",
+        (map_id, facade_count, pack_arrays(content.facade_arrays)),
+    )
+    return map_id
+
+
+def get_map(db: sqlite_utils.Database, map_id: int) -> dict[str, Any] | None:
+    """One map row (decoded), or None."""
+    rows = list(db.query("SELECT * FROM maps WHERE id = ?", (map_id,)))
+    return _decode_map(rows[0]) if rows else None
+
+
+def find_map_by_sha256(db: sqlite_utils.Database, sha256: str) -> dict[str, Any] | None:
+    """The oldest map uploaded from a file with this checksum, or None."""
+    rows = list(db.query("SELECT * FROM maps WHERE sha256 = ? ORDER BY id LIMIT 1", (sha256,)))
+    return _decode_map(rows[0]) if rows else None
+
+
+def list_maps(db: sqlite_utils.Database) -> list[dict[str, Any]]:
+    """All maps, oldest first."""
+    return [_decode_map(row) for row in db.query("SELECT * FROM maps ORDER BY id")]
+
+
+def map_reference_counts(db: sqlite_utils.Database, map_id: int) -> dict[str, int]:
+    """Number of references of a map per status."""
+    rows = db.query("SELECT status, COUNT(*) AS n FROM reference_images WHERE map_id = ? GROUP BY status", (map_id,))
+    return {row["status"]: int(row["n"]) for row in rows}
+
+
+def list_buildings(db: sqlite_utils.Database, map_id: int) -> list[dict[str, Any]]:
+    """Buildings of a map (footprint GeoJSON decoded; no WKB), by building id."""
+    rows = db.query(
+        "SELECT building_id, osm_id, name, height_m, footprint_geojson FROM buildings"
+        " WHERE map_id = ? ORDER BY building_id",
+        (map_id,),
+    )
+    out = []
+    for row in rows:
+        row = dict(row)
+        row["footprint_geojson"] = json.loads(row["footprint_geojson"])
+        out.append(row)
+    return out
+
+
+def get_facade_arrays(db: sqlite_utils.Database, map_id: int) -> dict[str, np.ndarray] | None:
+    """The facade arrays of a map, or None."""
+    row = db.execute("SELECT arrays_npz FROM facades WHERE map_id = ?", (map_id,)).fetchone()
+    return unpack_arrays(row[0]) if row else None
+
+
+def delete_map(db: sqlite_utils.Database, map_id: int) -> dict[str, Any] | None:
+    """Delete a map and everything under it (buildings, facades, references, labels, index,
+    queries cascade; queued jobs are cancelled). Returns the deleted map row and the image paths
+    to remove from disk after commit, or None. Call inside a transaction."""
+    map_row = get_map(db, map_id)
+    if map_row is None:
+        return None
+    image_paths = [
+        r["image_path"] for r in db.query("SELECT image_path FROM reference_images WHERE map_id = ?", (map_id,))
+    ]
+    image_paths += [
+        r["image_path"]
+        for r in db.query("SELECT image_path FROM queries WHERE map_id = ? AND image_path IS NOT NULL", (map_id,))
+    ]
+    now = time.time()
+    db.execute(
+        "UPDATE jobs SET status = 'cancelled', updated_at = ?, finished_at = ? WHERE map_id = ? AND status = 'queued'",
+        (now, now, map_id),
+    )
+    db.execute("DELETE FROM maps WHERE id = ?", (map_id,))
+    map_row["image_paths"] = image_paths
+    return map_row

@@ -1,0 +1,217 @@
+"""Numbered schema migrations, applied in order at start (idempotent).
+
+The applied version is ``PRAGMA user_version``; ``schema_migrations`` records when each one ran.
+A migration is applied inside one ``BEGIN IMMEDIATE`` transaction together with the version bump,
+so concurrent starters (API and workers) cannot apply the same migration twice.
+
+Storage decisions (see also the module docstrings of the access modules):
+
+- ``reference_images`` is the table for references (``references`` is an SQL keyword).
+- Facades are stored as one compressed ``numpy.savez_compressed`` blob per map (``facades``),
+  not as rows: the method always needs all facades of a map at once, as arrays.
+- Labels, keypoints and the vocabulary are blobs (``.npz``); the inverted index is a real table
+  ``sbow_postings(map_id, word_id, reference_id, weight)`` whose rows cascade from the
+  reference, so adding or deleting a reference keeps the index consistent in one transaction.
+- Times are Unix seconds (REAL, UTC).
+"""
+
+from __future__ import annotations
+
+import time
+
+import sqlite_utils
+
+from db.connection import transaction
+
+MIGRATIONS: list[tuple[int, str, str]] = [
+    (
+        1,
+        "initial schema",
+        """
+        CREATE TABLE maps (
+            id INTEGER PRIMARY KEY AUTOINCREMENT,
+            name TEXT NOT NULL,
+            source_filename TEXT NOT NULL,
+            source_format TEXT NOT NULL,
+            source_path TEXT NOT NULL,
+            sha256 TEXT NOT NULL,
+            size_bytes INTEGER NOT NULL,
+            min_lat REAL NOT NULL, min_lon REAL NOT NULL, max_lat REAL NOT NULL, max_lon REAL NOT NULL,
+            origin_lat REAL NOT NULL, origin_lon REAL NOT NULL,
+            building_count INTEGER NOT NULL,
+            facade_count INTEGER NOT NULL,
+            repair_report TEXT NOT NULL DEFAULT '{}',
+            created_at REAL NOT NULL
+        );
+        CREATE INDEX maps_sha256 ON maps(sha256);
+
+        CREATE TABLE buildings (
+            map_id INTEGER NOT NULL REFERENCES maps(id) ON DELETE CASCADE,
+            building_id INTEGER NOT NULL,
+            osm_id TEXT,
+            name TEXT,
+            height_m REAL,
+            footprint_geojson TEXT NOT NULL,
+            footprint_local_wkb BLOB,
+            PRIMARY KEY (map_id, building_id)
+        ) WITHOUT ROWID;
+
+        CREATE TABLE facades (
+            map_id INTEGER PRIMARY KEY REFERENCES maps(id) ON DELETE CASCADE,
+            facade_count INTEGER NOT NULL,
+            arrays_npz BLOB NOT NULL
+        );
+
+        CREATE TABLE jobs (
+            id INTEGER PRIMARY KEY AUTOINCREMENT,
+            kind TEXT NOT NULL,
+            payload TEXT NOT NULL DEFAULT '{}',
+            status TEXT NOT NULL DEFAULT 'queued'
+                CHECK (status IN ('queued', 'running', 'done', 'failed', 'cancelled')),
+            priority INTEGER NOT NULL DEFAULT 0,
+            attempts INTEGER NOT NULL DEFAULT 0,
+            max_attempts INTEGER NOT NULL DEFAULT 3,
+            run_after REAL NOT NULL DEFAULT 0,
+            lease_owner TEXT,
+            lease_expires_at REAL,
+            heartbeat_at REAL,
+            map_id INTEGER,
+            reference_id INTEGER,
+            result TEXT,
+            error TEXT,
+            created_at REAL NOT NULL,
+            updated_at REAL NOT NULL,
+            started_at REAL,
+            finished_at REAL
+        );
+        CREATE INDEX jobs_claimable ON jobs(status, run_after, priority, id);
+        CREATE INDEX jobs_reference ON jobs(reference_id);
+        CREATE INDEX jobs_map ON jobs(map_id);
+
+        CREATE TABLE workers (
+            worker_id TEXT PRIMARY KEY,
+            pid INTEGER NOT NULL,
+            hostname TEXT NOT NULL,
+            started_at REAL NOT NULL,
+            heartbeat_at REAL NOT NULL,
+            current_job_id INTEGER,
+            stopped_at REAL
+        );
+
+        CREATE TABLE reference_images (
+            id INTEGER PRIMARY KEY AUTOINCREMENT,
+            map_id INTEGER NOT NULL REFERENCES maps(id) ON DELETE CASCADE,
+            image_path TEXT NOT NULL,
+            original_filename TEXT,
+            sha256 TEXT NOT NULL,
+            size_bytes INTEGER NOT NULL,
+            image_format TEXT NOT NULL,
+            width INTEGER NOT NULL,
+            height INTEGER NOT NULL,
+            gps_lat REAL NOT NULL,
+            gps_lon REAL NOT NULL,
+            position_source TEXT NOT NULL CHECK (position_source IN ('exif', 'request')),
+            prior_heading_deg REAL,
+            focal_length_35mm REAL,
+            status TEXT NOT NULL DEFAULT 'queued'
+                CHECK (status IN ('queued', 'processing', 'done', 'failed')),
+            job_id INTEGER,
+            estimated_lat REAL,
+            estimated_lon REAL,
+            estimated_heading_deg REAL,
+            buildings_seen TEXT,
+            timings TEXT,
+            error TEXT,
+            created_at REAL NOT NULL,
+            updated_at REAL NOT NULL,
+            UNIQUE (map_id, sha256)
+        );
+
+        CREATE TABLE labels (
+            reference_id INTEGER PRIMARY KEY REFERENCES reference_images(id) ON DELETE CASCADE,
+            identity_npz BLOB NOT NULL,
+            created_at REAL NOT NULL
+        );
+
+        CREATE TABLE keypoints (
+            reference_id INTEGER PRIMARY KEY REFERENCES reference_images(id) ON DELETE CASCADE,
+            keypoint_count INTEGER NOT NULL,
+            arrays_npz BLOB NOT NULL,
+            created_at REAL NOT NULL
+        );
+
+        CREATE TABLE vocabularies (
+            map_id INTEGER PRIMARY KEY REFERENCES maps(id) ON DELETE CASCADE,
+            word_count INTEGER NOT NULL,
+            arrays_npz BLOB NOT NULL,
+            created_at REAL NOT NULL
+        );
+
+        CREATE TABLE sbow_documents (
+            reference_id INTEGER PRIMARY KEY REFERENCES reference_images(id) ON DELETE CASCADE,
+            map_id INTEGER NOT NULL REFERENCES maps(id) ON DELETE CASCADE,
+            word_total REAL NOT NULL,
+            created_at REAL NOT NULL
+        );
+        CREATE INDEX sbow_documents_map ON sbow_documents(map_id);
+
+        CREATE TABLE sbow_postings (
+            map_id INTEGER NOT NULL,
+            word_id INTEGER NOT NULL,
+            reference_id INTEGER NOT NULL REFERENCES sbow_documents(reference_id) ON DELETE CASCADE,
+            weight REAL NOT NULL,
+            PRIMARY KEY (map_id, word_id, reference_id)
+        ) WITHOUT ROWID;
+        CREATE INDEX sbow_postings_reference ON sbow_postings(reference_id);
+
+        CREATE TABLE queries (
+            id INTEGER PRIMARY KEY AUTOINCREMENT,
+            map_id INTEGER NOT NULL REFERENCES maps(id) ON DELETE CASCADE,
+            image_path TEXT,
+            sha256 TEXT,
+            params TEXT NOT NULL DEFAULT '{}',
+            status TEXT NOT NULL DEFAULT 'queued'
+                CHECK (status IN ('queued', 'processing', 'done', 'failed')),
+            job_id INTEGER,
+            result TEXT,
+            error TEXT,
+            created_at REAL NOT NULL,
+            updated_at REAL NOT NULL
+        );
+        CREATE INDEX queries_map ON queries(map_id);
+        """,
+    ),
+]
+
+LATEST_VERSION = MIGRATIONS[-1][0]
+
+
+def schema_version(db: sqlite_utils.Database) -> int:
+    """The applied schema version (``PRAGMA user_version``; 0 for a new database)."""
+    return int(db.execute("PRAGMA user_version").fetchone()[0])
+
+
+def _split_statements(script: str) -> list[str]:
+    return [statement.strip() for statement in script.split(";") if statement.strip()]
+
+
+def migrate(db: sqlite_utils.Database) -> int:
+    """Apply every migration newer than the database's version; returns the version after."""
+    db.execute(
+        "CREATE TABLE IF NOT EXISTS schema_migrations ("
+        "version INTEGER PRIMARY KEY, name TEXT NOT NULL, applied_at REAL NOT NULL)"
+    )
+    for version, name, script in MIGRATIONS:
+        if schema_version(db) >= version:
+            continue
+        with transaction(db):
+            if schema_version(db) >= version:  # another process won the race
+                continue
+            for statement in _split_statements(script):
+                db.execute(statement)
+            db.execute(
+                "INSERT INTO schema_migrations (version, name, applied_at) VALUES (?, ?, ?)",
+                (version, name, time.time()),
+            )
+            db.execute(f"PRAGMA user_version = {int(version)}")
+    return schema_version(db)

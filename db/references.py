@@ -1,0 +1,193 @@
+"""Reference photos (table ``reference_images``), their labels and keypoints.
+
+The image file lives at ``GEOLOC_DATA_DIR/<image_path>`` (``images/<map_id>/<sha256>.<ext>``);
+``(map_id, sha256)`` is unique. ``status`` is written by the method's handler (``done``) or the
+worker machinery; the API reports the job's state while the reference is not finished
+(:func:`effective_status`). Labels and keypoints are npz blobs, replaced as a whole so that a
+re-run of a job (after a crash) overwrites rather than duplicates.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any
+
+import numpy as np
+import sqlite_utils
+
+from db.blobs import pack_arrays, unpack_arrays
+
+_JSON_COLUMNS = ("buildings_seen", "timings")
+
+
+def _decode(row: dict[str, Any]) -> dict[str, Any]:
+    row = dict(row)
+    for column in _JSON_COLUMNS:
+        row[column] = json.loads(row[column]) if row.get(column) else None
+    return row
+
+
+def insert_reference(
+    db: sqlite_utils.Database,
+    *,
+    map_id: int,
+    image_path: str,
+    original_filename: str | None,
+    sha256: str,
+    size_bytes: int,
+    image_format: str,
+    width: int,
+    height: int,
+    gps_lat: float,
+    gps_lon: float,
+    position_source: str,
+    prior_heading_deg: float | None = None,
+    focal_length_35mm: float | None = None,
+) -> int:
+    """Insert a queued reference; returns its id. Call inside a transaction."""
+    now = time.time()
+    cursor = db.execute(
+        "INSERT INTO reference_images (map_id, image_path, original_filename, sha256, size_bytes,"
+        " image_format, width, height, gps_lat, gps_lon, position_source, prior_heading_deg,"
+        " focal_length_35mm, status, created_at, updated_at)"
+        " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'queued', ?, ?)",
+        (
+            map_id,
+            image_path,
+            original_filename,
+            sha256,
+            size_bytes,
+            image_format,
+            width,
+            height,
+            gps_lat,
+            gps_lon,
+            position_source,
+            prior_heading_deg,
+            focal_length_35mm,
+            now,
+            now,
+        ),
+    )
+    return int(cursor.lastrowid)
+
+
+def set_reference_job(db: sqlite_utils.Database, reference_id: int, job_id: int) -> None:
+    """Link a reference to the job that processes it."""
+    db.execute(
+        "UPDATE reference_images SET job_id = ?, updated_at = ? WHERE id = ?",
+        (job_id, time.time(), reference_id),
+    )
+
+
+def get_reference(db: sqlite_utils.Database, reference_id: int) -> dict[str, Any] | None:
+    """One reference (JSON columns decoded), or None."""
+    rows = list(db.query("SELECT * FROM reference_images WHERE id = ?", (reference_id,)))
+    return _decode(rows[0]) if rows else None
+
+
+def find_reference_by_sha256(db: sqlite_utils.Database, map_id: int, sha256: str) -> dict[str, Any] | None:
+    """The reference of this map with this image checksum, or None."""
+    rows = list(db.query("SELECT * FROM reference_images WHERE map_id = ? AND sha256 = ?", (map_id, sha256)))
+    return _decode(rows[0]) if rows else None
+
+
+def list_references(db: sqlite_utils.Database, map_id: int, *, status: str | None = None) -> list[dict[str, Any]]:
+    """References of a map, oldest first, optionally of one status."""
+    if status is None:
+        rows = db.query("SELECT * FROM reference_images WHERE map_id = ? ORDER BY id", (map_id,))
+    else:
+        rows = db.query("SELECT * FROM reference_images WHERE map_id = ? AND status = ? ORDER BY id", (map_id, status))
+    return [_decode(row) for row in rows]
+
+
+def update_reference_result(
+    db: sqlite_utils.Database,
+    reference_id: int,
+    *,
+    status: str,
+    estimated_lat: float | None = None,
+    estimated_lon: float | None = None,
+    estimated_heading_deg: float | None = None,
+    buildings_seen: list[dict[str, Any]] | None = None,
+    timings: dict[str, float] | None = None,
+    error: str | None = None,
+) -> bool:
+    """Write the outcome of processing a reference; False if it no longer exists."""
+    cursor = db.execute(
+        "UPDATE reference_images SET status = ?, estimated_lat = ?, estimated_lon = ?,"
+        " estimated_heading_deg = ?, buildings_seen = ?, timings = ?, error = ?, updated_at = ?"
+        " WHERE id = ?",
+        (
+            status,
+            estimated_lat,
+            estimated_lon,
+            estimated_heading_deg,
+            json.dumps(buildings_seen) if buildings_seen is not None else None,
+            json.dumps(timings) if timings is not None else None,
+            error,
+            time.time(),
+            reference_id,
+        ),
+    )
+    return cursor.rowcount == 1
+
+
+def effective_status(reference: dict[str, Any], job: dict[str, Any] | None) -> tuple[str, str | None]:
+    """The status to report for a reference, from its row and its job: (status, error)."""
+    if reference["status"] in ("done", "failed") or job is None:
+        return reference["status"], reference.get("error")
+    if job["status"] == "running":
+        return "processing", None
+    if job["status"] in ("failed", "cancelled"):
+        return "failed", job.get("error") or f"job {job['status']}"
+    if job["status"] == "queued" and job.get("attempts", 0) > 0:
+        return "queued", job.get("error")  # waiting for a retry: show the last error
+    return reference["status"], reference.get("error")
+
+
+def delete_reference(db: sqlite_utils.Database, reference_id: int) -> dict[str, Any] | None:
+    """Delete a reference with its labels, keypoints and index postings (cascade) and cancel its
+    queued jobs. Returns the deleted row (its ``image_path`` is to be removed after commit), or
+    None. Call inside a transaction."""
+    row = get_reference(db, reference_id)
+    if row is None:
+        return None
+    now = time.time()
+    db.execute(
+        "UPDATE jobs SET status = 'cancelled', updated_at = ?, finished_at = ?"
+        " WHERE reference_id = ? AND status = 'queued'",
+        (now, now, reference_id),
+    )
+    db.execute("DELETE FROM reference_images WHERE id = ?", (reference_id,))
+    return row
+
+
+def save_labels(db: sqlite_utils.Database, reference_id: int, arrays: dict[str, np.ndarray]) -> None:
+    """Store (replace) a reference's identity map arrays."""
+    db.execute(
+        "INSERT OR REPLACE INTO labels (reference_id, identity_npz, created_at) VALUES (?, ?, ?)",
+        (reference_id, pack_arrays(arrays), time.time()),
+    )
+
+
+def load_labels(db: sqlite_utils.Database, reference_id: int) -> dict[str, np.ndarray] | None:
+    """A reference's identity map arrays, or None."""
+    row = db.execute("SELECT identity_npz FROM labels WHERE reference_id = ?", (reference_id,)).fetchone()
+    return unpack_arrays(row[0]) if row else None
+
+
+def save_keypoints(db: sqlite_utils.Database, reference_id: int, arrays: dict[str, np.ndarray]) -> None:
+    """Store (replace) a reference's keypoints: positions, descriptors, identity probabilities."""
+    count = len(next(iter(arrays.values()))) if arrays else 0
+    db.execute(
+        "INSERT OR REPLACE INTO keypoints (reference_id, keypoint_count, arrays_npz, created_at) VALUES (?, ?, ?, ?)",
+        (reference_id, count, pack_arrays(arrays), time.time()),
+    )
+
+
+def load_keypoints(db: sqlite_utils.Database, reference_id: int) -> dict[str, np.ndarray] | None:
+    """A reference's keypoint arrays, or None."""
+    row = db.execute("SELECT arrays_npz FROM keypoints WHERE reference_id = ?", (reference_id,)).fetchone()
+    return unpack_arrays(row[0]) if row else None

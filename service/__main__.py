@@ -1,0 +1,49 @@
+"""``python -m service --host H --port P``: run the API with uvicorn (the supervisor starts this)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import threading
+import time
+
+from service.settings import is_loopback_host, load_settings
+
+
+def _watch_parent(parent_pid: int) -> None:
+    """Stop this process (SIGTERM to self) if the supervisor that started it disappears."""
+    while os.getppid() == parent_pid:
+        time.sleep(1.0)
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Check the host against the auth policy, then serve."""
+    parser = argparse.ArgumentParser(prog="python -m service", description="Run the geoloc API.")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--port", type=int, default=8000)
+    parser.add_argument("--log-level", default="info")
+    args = parser.parse_args(argv)
+    settings = load_settings()
+    if not settings.auth_enabled and not is_loopback_host(args.host):
+        print(
+            f"refusing to bind to {args.host}: no API keys are configured (GEOLOC_API_KEYS), "
+            "so the service may only listen on a loopback address such as 127.0.0.1",
+            file=sys.stderr,
+        )
+        return 2
+    parent = os.environ.get("GEOLOC_SUPERVISOR_PID")
+    if parent:
+        threading.Thread(target=_watch_parent, args=(int(parent),), daemon=True).start()
+    import uvicorn
+
+    from service.app import create_app
+
+    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

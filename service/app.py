@@ -1,0 +1,145 @@
+"""The FastAPI application: settings, migrations at start, body-size guard, errors, routes."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI
+
+from db import connect, migrate
+from db.stats import stored_file_paths
+from service.errors import error_body, install_error_handlers
+from service.settings import Settings, load_settings
+from service.uploads import clean_orphan_files, clean_stale_temp_files
+
+log = logging.getLogger("geoloc.api")
+
+FORM_OVERHEAD_BYTES = 64 * 1024
+"""Allowance for multipart headers and text fields on top of a file's size limit."""
+
+
+class BodySizeLimit:
+    """Pure ASGI middleware: answer 413 when a request body exceeds the limit for its path,
+    from ``Content-Length`` up front or while streaming (chunked uploads)."""
+
+    def __init__(self, app: Any, limit_for_path: Callable[[str], int]) -> None:
+        self.app = app
+        self.limit_for_path = limit_for_path
+
+    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        limit = self.limit_for_path(scope["path"])
+        headers = dict(scope.get("headers") or [])
+        declared = headers.get(b"content-length")
+        message = f"request body is larger than the limit of {limit} bytes"
+        if declared is not None and declared.isdigit() and int(declared) > limit:
+            await self._drain(receive, int(declared))
+            await self._send_413(send, message, limit)
+            return
+        received = 0
+        too_large = False
+        response_started = False
+
+        async def limited_receive() -> dict:
+            nonlocal received, too_large
+            event = await receive()
+            if event["type"] == "http.request":
+                received += len(event.get("body", b""))
+                if received > limit:
+                    too_large = True
+                    return {"type": "http.disconnect"}
+            return event
+
+        async def guarded_send(event: dict) -> None:
+            nonlocal response_started
+            if too_large:
+                if not response_started and event["type"] == "http.response.start":
+                    response_started = True
+                    await self._send_413(send, message, limit)
+                return
+            response_started = response_started or event["type"] == "http.response.start"
+            await send(event)
+
+        try:
+            await self.app(scope, limited_receive, guarded_send)
+        except Exception:
+            if too_large and not response_started:
+                await self._send_413(send, message, limit)
+                return
+            raise
+
+    @staticmethod
+    async def _drain(receive: Callable, declared: int, cap: int = 1 << 30) -> None:
+        """Read and discard a rejected body (up to ``cap``) so the client sees the 413, not a reset."""
+        if declared > cap:
+            return
+        while True:
+            event = await receive()
+            if event["type"] != "http.request" or not event.get("more_body", False):
+                return
+
+    @staticmethod
+    async def _send_413(send: Callable, message: str, limit: int) -> None:
+        body = json.dumps(error_body("payload_too_large", message, {"limit_bytes": limit})).encode()
+        await send(
+            {
+                "type": "http.response.start",
+                "status": 413,
+                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())],
+            }
+        )
+        await send({"type": "http.response.body", "body": body})
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the application (``uvicorn --factory service.app:create_app``)."""
+    settings = settings or load_settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        db = connect(settings.database_path)
+        try:
+            version = migrate(db)
+            referenced = stored_file_paths(db)
+        finally:
+            db.close()
+        removed = clean_stale_temp_files(settings.data_dir) + clean_orphan_files(settings.data_dir, referenced)
+        log.info("database %s at schema version %d (%d stale files removed)", settings.database_path, version, removed)
+        yield
+
+    app = FastAPI(
+        title="geoloc",
+        version="1",
+        summary="Map-based visual geolocation: where was this photo taken, and which way did it look?",
+        description=(
+            "Upload a map (OpenStreetMap or GeoJSON buildings), ingest geo-tagged reference photos, "
+            "then query photos for their position, heading and the buildings they show. "
+            'Errors always have the body `{"error": {"code", "message", "details"}}`.'
+        ),
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    install_error_handlers(app)
+
+    def limit_for_path(path: str) -> int:
+        path = path.rstrip("/")
+        if path == "/v1/maps":
+            return settings.max_map_bytes + FORM_OVERHEAD_BYTES
+        if path.startswith("/v1/maps/") and path.endswith(("/references", "/queries")):
+            return settings.max_image_bytes + FORM_OVERHEAD_BYTES
+        return max(settings.max_map_bytes, settings.max_image_bytes) + FORM_OVERHEAD_BYTES
+
+    app.add_middleware(BodySizeLimit, limit_for_path=limit_for_path)
+
+    from service import routes_maps, routes_references, routes_system
+
+    app.include_router(routes_system.router)
+    app.include_router(routes_maps.router)
+    app.include_router(routes_references.router)
+    return app

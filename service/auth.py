@@ -1,0 +1,47 @@
+"""API keys (``X-API-Key``) with scopes ``read`` and ``write``; off when no keys are configured."""
+
+from __future__ import annotations
+
+import hmac
+from collections.abc import Callable
+
+from fastapi import Depends, Request
+from fastapi.security import APIKeyHeader
+
+from service.errors import ApiError
+from service.settings import Settings
+
+api_key_header = APIKeyHeader(
+    name="X-API-Key",
+    auto_error=False,
+    description="API key; scope `write` for maps and references, `read` for the rest",
+)
+
+
+def _scopes_of(settings: Settings, presented: str) -> frozenset[str] | None:
+    for key, scopes in settings.api_keys.items():
+        if hmac.compare_digest(key.encode(), presented.encode()):
+            return scopes
+    return None
+
+
+def require_scope(scope: str) -> Callable[..., None]:
+    """A dependency that admits requests whose key has ``scope`` (everyone when auth is off)."""
+
+    def dependency(request: Request, api_key: str | None = Depends(api_key_header)) -> None:
+        settings: Settings = request.app.state.settings
+        if not settings.auth_enabled:
+            return
+        if not api_key:
+            raise ApiError(401, "unauthorized", "missing API key: send it in the X-API-Key header")
+        scopes = _scopes_of(settings, api_key)
+        if scopes is None:
+            raise ApiError(401, "unauthorized", "invalid API key")
+        if scope not in scopes:
+            raise ApiError(403, "forbidden", f"this API key lacks the '{scope}' scope")
+
+    return dependency
+
+
+require_read = require_scope("read")
+require_write = require_scope("write")

@@ -1,0 +1,92 @@
+"""Checking an uploaded photo by its content (Pillow) and reading its EXIF (``geoloc.exif``)."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+from PIL import Image, UnidentifiedImageError
+
+from geoloc.exif import read_exif
+from service.errors import ApiError
+
+ACCEPTED_FORMATS = {"JPEG": "jpg", "MPO": "jpg", "PNG": "png", "WEBP": "webp", "TIFF": "tif"}
+"""Pillow format -> stored file extension. MPO is how Pillow names multi-picture phone JPEGs."""
+
+
+@dataclass
+class ImageInfo:
+    """What the service needs from a validated photo."""
+
+    format: str
+    extension: str
+    width: int
+    height: int
+    gps_lat: float | None = None
+    gps_lon: float | None = None
+    focal_length_35mm: float | None = None
+    heading_deg: float | None = None
+
+
+def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
+    """Open, size-check and fully decode the image; raise :class:`ApiError` with the reason.
+
+    Not an image (or an unsupported format) -> 415; more than ``max_pixels`` (checked from the
+    header, before decoding) -> 413; smaller than ``min_side`` or truncated/corrupt -> 422.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", Image.DecompressionBombWarning)
+        try:
+            image = Image.open(path)
+        except UnidentifiedImageError as exc:
+            raise ApiError(415, "not_an_image", "the uploaded file is not an image Pillow can read") from exc
+        except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+            raise ApiError(413, "too_many_pixels", f"image rejected as a decompression bomb: {exc}") from exc
+        except OSError as exc:
+            raise ApiError(422, "corrupt_image", f"the image cannot be read: {exc}") from exc
+    with image:
+        if image.format not in ACCEPTED_FORMATS:
+            raise ApiError(
+                415,
+                "unsupported_image_format",
+                f"image format {image.format} is not accepted (accepted: JPEG, PNG, WEBP, TIFF)",
+            )
+        width, height = image.size
+        if width * height > max_pixels:
+            raise ApiError(
+                413,
+                "too_many_pixels",
+                f"image has {width}x{height} = {width * height} pixels, more than the limit of {max_pixels}",
+                {"width": width, "height": height, "limit_pixels": max_pixels},
+            )
+        if min(width, height) < min_side:
+            raise ApiError(
+                422, "image_too_small", f"image is {width}x{height}; both sides must be at least {min_side} pixels"
+            )
+        info = ImageInfo(image.format, ACCEPTED_FORMATS[image.format], width, height)
+        _read_exif_into(path, info)
+        try:
+            image.load()
+        except (OSError, SyntaxError, ValueError) as exc:
+            raise ApiError(422, "corrupt_image", f"the image data is truncated or corrupt: {exc}") from exc
+    return info
+
+
+def _read_exif_into(path: Path, info: ImageInfo) -> None:
+    """Fill GPS position, 35 mm focal length and heading (GPSImgDirection) from EXIF, when present."""
+    exif = read_exif(path)
+    info.gps_lat, info.gps_lon = (exif.lat, exif.lon) if exif.has_gps else (None, None)
+    info.focal_length_35mm = exif.focal_35mm
+    info.heading_deg = exif.heading_deg
+
+
+def distance_outside_bbox_m(lat: float, lon: float, bbox: tuple[float, float, float, float]) -> float:
+    """Metres from a point to a WGS84 bounding box (0 inside); equirectangular, fine at city scale."""
+    min_lat, min_lon, max_lat, max_lon = bbox
+    d_lat = max(min_lat - lat, 0.0, lat - max_lat)
+    d_lon = max(min_lon - lon, 0.0, lon - max_lon)
+    metres_per_deg_lat = 111_132.0
+    metres_per_deg_lon = 111_320.0 * math.cos(math.radians(min(max(lat, min_lat), max_lat)))
+    return math.hypot(d_lat * metres_per_deg_lat, d_lon * metres_per_deg_lon)

@@ -1,0 +1,214 @@
+"""References: geo-tagged photos of a map, labelled by the ``label_reference`` job."""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Annotated, Any
+
+import sqlite_utils
+from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
+from fastapi.responses import JSONResponse
+
+from db import jobs as job_store
+from db import references as reference_store
+from db import transaction
+from service.auth import require_read, require_write
+from service.deps import get_db, get_settings
+from service.errors import ApiError
+from service.images import distance_outside_bbox_m, validate_image
+from service.models import ErrorResponse, EstimatedPose, Position, ReferenceAccepted, ReferenceOut, timestamp
+from service.routes_maps import require_map
+from service.settings import Settings
+from service.uploads import move_into_place, receive_upload, remove_quietly
+
+log = logging.getLogger("geoloc.api")
+router = APIRouter(tags=["references"])
+_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 413, 415, 422)}
+
+
+def _check_number(name: str, value: float | None, low: float, high: float) -> None:
+    if value is not None and not (math.isfinite(value) and low <= value <= high):
+        raise ApiError(422, "invalid_request", f"{name} must be between {low} and {high}, got {value}")
+
+
+def resolve_position(
+    lat: float | None, lon: float | None, exif_lat: float | None, exif_lon: float | None
+) -> tuple[float, float, str]:
+    """The reference's position: the request's lat/lon if given, else EXIF GPS, else 422."""
+    if (lat is None) != (lon is None):
+        raise ApiError(422, "invalid_request", "give both lat and lon, or neither (to use the photo's EXIF GPS)")
+    if lat is not None and lon is not None:
+        _check_number("lat", lat, -90.0, 90.0)
+        _check_number("lon", lon, -180.0, 180.0)
+        return lat, lon, "request"
+    if exif_lat is None or exif_lon is None:
+        raise ApiError(
+            422,
+            "no_position",
+            "no position: the photo has no GPS position in its EXIF and no lat/lon fields were given",
+        )
+    return exif_lat, exif_lon, "exif"
+
+
+@router.post(
+    "/v1/maps/{map_id}/references",
+    response_model=ReferenceAccepted,
+    status_code=status.HTTP_202_ACCEPTED,
+    responses={200: {"model": ReferenceAccepted, "description": "Already a reference of this map"}, **_ERRORS},
+    dependencies=[Depends(require_write)],
+)
+def upload_reference(
+    map_id: int,
+    image: Annotated[UploadFile, File(description="The photo (JPEG, PNG, WEBP or TIFF; checked by content)")],
+    lat: Annotated[float | None, Form(description="Latitude (WGS84); overrides EXIF GPS")] = None,
+    lon: Annotated[float | None, Form(description="Longitude (WGS84); overrides EXIF GPS")] = None,
+    heading_deg: Annotated[float | None, Form(description="Prior heading, degrees clockwise from north")] = None,
+    focal_length_35mm: Annotated[
+        float | None, Form(description="35 mm-equivalent focal length; overrides EXIF")
+    ] = None,
+    db: sqlite_utils.Database = Depends(get_db),
+    settings: Settings = Depends(get_settings),
+) -> ReferenceAccepted | JSONResponse:
+    """Add a geo-tagged reference photo and queue its labelling.
+
+    202 with the reference and its job; 200 with the existing reference when the same photo
+    (sha256) is already a reference of this map (``duplicate: true``, nothing queued).
+    Errors: 404 unknown map, 413 too large (bytes or pixels), 415 not an image, 422 corrupt or
+    truncated image, no position, or a position outside the map (with the distance).
+    """
+    map_row = require_map(db, map_id)
+    _check_number("heading_deg", heading_deg, 0.0, 360.0)
+    _check_number("focal_length_35mm", focal_length_35mm, 1.0, 2000.0)
+    received = receive_upload(image, settings.data_dir, settings.max_image_bytes, "the image")
+    final_path = None
+    created = False
+    try:
+        info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
+        ref_lat, ref_lon, source = resolve_position(lat, lon, info.gps_lat, info.gps_lon)
+        distance = distance_outside_bbox_m(ref_lat, ref_lon, map_row["bbox_wgs84"])
+        if distance > settings.position_margin_m:
+            raise ApiError(
+                422,
+                "outside_map",
+                f"the photo's position ({ref_lat:.6f}, {ref_lon:.6f}, from {source}) is {distance:.0f} m outside "
+                f"map {map_id}'s bounding box (allowed margin {settings.position_margin_m:.0f} m)",
+                {
+                    "distance_m": round(distance, 1),
+                    "margin_m": settings.position_margin_m,
+                    "lat": ref_lat,
+                    "lon": ref_lon,
+                },
+            )
+        relative = f"images/{map_id}/{received.sha256}.{info.extension}"
+        final_path = settings.data_dir / relative
+        with transaction(db):  # BEGIN IMMEDIATE: duplicate check, rows and job are one unit
+            existing = reference_store.find_reference_by_sha256(db, map_id, received.sha256)
+            if existing is None:
+                created = move_into_place(received.path, final_path)
+                reference_id = reference_store.insert_reference(
+                    db,
+                    map_id=map_id,
+                    image_path=relative,
+                    original_filename=received.filename,
+                    sha256=received.sha256,
+                    size_bytes=received.size_bytes,
+                    image_format=info.format,
+                    width=info.width,
+                    height=info.height,
+                    gps_lat=ref_lat,
+                    gps_lon=ref_lon,
+                    position_source=source,
+                    prior_heading_deg=heading_deg if heading_deg is not None else info.heading_deg,
+                    focal_length_35mm=focal_length_35mm if focal_length_35mm is not None else info.focal_length_35mm,
+                )
+                job_id = job_store.enqueue_job(
+                    db,
+                    job_store.LABEL_REFERENCE,
+                    {"reference_id": reference_id, "map_id": map_id},
+                    max_attempts=settings.job_max_attempts,
+                    map_id=map_id,
+                    reference_id=reference_id,
+                )
+                reference_store.set_reference_job(db, reference_id, job_id)
+    except BaseException:
+        if created and final_path is not None:
+            remove_quietly(final_path)
+        raise
+    finally:
+        remove_quietly(received.path)
+    if existing is not None:
+        out = ReferenceAccepted(
+            id=existing["id"],
+            map_id=map_id,
+            job_id=existing["job_id"],
+            status=existing["status"],
+            sha256=existing["sha256"],
+            duplicate=True,
+        )
+        return JSONResponse(out.model_dump(mode="json"), status_code=200)
+    log.info("reference %d stored for map %d, job %d", reference_id, map_id, job_id)
+    return ReferenceAccepted(id=reference_id, map_id=map_id, job_id=job_id, status="queued", sha256=received.sha256)
+
+
+def reference_out(row: dict[str, Any], job: dict[str, Any] | None) -> ReferenceOut:
+    """A reference row (and its job) as its API model."""
+    status_now, error = reference_store.effective_status(row, job)
+    estimated = None
+    if row["estimated_lat"] is not None or row["estimated_heading_deg"] is not None:
+        estimated = EstimatedPose(
+            lat=row["estimated_lat"], lon=row["estimated_lon"], heading_deg=row["estimated_heading_deg"]
+        )
+    return ReferenceOut(
+        id=row["id"],
+        map_id=row["map_id"],
+        status=status_now,
+        error=error,
+        job_id=row["job_id"],
+        sha256=row["sha256"],
+        original_filename=row["original_filename"],
+        width=row["width"],
+        height=row["height"],
+        position=Position(lat=row["gps_lat"], lon=row["gps_lon"], source=row["position_source"]),
+        prior_heading_deg=row["prior_heading_deg"],
+        focal_length_35mm=row["focal_length_35mm"],
+        estimated=estimated,
+        buildings_seen=row["buildings_seen"],
+        timings=row["timings"],
+        created_at=timestamp(row["created_at"]),
+        updated_at=timestamp(row["updated_at"]),
+    )
+
+
+@router.get(
+    "/v1/references/{reference_id}",
+    response_model=ReferenceOut,
+    responses=_ERRORS,
+    dependencies=[Depends(require_read)],
+)
+def get_reference(reference_id: int, db: sqlite_utils.Database = Depends(get_db)) -> ReferenceOut:
+    """A reference: status (queued, processing, done, failed) and, when done, the estimated pose,
+    the buildings seen and timings."""
+    row = reference_store.get_reference(db, reference_id)
+    if row is None:
+        raise ApiError(404, "not_found", f"reference {reference_id} not found")
+    job = job_store.get_job(db, row["job_id"]) if row["job_id"] is not None else None
+    return reference_out(row, job)
+
+
+@router.delete(
+    "/v1/references/{reference_id}",
+    status_code=status.HTTP_204_NO_CONTENT,
+    responses=_ERRORS,
+    dependencies=[Depends(require_write)],
+)
+def delete_reference(
+    reference_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+) -> Response:
+    """Delete a reference with its labels, keypoints and index entries (its queued job is cancelled)."""
+    with transaction(db):
+        deleted = reference_store.delete_reference(db, reference_id)
+    if deleted is None:
+        raise ApiError(404, "not_found", f"reference {reference_id} not found")
+    remove_quietly(settings.data_dir / deleted["image_path"])
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

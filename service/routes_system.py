@@ -1,0 +1,89 @@
+"""Health, readiness and jobs."""
+
+from __future__ import annotations
+
+import sqlite_utils
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import JSONResponse
+
+from db import LATEST_VERSION, connect, schema_version
+from db import jobs as job_store
+from service.auth import require_read
+from service.deps import get_db
+from service.errors import ApiError, error_body
+from service.models import ErrorResponse, Health, JobOut, Readiness, timestamp
+from service.settings import Settings
+
+router = APIRouter()
+ERRORS = {404: {"model": ErrorResponse}, 401: {"model": ErrorResponse}, 403: {"model": ErrorResponse}}
+
+
+@router.get("/healthz", response_model=Health, tags=["system"])
+def healthz() -> Health:
+    """The process is alive."""
+    return Health(status="ok")
+
+
+@router.get("/readyz", response_model=Readiness, responses={503: {"model": ErrorResponse}}, tags=["system"])
+def readyz(request: Request) -> Readiness | JSONResponse:
+    """Ready when the database answers at the current schema version and a worker heartbeat is recent."""
+    settings: Settings = request.app.state.settings
+    problems: list[str] = []
+    version, workers = -1, 0
+    try:
+        db = connect(settings.database_path, busy_timeout_ms=2000)
+        try:
+            db.execute("SELECT 1").fetchone()
+            version = schema_version(db)
+            workers = len(job_store.live_workers(db, settings.ready_worker_s))
+        finally:
+            db.close()
+    except Exception as exc:  # noqa: BLE001 - any failure means "not ready"
+        problems.append(f"database unreachable: {exc}")
+    if version != LATEST_VERSION and version >= 0:
+        problems.append(f"database schema version {version}, expected {LATEST_VERSION}")
+    if workers == 0:
+        problems.append(f"no worker heartbeat in the last {settings.ready_worker_s:.0f} s")
+    readiness = Readiness(
+        status="not_ready" if problems else "ready",
+        schema_version=version,
+        expected_schema_version=LATEST_VERSION,
+        live_workers=workers,
+        problems=problems,
+    )
+    if problems:
+        return JSONResponse(error_body("not_ready", "; ".join(problems), readiness.model_dump()), status_code=503)
+    return readiness
+
+
+def job_out(job: dict) -> JobOut:
+    """A job row as its API model."""
+    return JobOut(
+        id=job["id"],
+        kind=job["kind"],
+        status=job["status"],
+        attempts=job["attempts"],
+        max_attempts=job["max_attempts"],
+        payload=job["payload"],
+        result=job["result"],
+        error=job["error"],
+        created_at=timestamp(job["created_at"]),
+        updated_at=timestamp(job["updated_at"]),
+        started_at=timestamp(job["started_at"]),
+        finished_at=timestamp(job["finished_at"]),
+    )
+
+
+@router.get(
+    "/v1/jobs/{job_id}",
+    response_model=JobOut,
+    responses=ERRORS,
+    tags=["jobs"],
+    dependencies=[Depends(require_read)],
+)
+def get_job(job_id: int, db: sqlite_utils.Database = Depends(get_db)) -> JobOut:
+    """A background job: status, attempts, result or last error."""
+    job = job_store.get_job(db, job_id)
+    if job is None:
+        raise ApiError(404, "not_found", f"job {job_id} not found")
+    return job_out(job)

@@ -1,0 +1,299 @@
+"""Helpers for service and worker tests: a real ``geoloc serve``/``geoloc worker`` subprocess on a
+free loopback port with its own data folder, table counts, test images, and test-only job handlers.
+
+The handlers below register themselves when this file is loaded as a worker plugin
+(``GEOLOC_WORKER_PLUGINS=<path of this file>``); they are never shipped with the service.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import signal
+import socket
+import sqlite3
+import struct
+import subprocess
+import sys
+import time
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from workers.handlers import register
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+THIS_FILE = Path(__file__).resolve()
+WRITE_KEY = "test-write-key"
+READ_KEY = "test-read-key"
+
+
+# --- test-only job handlers ---------------------------------------------------------------------
+
+
+def _append_line(path: str, text: str) -> None:
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, (text + "\n").encode())
+    finally:
+        os.close(fd)
+
+
+@register("test_record")
+def record_handler(_db: Any, payload: dict[str, Any]) -> dict[str, Any]:
+    """Append ``token pid`` to ``payload['log']`` (detects a job run twice)."""
+    time.sleep(float(payload.get("seconds", 0.0)))
+    _append_line(payload["log"], f"{payload['token']} {os.getpid()}")
+    return {"token": payload["token"], "pid": os.getpid()}
+
+
+@register("test_sleep")
+def sleep_handler(_db: Any, payload: dict[str, Any]) -> dict[str, Any]:
+    """Log ``start pid``, sleep ``payload['seconds']``, log ``end pid`` (for crash tests)."""
+    _append_line(payload["log"], f"start {os.getpid()}")
+    time.sleep(float(payload["seconds"]))
+    _append_line(payload["log"], f"end {os.getpid()}")
+    return {"slept_s": payload["seconds"]}
+
+
+@register("test_fail")
+def fail_handler(_db: Any, payload: dict[str, Any]) -> dict[str, Any]:
+    """Always fail (retry tests)."""
+    raise RuntimeError(f"deliberate failure: {payload.get('reason', 'test')}")
+
+
+# --- processes ----------------------------------------------------------------------------------
+
+
+def free_port() -> int:
+    """A free TCP port on 127.0.0.1."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def geoloc_command() -> list[str]:
+    """How to run the ``geoloc`` console script of this environment."""
+    script = Path(sys.executable).parent / "geoloc"
+    if script.exists():
+        return [str(script)]
+    return [sys.executable, "-c", "from cli.main import app; app()"]
+
+
+def service_env(data_dir: Path, **overrides: str) -> dict[str, str]:
+    """Environment for a service/worker subprocess: its own data dir, short leases, test handlers."""
+    env = {
+        **os.environ,
+        "GEOLOC_DATA_DIR": str(data_dir),
+        "GEOLOC_JOB_LEASE_S": "2",
+        "GEOLOC_JOB_RETRY_DELAY_S": "0.1",
+        "GEOLOC_WORKER_POLL_MAX_S": "0.2",
+        "GEOLOC_WORKER_GRACE_S": "2",
+        "GEOLOC_READY_WORKER_S": "10",
+        "GEOLOC_WORKER_PLUGINS": str(THIS_FILE),
+        "PYTHONUNBUFFERED": "1",
+    }
+    env.update(overrides)
+    return env
+
+
+@dataclass
+class RunningProcess:
+    """A supervised ``geoloc`` process with its data folder and log file."""
+
+    process: subprocess.Popen
+    data_dir: Path
+    log_path: Path
+    base_url: str | None = None
+
+    @property
+    def db_path(self) -> Path:
+        return self.data_dir / "geoloc.sqlite3"
+
+    def client(self, api_key: str | None = WRITE_KEY, timeout: float = 60.0) -> httpx.Client:
+        headers = {"X-API-Key": api_key} if api_key else {}
+        assert self.base_url is not None
+        return httpx.Client(base_url=self.base_url, headers=headers, timeout=timeout)
+
+    def log_tail(self, lines: int = 60) -> str:
+        text = self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
+        return "\n".join(text.splitlines()[-lines:])
+
+    def stop(self, timeout: float = 30.0) -> int:
+        """SIGTERM the supervisor (it stops its children) and wait."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait()
+        return int(self.process.returncode)
+
+
+def start_process(args: list[str], data_dir: Path, env: dict[str, str]) -> RunningProcess:
+    """Start ``geoloc ARGS`` in its own process group, output to ``data_dir/../<name>.log``."""
+    data_dir.mkdir(parents=True, exist_ok=True)
+    log_path = data_dir.parent / f"{data_dir.name}-{args[0]}.log"
+    log_file = log_path.open("ab")
+    process = subprocess.Popen(
+        [*geoloc_command(), *args],
+        cwd=REPO_ROOT,
+        env=env,
+        stdout=log_file,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
+    log_file.close()
+    return RunningProcess(process, data_dir, log_path)
+
+
+def wait_for(predicate: Any, timeout: float, interval: float = 0.1, what: Any = "condition") -> Any:
+    """Poll ``predicate()`` until it returns something truthy; fail after ``timeout`` seconds.
+    ``what`` (a string, or a callable giving one, e.g. to show a log) describes the wait."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(interval)
+    raise TimeoutError(f"timed out after {timeout:.0f} s waiting for {what() if callable(what) else what}")
+
+
+@contextlib.contextmanager
+def running_service(data_dir: Path, *, workers: int = 1, **env_overrides: str) -> Iterator[RunningProcess]:
+    """``geoloc serve`` on a free loopback port with API keys; yields once /healthz answers."""
+    port = free_port()
+    env = service_env(data_dir, GEOLOC_API_KEYS=f"{WRITE_KEY}:write,{READ_KEY}:read", **env_overrides)
+    running = start_process(
+        ["serve", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers), "--log-level", "warning"],
+        data_dir,
+        env,
+    )
+    running.base_url = f"http://127.0.0.1:{port}"
+
+    def healthy() -> bool:
+        if running.process.poll() is not None:
+            raise RuntimeError(f"geoloc serve exited early:\n{running.log_tail()}")
+        try:
+            return httpx.get(f"{running.base_url}/healthz", timeout=1.0).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    try:
+        wait_for(healthy, timeout=60, what="the API to answer /healthz")
+        yield running
+    finally:
+        running.stop()
+
+
+@contextlib.contextmanager
+def running_workers(data_dir: Path, *, concurrency: int = 1, **env_overrides: str) -> Iterator[RunningProcess]:
+    """``geoloc worker --concurrency N`` against ``data_dir``."""
+    running = start_process(
+        ["worker", "--concurrency", str(concurrency), "--log-level", "info"],
+        data_dir,
+        service_env(data_dir, **env_overrides),
+    )
+    try:
+        yield running
+    finally:
+        running.stop()
+
+
+# --- database inspection ------------------------------------------------------------------------
+
+
+def read_rows(db_path: Path, sql: str, params: tuple = ()) -> list[dict[str, Any]]:
+    """Rows of a query on a (possibly live) database, as dicts."""
+    conn = sqlite3.connect(str(db_path), timeout=30)
+    conn.row_factory = sqlite3.Row
+    try:
+        return [dict(row) for row in conn.execute(sql, params)]
+    finally:
+        conn.close()
+
+
+def table_counts(db_path: Path) -> dict[str, int]:
+    """Rows per data table (db.stats)."""
+    from db import connect
+    from db.stats import table_counts as counts
+
+    db = connect(db_path)
+    try:
+        return counts(db)
+    finally:
+        db.close()
+
+
+def stored_files(data_dir: Path) -> list[str]:
+    """Every file under images/, maps/ and tmp/ (relative paths, sorted)."""
+    return sorted(
+        str(path.relative_to(data_dir))
+        for folder in ("images", "maps", "tmp", "queries")
+        if (data_dir / folder).exists()
+        for path in (data_dir / folder).rglob("*")
+        if path.is_file()
+    )
+
+
+def get_job_row(db_path: Path, job_id: int) -> dict[str, Any]:
+    """One job row with its payload decoded."""
+    row = read_rows(db_path, "SELECT * FROM jobs WHERE id = ?", (job_id,))[0]
+    row["payload"] = json.loads(row["payload"])
+    return row
+
+
+# --- test images --------------------------------------------------------------------------------
+
+
+def _dms(value: float) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int]]:
+    value = abs(value)
+    degrees = int(value)
+    minutes = int((value - degrees) * 60)
+    seconds = round(((value - degrees) * 60 - minutes) * 60 * 10000)
+    return ((degrees, 1), (minutes, 1), (seconds, 10000))
+
+
+def jpeg_bytes(
+    width: int = 640, height: int = 480, *, gps: tuple[float, float] | None = None, seed: int = 0, quality: int = 90
+) -> bytes:
+    """A textured JPEG, optionally with EXIF GPS (lat, lon) and a 35 mm focal length."""
+    import numpy as np
+    import piexif
+    from PIL import Image
+
+    rng = np.random.default_rng(seed)
+    pixels = rng.integers(0, 255, size=(height // 8 + 1, width // 8 + 1, 3), dtype=np.uint8)
+    image = Image.fromarray(pixels).resize((width, height), Image.Resampling.NEAREST)
+    exif: dict[str, Any] = {"0th": {}, "Exif": {piexif.ExifIFD.FocalLengthIn35mmFilm: 28}, "GPS": {}}
+    if gps is not None:
+        lat, lon = gps
+        exif["GPS"] = {
+            piexif.GPSIFD.GPSLatitudeRef: b"N" if lat >= 0 else b"S",
+            piexif.GPSIFD.GPSLatitude: _dms(lat),
+            piexif.GPSIFD.GPSLongitudeRef: b"E" if lon >= 0 else b"W",
+            piexif.GPSIFD.GPSLongitude: _dms(lon),
+        }
+    buffer = io.BytesIO()
+    image.save(buffer, "JPEG", quality=quality, exif=piexif.dump(exif))
+    return buffer.getvalue()
+
+
+def png_header_only(width: int, height: int) -> bytes:
+    """A PNG that declares ``width x height`` but carries one tiny IDAT (a decompression bomb's
+    header: Pillow learns the size without decoding)."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return (
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+    )

@@ -1,0 +1,232 @@
+"""Database: migrations, pragmas, map/reference storage, the SBoW index's consistency, job states."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from db import LATEST_VERSION, connect, migrate, sbow, schema_version, transaction
+from db import jobs as job_store
+from db import maps as map_store
+from db import references as reference_store
+from db.stats import table_counts
+
+
+@pytest.fixture
+def db_path(tmp_path: Path) -> Path:
+    path = tmp_path / "geoloc.sqlite3"
+    db = connect(path)
+    migrate(db)
+    db.close()
+    return path
+
+
+@pytest.fixture
+def db(db_path: Path):
+    database = connect(db_path)
+    yield database
+    database.close()
+
+
+def small_map_content() -> map_store.MapContent:
+    square = {"type": "Polygon", "coordinates": [[[24.94, 60.17], [24.941, 60.17], [24.941, 60.171], [24.94, 60.17]]]}
+    return map_store.MapContent(
+        bbox_wgs84=(60.169, 24.939, 60.172, 24.942),
+        origin_lat=60.1705,
+        origin_lon=24.9405,
+        buildings=[
+            map_store.BuildingRow(0, "way/1", "Town hall", 20.0, square),
+            map_store.BuildingRow(1, "way/2", None, 12.0, square),
+        ],
+        facade_arrays={"start": np.zeros((5, 2)), "building_id": np.array([0, 0, 0, 1, 1], dtype=np.int32)},
+        repair_report={"format": "geojson"},
+    )
+
+
+def add_map(db) -> int:
+    with transaction(db):
+        return map_store.insert_map(
+            db,
+            name="test",
+            source_filename="t.geojson",
+            source_format="geojson",
+            source_path="maps/x.geojson",
+            sha256="0" * 64,
+            size_bytes=10,
+            content=small_map_content(),
+        )
+
+
+def add_reference(db, map_id: int, sha: str) -> int:
+    with transaction(db):
+        return reference_store.insert_reference(
+            db,
+            map_id=map_id,
+            image_path=f"images/{map_id}/{sha}.jpg",
+            original_filename="a.jpg",
+            sha256=sha,
+            size_bytes=100,
+            image_format="JPEG",
+            width=640,
+            height=480,
+            gps_lat=60.17,
+            gps_lon=24.94,
+            position_source="request",
+        )
+
+
+def test_migrations_are_idempotent(db_path: Path) -> None:
+    db = connect(db_path)
+    assert schema_version(db) == LATEST_VERSION
+    assert migrate(db) == LATEST_VERSION
+    assert migrate(db) == LATEST_VERSION
+    rows = list(db.query("SELECT version FROM schema_migrations"))
+    assert [r["version"] for r in rows] == list(range(1, LATEST_VERSION + 1))
+    db.close()
+
+
+def test_concurrent_first_migrations_apply_once(tmp_path: Path) -> None:
+    path = tmp_path / "race.sqlite3"
+    results: list[int] = []
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            database = connect(path)
+            results.append(migrate(database))
+            database.close()
+        except BaseException as exc:  # noqa: BLE001
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert not errors
+    assert results == [LATEST_VERSION] * 4
+    database = connect(path)
+    assert database.execute("SELECT COUNT(*) FROM schema_migrations").fetchone()[0] == LATEST_VERSION
+    database.close()
+
+
+def test_connection_pragmas(db) -> None:
+    assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    assert db.execute("PRAGMA foreign_keys").fetchone()[0] == 1
+    assert db.execute("PRAGMA busy_timeout").fetchone()[0] > 0
+
+
+def test_map_round_trip_and_cascading_delete(db) -> None:
+    map_id = add_map(db)
+    row = map_store.get_map(db, map_id)
+    assert row is not None and row["building_count"] == 2 and row["facade_count"] == 5
+    assert [b["name"] for b in map_store.list_buildings(db, map_id)] == ["Town hall", None]
+    facades = map_store.get_facade_arrays(db, map_id)
+    assert facades is not None and facades["building_id"].tolist() == [0, 0, 0, 1, 1]
+    ref = add_reference(db, map_id, "a" * 64)
+    with transaction(db):
+        reference_store.save_labels(db, ref, {"identity": np.ones((4, 4), dtype=np.int16)})
+        reference_store.save_keypoints(db, ref, {"xy": np.zeros((3, 2)), "descriptors": np.zeros((3, 8))})
+        sbow.save_vocabulary(db, map_id, {"centers": np.zeros((10, 8))})
+        sbow.index_reference(db, map_id, ref, np.array([1, 2, 2]), np.ones(3))
+        job_store.enqueue_job(db, "label_reference", {"reference_id": ref}, map_id=map_id, reference_id=ref)
+    with transaction(db):
+        deleted = map_store.delete_map(db, map_id)
+    assert deleted is not None and deleted["image_paths"] == [f"images/{map_id}/{'a' * 64}.jpg"]
+    counts = table_counts(db)
+    assert all(counts[t] == 0 for t in counts if t != "jobs"), counts
+    assert [j["status"] for j in job_store.list_jobs(db)] == ["cancelled"]
+
+
+def ranked_references(db, map_id: int, query_words: np.ndarray) -> list[int]:
+    """Reference ids with a positive score, best first (the method's scoring on the db postings)."""
+    from geoloc.retrieval import tfidf_scores
+
+    p = sbow.postings_for_words(db, map_id, query_words)
+    scores = tfidf_scores(query_words, p.word, p.doc, p.count, p.doc_lengths, p.n_docs)
+    order = np.argsort(-scores, kind="stable")
+    return [int(p.reference_ids[i]) for i in order if scores[i] > 0]
+
+
+def test_sbow_index_follows_references(db) -> None:
+    map_id = add_map(db)
+    first = add_reference(db, map_id, "a" * 64)
+    with transaction(db):
+        sbow.index_reference(db, map_id, first, np.array([5, 5, 7]), np.ones(3))
+    # retrieval works from the first reference on
+    assert ranked_references(db, map_id, np.array([5, 9])) == [first]
+    second = add_reference(db, map_id, "b" * 64)
+    with transaction(db):
+        sbow.index_reference(db, map_id, second, np.array([9, 9, 9, 7]), np.ones(4))
+    assert ranked_references(db, map_id, np.array([9, 9]))[0] == second
+    postings = sbow.postings_for_words(db, map_id, np.array([7]))
+    assert postings.n_docs == 2 and sorted(postings.reference_ids.tolist()) == [first, second]
+    # re-indexing replaces, never duplicates
+    with transaction(db):
+        sbow.index_reference(db, map_id, first, np.array([5]), np.ones(1))
+    assert db.execute("SELECT COUNT(*) FROM sbow_postings WHERE reference_id = ?", (first,)).fetchone()[0] == 1
+    # deleting a reference removes its postings in the same transaction
+    with transaction(db):
+        reference_store.delete_reference(db, second)
+    assert db.execute("SELECT COUNT(*) FROM sbow_postings WHERE reference_id = ?", (second,)).fetchone()[0] == 0
+    assert sbow.document_count(db, map_id) == 1
+    # a failed transaction leaves the index as it was
+    with pytest.raises(RuntimeError), transaction(db):
+        sbow.index_reference(db, map_id, first, np.array([1, 2, 3]), np.ones(3))
+        raise RuntimeError("crash mid-way")
+    assert [r["word_id"] for r in db.query("SELECT word_id FROM sbow_postings WHERE reference_id = ?", (first,))] == [5]
+
+
+def test_duplicate_reference_checksum_is_rejected_by_the_schema(db) -> None:
+    map_id = add_map(db)
+    add_reference(db, map_id, "c" * 64)
+    with pytest.raises(Exception, match="UNIQUE"):
+        add_reference(db, map_id, "c" * 64)
+
+
+def test_job_retry_limit_keeps_the_error(db) -> None:
+    job_id = job_store.enqueue_job(db, "k", {"x": 1}, max_attempts=2)
+    claimed = job_store.claim_job(db, "w1", lease_s=30)
+    assert claimed is not None and claimed["id"] == job_id and claimed["attempts"] == 1
+    assert job_store.claim_job(db, "w2", lease_s=30) is None  # leased
+    assert job_store.fail_job(db, job_id, "w1", "boom 1", retry_delay_s=0) == "queued"
+    again = job_store.claim_job(db, "w2", lease_s=30)
+    assert again is not None and again["attempts"] == 2
+    assert job_store.fail_job(db, job_id, "w2", "boom 2", retry_delay_s=0) == "failed"
+    job = job_store.get_job(db, job_id)
+    assert job is not None and job["status"] == "failed" and job["error"] == "boom 2"
+    assert job_store.claim_job(db, "w3", lease_s=30) is None
+
+
+def test_expired_lease_is_reclaimed_and_the_old_owner_cannot_finish(db) -> None:
+    job_id = job_store.enqueue_job(db, "k", {}, max_attempts=3)
+    assert job_store.claim_job(db, "dead-worker", lease_s=0.05) is not None
+    time.sleep(0.1)
+    taken = job_store.claim_job(db, "new-worker", lease_s=30)
+    assert taken is not None and taken["id"] == job_id and taken["attempts"] == 2
+    assert not job_store.heartbeat_job(db, job_id, "dead-worker", 30)
+    assert not job_store.complete_job(db, job_id, "dead-worker", {"stale": True})
+    assert job_store.complete_job(db, job_id, "new-worker", {"ok": True})
+    job = job_store.get_job(db, job_id)
+    assert job is not None and job["status"] == "done" and job["result"] == {"ok": True}
+
+
+def test_expired_lease_on_the_last_attempt_fails_the_job(db) -> None:
+    job_id = job_store.enqueue_job(db, "k", {}, max_attempts=1)
+    assert job_store.claim_job(db, "dead-worker", lease_s=0.05) is not None
+    time.sleep(0.1)
+    assert job_store.claim_job(db, "other", lease_s=30) is None
+    job = job_store.get_job(db, job_id)
+    assert job is not None and job["status"] == "failed" and "lease expired" in job["error"]
+
+
+def test_release_does_not_count_the_attempt(db) -> None:
+    job_id = job_store.enqueue_job(db, "k", {})
+    assert job_store.claim_job(db, "w1", lease_s=30) is not None
+    assert job_store.release_job(db, job_id, "w1")
+    job = job_store.get_job(db, job_id)
+    assert job is not None and job["status"] == "queued" and job["attempts"] == 0

@@ -1,0 +1,35 @@
+"""``python -m workers``: run one worker process (the supervisor starts these)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+
+from service.settings import load_settings
+from workers.handlers import load_builtin_handlers, load_plugins
+from workers.worker import Worker, install_signal_handlers
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse options, load handlers and run the worker loop until SIGTERM/SIGINT."""
+    parser = argparse.ArgumentParser(prog="python -m workers", description="Run one geoloc worker process.")
+    parser.add_argument("--max-jobs", type=int, default=None, help="exit after this many jobs")
+    parser.add_argument("--log-level", default=os.environ.get("GEOLOC_LOG_LEVEL", "INFO"))
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=args.log_level.upper(), format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s"
+    )
+    settings = load_settings()
+    load_builtin_handlers()
+    load_plugins(settings.worker_plugins)
+    worker = Worker(settings)
+    parent = os.environ.get("GEOLOC_SUPERVISOR_PID")
+    worker.parent_pid = int(parent) if parent else None
+    install_signal_handlers(worker)
+    worker.run(max_jobs=args.max_jobs)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

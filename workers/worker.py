@@ -1,0 +1,177 @@
+"""One worker process: claim a job, run its handler while extending the lease, record the outcome.
+
+The handler runs in a thread with its own database connection; the main thread extends the lease
+(every lease/3 s), refreshes the worker's liveness row and watches for SIGTERM/SIGINT. On a stop
+signal the current job may finish within ``worker_grace_s``; past that it is released back to
+the queue (the attempt is not counted) and the process exits. A SIGKILLed worker simply stops
+heartbeating: its job is claimed again once the lease expires.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import secrets
+import signal
+import socket
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from db import connect, migrate
+from db import jobs as job_store
+from service.settings import Settings
+from workers.handlers import HANDLERS, JobHandler, PermanentJobError
+
+log = logging.getLogger("geoloc.worker")
+
+MIN_POLL_S = 0.1
+MAX_RETRY_DELAY_S = 300.0
+TRACEBACK_LINES = 12
+
+
+def new_worker_id() -> str:
+    """``host:pid:random`` — unique per process start."""
+    return f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(3)}"
+
+
+def error_summary(exc: BaseException) -> str:
+    """``Type: message`` plus the last lines of the traceback."""
+    lines = traceback.format_exception(type(exc), exc, exc.__traceback__)
+    tail = "".join(lines).rstrip().splitlines()[-TRACEBACK_LINES:]
+    return f"{type(exc).__name__}: {exc}\n" + "\n".join(tail)
+
+
+@dataclass
+class _Outcome:
+    result: dict[str, Any] | None = None
+    error: BaseException | None = None
+
+
+class Worker:
+    """Runs jobs from the database at ``settings.database_path`` until :meth:`stop`."""
+
+    def __init__(self, settings: Settings, handlers: dict[str, JobHandler] | None = None) -> None:
+        self.settings = settings
+        self.handlers = HANDLERS if handlers is None else handlers
+        self.worker_id = new_worker_id()
+        self.stop_event = threading.Event()
+        self.db_path: Path = settings.database_path
+        self.parent_pid: int | None = None
+
+    def stop(self, *_: object) -> None:
+        """Ask the loop to stop (signal-handler compatible)."""
+        self.stop_event.set()
+
+    @property
+    def heartbeat_interval_s(self) -> float:
+        return max(min(self.settings.job_lease_s / 3.0, 5.0), 0.05)
+
+    def _parent_gone(self) -> bool:
+        return self.parent_pid is not None and os.getppid() != self.parent_pid
+
+    def run(self, *, max_jobs: int | None = None) -> int:
+        """The main loop; returns the number of jobs run."""
+        db = connect(self.db_path)
+        migrate(db)
+        job_store.register_worker(db, self.worker_id, os.getpid(), socket.gethostname())
+        log.info("worker %s started (handlers: %s)", self.worker_id, ", ".join(sorted(self.handlers)) or "none")
+        jobs_run = 0
+        sleep_s = MIN_POLL_S
+        last_beat = 0.0
+        try:
+            while not self.stop_event.is_set():
+                if self._parent_gone():
+                    log.warning("parent process gone; stopping")
+                    break
+                now = time.monotonic()
+                if now - last_beat >= self.heartbeat_interval_s:
+                    job_store.heartbeat_worker(db, self.worker_id, None)
+                    last_beat = now
+                job = job_store.claim_job(db, self.worker_id, self.settings.job_lease_s)
+                if job is None:
+                    self.stop_event.wait(sleep_s)
+                    sleep_s = min(sleep_s * 2, self.settings.worker_poll_max_s)
+                    continue
+                sleep_s = MIN_POLL_S
+                finished = self._run_job(db, job)
+                jobs_run += 1
+                if not finished:  # released on shutdown with the handler still running
+                    job_store.stop_worker(db, self.worker_id)
+                    log.info("worker %s exiting with an abandoned handler thread", self.worker_id)
+                    os._exit(0)
+                if max_jobs is not None and jobs_run >= max_jobs:
+                    break
+        finally:
+            job_store.stop_worker(db, self.worker_id)
+            db.close()
+            log.info("worker %s stopped after %d jobs", self.worker_id, jobs_run)
+        return jobs_run
+
+    def _execute(self, job: dict[str, Any], outcome: _Outcome) -> None:
+        handler = self.handlers.get(job["kind"])
+        if handler is None:
+            outcome.error = PermanentJobError(
+                f"no handler registered for job kind {job['kind']!r} (known: {sorted(self.handlers)})"
+            )
+            return
+        db = connect(self.db_path)
+        try:
+            result = handler(db, job["payload"])
+            outcome.result = result if isinstance(result, dict) else {"value": result}
+        except BaseException as exc:  # noqa: BLE001 - every failure is recorded on the job
+            outcome.error = exc
+        finally:
+            db.close()
+
+    def _run_job(self, db: Any, job: dict[str, Any]) -> bool:
+        """Run one claimed job to its outcome; False if it was released with the handler still running."""
+        job_id, lease_s = int(job["id"]), self.settings.job_lease_s
+        log.info("job %d (%s) attempt %d/%d", job_id, job["kind"], job["attempts"], job["max_attempts"])
+        started = time.monotonic()
+        outcome = _Outcome()
+        thread = threading.Thread(target=self._execute, args=(job, outcome), name=f"job-{job_id}", daemon=True)
+        thread.start()
+        job_store.heartbeat_worker(db, self.worker_id, job_id)
+        stop_deadline: float | None = None
+        lease_held = True
+        while True:
+            thread.join(timeout=self.heartbeat_interval_s)
+            if not thread.is_alive():
+                break
+            if lease_held and not job_store.heartbeat_job(db, job_id, self.worker_id, lease_s):
+                lease_held = False
+                log.warning("job %d: lease lost (taken over by another worker); its result will be dropped", job_id)
+            job_store.heartbeat_worker(db, self.worker_id, job_id)
+            if self.stop_event.is_set() or self._parent_gone():
+                if stop_deadline is None:
+                    stop_deadline = time.monotonic() + self.settings.worker_grace_s
+                    log.info("job %d: stop requested, waiting up to %.0f s", job_id, self.settings.worker_grace_s)
+                elif time.monotonic() >= stop_deadline:
+                    released = job_store.release_job(db, job_id, self.worker_id)
+                    log.info("job %d: released back to the queue (%s)", job_id, released)
+                    return False
+        elapsed = time.monotonic() - started
+        if outcome.error is None:
+            if job_store.complete_job(db, job_id, self.worker_id, outcome.result or {}):
+                log.info("job %d done in %.2f s", job_id, elapsed)
+            else:
+                log.warning("job %d finished but its lease was lost; result dropped", job_id)
+        else:
+            permanent = isinstance(outcome.error, PermanentJobError)
+            delay = min(self.settings.job_retry_delay_s * 2 ** max(int(job["attempts"]) - 1, 0), MAX_RETRY_DELAY_S)
+            status = job_store.fail_job(
+                db, job_id, self.worker_id, error_summary(outcome.error), retry_delay_s=delay, permanent=permanent
+            )
+            log.warning("job %d attempt failed (%s) -> %s", job_id, outcome.error, status)
+        job_store.heartbeat_worker(db, self.worker_id, None)
+        return True
+
+
+def install_signal_handlers(worker: Worker) -> None:
+    """SIGTERM and SIGINT stop the worker gracefully."""
+    signal.signal(signal.SIGTERM, worker.stop)
+    signal.signal(signal.SIGINT, worker.stop)
