@@ -21,6 +21,7 @@ from db.connection import transaction
 
 JOB_STATUSES = ("queued", "running", "done", "failed", "cancelled")
 LABEL_REFERENCE = "label_reference"
+LOCALIZE_QUERY = "localize_query"
 """Job kind enqueued for each new reference; payload ``{"reference_id": int, "map_id": int}``."""
 DEFAULT_MAX_ATTEMPTS = 3
 

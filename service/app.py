@@ -137,9 +137,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(BodySizeLimit, limit_for_path=limit_for_path)
 
-    from service import routes_maps, routes_references, routes_system
+    from service import routes_maps, routes_queries, routes_references, routes_system
 
     app.include_router(routes_system.router)
     app.include_router(routes_maps.router)
     app.include_router(routes_references.router)
+    app.include_router(routes_queries.router)
     return app

@@ -210,3 +210,85 @@ class Readiness(BaseModel):
     expected_schema_version: int
     live_workers: int
     problems: list[str] = Field(default_factory=list)
+
+
+class RankedLocation(BaseModel):
+    """One answer: where the photo was taken and which way it looked."""
+
+    rank: int = Field(examples=[1])
+    lat: float = Field(examples=[60.16952])
+    lon: float = Field(examples=[24.94117])
+    heading_deg: float = Field(
+        description="Compass heading of the optical axis, deg clockwise from north", examples=[93.0]
+    )
+    probability: float = Field(description="Probability of this position (summed over headings)", examples=[0.31])
+    pose_probability: float = Field(description="Probability of this exact position and heading", examples=[0.12])
+
+
+class Heatmap(BaseModel):
+    """The probability map on its georeferenced grid (local east-north metres of the map's frame).
+
+    ``values[row][col]`` is the probability of the cell centred at local
+    (origin_local_m.x + col * cell_m, origin_local_m.y + row * cell_m): rows run south to north, columns
+    west to east. ``origin`` is that first cell's centre in WGS84; ``bounds`` the grid's outer edges.
+    """
+
+    origin: LatLon
+    origin_local_m: tuple[float, float] = Field(examples=[[-120.0, 40.0]])
+    cell_m: float = Field(examples=[10.0])
+    shape: tuple[int, int] = Field(description="(rows, cols)", examples=[[17, 21]])
+    bounds: BoundingBox
+    values: list[list[float]]
+
+
+class BuildingInPhoto(BaseModel):
+    """A building identified in the photo, with its horizontal pixel extent."""
+
+    building_id: int = Field(examples=[212])
+    osm_id: str | None = Field(examples=["way/8042381"])
+    name: str | None = Field(examples=["Ateneum"])
+    pixel_share: float = Field(description="Share of the photo's building pixels", examples=[0.46])
+    x_start: int = Field(description="First pixel column (in the uploaded photo)", examples=[120])
+    x_end: int = Field(description="Last pixel column", examples=[597])
+    probability: float = Field(description="Mean identity probability over its columns", examples=[0.71])
+
+
+class ReferenceUsed(BaseModel):
+    """A retrieved reference and how well it matched."""
+
+    reference_id: int = Field(examples=[17])
+    score: float = Field(description="Retrieval (TF-IDF) score", examples=[0.23])
+    matches: int = Field(examples=[85])
+    inliers: int = Field(description="Geometrically verified matches", examples=[41])
+
+
+class QueryResult(BaseModel):
+    """The answer to a query photo."""
+
+    locations: list[RankedLocation]
+    heatmap: Heatmap
+    buildings: list[BuildingInPhoto]
+    references: list[ReferenceUsed]
+    search: dict[str, Any] = Field(
+        description="How the answer was searched: region, grid, whether identities and priors were used",
+        examples=[{"region": "identified_buildings", "positions": 412, "yaws": 120, "identity": True}],
+    )
+    camera: dict[str, Any] = Field(
+        description="The camera model used (field of view and where the focal length came from)",
+        examples=[{"hfov_deg": 63.4, "focal_source": "exif_35mm", "width": 1024, "height": 768}],
+    )
+    timings_ms: dict[str, float]
+
+
+class QueryOut(BaseModel):
+    """A query: its status and, when done, its answer."""
+
+    id: int = Field(examples=[5])
+    map_id: int = Field(examples=[1])
+    status: Literal["queued", "processing", "done", "failed"]
+    error: str | None = None
+    job_id: int | None = Field(default=None, examples=[93])
+    params: dict[str, Any] = Field(examples=[{"top_n": 10, "k": 4, "prior": {"lat": 60.1695, "lon": 24.9412}}])
+    result: QueryResult | None = None
+    created_at: datetime | None = None
+    updated_at: datetime | None = None

@@ -1,0 +1,244 @@
+"""Queries: where was this photo taken? Answered by the ``localize_query`` job in the worker pool.
+
+``POST /v1/maps/{id}/queries`` stores the photo, queues the job and waits up to ``wait_s`` seconds
+for the answer (200 with the result); a slower answer comes back as 202 with the query id to poll
+(``GET /v1/queries/{id}``). Heavy work (segmentation, matching, the likelihood) runs in workers only.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated, Any
+
+import numpy as np
+import sqlite_utils
+from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
+from fastapi.responses import JSONResponse
+
+from db import jobs as job_store
+from db import queries as query_store
+from db import transaction
+from service.auth import require_read, require_write
+from service.deps import get_db, get_settings
+from service.errors import ApiError
+from service.images import distance_outside_bbox_m, validate_image
+from service.models import ErrorResponse, QueryOut, timestamp
+from service.routes_maps import require_map
+from service.settings import Settings
+from service.uploads import move_into_place, receive_upload, remove_quietly
+
+router = APIRouter(tags=["queries"])
+_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 413, 415, 422)}
+DEFAULT_PRIOR_RADIUS_M = 50.0
+POLL_S = 0.2
+
+
+def _check(name: str, value: float | None, low: float, high: float) -> None:
+    if value is not None and not (np.isfinite(value) and low <= value <= high):
+        raise ApiError(422, "invalid_request", f"{name} must be between {low} and {high}, got {value}")
+
+
+def query_out(row: dict[str, Any], job: dict[str, Any] | None) -> QueryOut:
+    """A query row (and its job) as its API model."""
+    state, error = row["status"], row.get("error")
+    if state not in ("done", "failed") and job is not None:
+        if job["status"] == "running":
+            state = "processing"
+        elif job["status"] in ("failed", "cancelled"):
+            state, error = "failed", job.get("error") or f"job {job['status']}"
+    return QueryOut(
+        id=row["id"],
+        map_id=row["map_id"],
+        status=state,
+        error=error,
+        job_id=row.get("job_id"),
+        params=row["params"],
+        result=row["result"],
+        created_at=timestamp(row["created_at"]),
+        updated_at=timestamp(row["updated_at"]),
+    )
+
+
+def _load(db: sqlite_utils.Database, query_id: int) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    row = query_store.get_query(db, query_id)
+    if row is None:
+        raise ApiError(404, "not_found", f"query {query_id} not found")
+    job = job_store.get_job(db, row["job_id"]) if row.get("job_id") else None
+    return row, job
+
+
+@router.post(
+    "/v1/maps/{map_id}/queries",
+    response_model=QueryOut,
+    responses={202: {"model": QueryOut, "description": "Not answered within wait_s: poll the query"}, **_ERRORS},
+    dependencies=[Depends(require_read)],
+)
+def create_query(
+    map_id: int,
+    image: Annotated[UploadFile, File(description="The photo to geolocate (JPEG, PNG, WEBP or TIFF)")],
+    lat: Annotated[float | None, Form(description="Prior position latitude (WGS84)")] = None,
+    lon: Annotated[float | None, Form(description="Prior position longitude (WGS84)")] = None,
+    radius_m: Annotated[float | None, Form(description="Prior position radius (m, about 2 sigma)")] = None,
+    heading_deg: Annotated[float | None, Form(description="Prior heading, deg clockwise from north")] = None,
+    use_exif_gps: Annotated[bool, Form(description="Use the photo's EXIF GPS as the prior position")] = True,
+    focal_length_35mm: Annotated[float | None, Form(description="35 mm-equivalent focal length")] = None,
+    top_n: Annotated[int, Form(description="How many distinct locations to return")] = 10,
+    k: Annotated[int, Form(description="How many references to retrieve for identities")] = 4,
+    wait_s: Annotated[float, Form(description="How long to wait for the answer before 202")] = 60.0,
+    db: sqlite_utils.Database = Depends(get_db),
+    settings: Settings = Depends(get_settings),
+) -> QueryOut | JSONResponse:
+    """Geolocate a photo on a map: ranked locations with headings, the heatmap, the buildings in the photo.
+
+    A prior position (``lat``/``lon`` with ``radius_m``, or the photo's EXIF GPS unless
+    ``use_exif_gps`` is false) and a prior heading (``heading_deg`` or EXIF GPSImgDirection) are used as
+    priors and reported in ``result.search``. 200 with the answer, or 202 if it took longer than ``wait_s``.
+    """
+    map_row = require_map(db, map_id)
+    for name, value, low, high in (
+        ("lat", lat, -90, 90),
+        ("lon", lon, -180, 180),
+        ("radius_m", radius_m, 1, 5000),
+        ("heading_deg", heading_deg, 0, 360),
+        ("focal_length_35mm", focal_length_35mm, 1, 2000),
+        ("top_n", top_n, 1, 50),
+        ("k", k, 1, 20),
+        ("wait_s", wait_s, 0, 300),
+    ):
+        _check(name, value, low, high)
+    if (lat is None) != (lon is None):
+        raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
+    received = receive_upload(image, settings.data_dir, settings.max_image_bytes, "the image")
+    final_path = None
+    created = False
+    try:
+        info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
+        prior = None
+        if lat is not None and lon is not None:
+            prior = {"lat": lat, "lon": lon, "radius_m": radius_m or DEFAULT_PRIOR_RADIUS_M, "source": "request"}
+        elif use_exif_gps and info.gps_lat is not None and info.gps_lon is not None:
+            prior = {"lat": info.gps_lat, "lon": info.gps_lon, "radius_m": radius_m or DEFAULT_PRIOR_RADIUS_M}
+            prior["source"] = "exif"
+        if prior is not None:
+            distance = distance_outside_bbox_m(prior["lat"], prior["lon"], map_row["bbox_wgs84"])
+            if distance > settings.position_margin_m:
+                raise ApiError(
+                    422,
+                    "outside_map",
+                    f"the prior position ({prior['lat']:.6f}, {prior['lon']:.6f}, from {prior['source']}) is "
+                    f"{distance:.0f} m outside map {map_id}'s bounding box; send use_exif_gps=false to ignore it",
+                    {"distance_m": round(distance, 1), "margin_m": settings.position_margin_m},
+                )
+        prior_heading = heading_deg if heading_deg is not None else info.heading_deg
+        params = {
+            "top_n": top_n,
+            "k": k,
+            "prior": prior,
+            "prior_heading_deg": prior_heading,
+            "focal_length_35mm": focal_length_35mm,
+            "original_filename": received.filename,
+        }
+        relative = f"queries/{map_id}/{received.sha256}.{info.extension}"
+        final_path = settings.data_dir / relative
+        with transaction(db):
+            created = move_into_place(received.path, final_path)
+            query_id = query_store.insert_query(
+                db, map_id=map_id, params=params, image_path=relative, sha256=received.sha256
+            )
+            job_id = job_store.enqueue_job(
+                db,
+                job_store.LOCALIZE_QUERY,
+                {"query_id": query_id, "map_id": map_id},
+                max_attempts=settings.job_max_attempts,
+                map_id=map_id,
+            )
+            query_store.set_query_job(db, query_id, job_id)
+    except BaseException:
+        if created and final_path is not None:
+            remove_quietly(final_path)
+        raise
+    finally:
+        remove_quietly(received.path)
+
+    deadline = time.monotonic() + wait_s
+    row, job = _load(db, query_id)
+    while row["status"] not in ("done", "failed") and time.monotonic() < deadline:
+        if job is not None and job["status"] in ("failed", "cancelled"):
+            break
+        time.sleep(POLL_S)
+        row, job = _load(db, query_id)
+    out = query_out(row, job)
+    if out.status in ("done", "failed"):
+        return out
+    return JSONResponse(out.model_dump(mode="json"), status_code=status.HTTP_202_ACCEPTED)
+
+
+@router.get("/v1/queries/{query_id}", response_model=QueryOut, responses=_ERRORS, dependencies=[Depends(require_read)])
+def get_query(query_id: int, db: sqlite_utils.Database = Depends(get_db)) -> QueryOut:
+    """A query: status (queued, processing, done, failed) and, when done, its answer."""
+    return query_out(*_load(db, query_id))
+
+
+def _done_result(db: sqlite_utils.Database, query_id: int) -> dict[str, Any]:
+    row, _ = _load(db, query_id)
+    if row["status"] != "done" or not row["result"]:
+        raise ApiError(409, "not_ready", f"query {query_id} has no answer yet (status {row['status']})")
+    return row["result"]
+
+
+@router.get(
+    "/v1/queries/{query_id}/heatmap.png",
+    responses={200: {"content": {"image/png": {}}}, 409: {"model": ErrorResponse}, **_ERRORS},
+    response_class=Response,
+    dependencies=[Depends(require_read)],
+)
+def get_heatmap_png(query_id: int, db: sqlite_utils.Database = Depends(get_db)) -> Response:
+    """The probability map as a PNG (north up, one pixel block per grid cell, the best location marked)."""
+    import cv2
+
+    heat = np.asarray(_done_result(db, query_id)["heatmap"]["values"], dtype=float)
+    scaled = np.flipud(heat / heat.max() if heat.max() > 0 else heat)  # row 0 is the southern edge
+    colored = cv2.applyColorMap((255 * np.sqrt(scaled)).astype(np.uint8), cv2.COLORMAP_INFERNO)
+    block = max(1, 400 // max(heat.shape))
+    colored = cv2.resize(colored, (heat.shape[1] * block, heat.shape[0] * block), interpolation=cv2.INTER_NEAREST)
+    ok, png = cv2.imencode(".png", colored)
+    return Response(png.tobytes(), media_type="image/png")
+
+
+@router.get(
+    "/v1/queries/{query_id}/answer.geojson",
+    responses={200: {"content": {"application/geo+json": {}}}, 409: {"model": ErrorResponse}, **_ERRORS},
+    dependencies=[Depends(require_read)],
+)
+def get_answer_geojson(query_id: int, db: sqlite_utils.Database = Depends(get_db)) -> JSONResponse:
+    """The ranked locations as GeoJSON points (properties: rank, heading, probabilities)."""
+    result = _done_result(db, query_id)
+    features = [
+        {
+            "type": "Feature",
+            "geometry": {"type": "Point", "coordinates": [loc["lon"], loc["lat"]]},
+            "properties": {k: loc[k] for k in ("rank", "heading_deg", "probability", "pose_probability")},
+        }
+        for loc in result["locations"]
+    ]
+    body = {"type": "FeatureCollection", "features": features, "properties": {"query_id": query_id}}
+    return JSONResponse(body, media_type="application/geo+json")
+
+
+@router.delete(
+    "/v1/queries/{query_id}",
+    status_code=status.HTTP_204_NO_CONTENT,
+    responses=_ERRORS,
+    dependencies=[Depends(require_write)],
+)
+def delete_query(
+    query_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+) -> Response:
+    """Delete a query and its stored photo."""
+    with transaction(db):
+        deleted = query_store.delete_query(db, query_id)
+    if deleted is None:
+        raise ApiError(404, "not_found", f"query {query_id} not found")
+    if deleted.get("image_path"):
+        remove_quietly(settings.data_dir / deleted["image_path"])
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
