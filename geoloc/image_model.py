@@ -28,6 +28,8 @@ class ImageModel:
     identity_building_ids: (M,) building ids the identity columns refer to (or ``None``).
     identity_prob: (K, M) probability that the facade in bin k belongs to each of those buildings
         (rows may sum to less than 1: the rest is "unknown"), or ``None`` for geometry only.
+    distance_m: (K,) horizontal distance of the facade in bin k estimated from the image (NaN where
+        unknown; see :mod:`geoloc.ground`), or ``None``.
     """
 
     offsets_deg: np.ndarray
@@ -35,6 +37,7 @@ class ImageModel:
     orientation_deg: np.ndarray
     identity_building_ids: np.ndarray | None = None
     identity_prob: np.ndarray | None = None
+    distance_m: np.ndarray | None = None
     bin_deg: float = DEFAULT_BIN_DEG
     meta: dict = field(default_factory=dict)
 
@@ -49,6 +52,8 @@ class ImageModel:
             len(self.identity_building_ids),
         ):
             raise ValueError("identity_prob must be (bins, buildings)")
+        if self.distance_m is not None and self.distance_m.shape != (k,):
+            raise ValueError("distance_m must have one value per bin")
 
     @property
     def n_bins(self) -> int:
@@ -59,8 +64,14 @@ class ImageModel:
         return self.identity_prob is not None
 
     def without_identity(self) -> ImageModel:
-        """The geometry-only version of this model."""
-        return ImageModel(self.offsets_deg, self.facade_present, self.orientation_deg, bin_deg=self.bin_deg)
+        """This model without building identities (facade geometry and distances only)."""
+        return ImageModel(
+            self.offsets_deg,
+            self.facade_present,
+            self.orientation_deg,
+            distance_m=self.distance_m,
+            bin_deg=self.bin_deg,
+        )
 
 
 def bin_offsets_deg(intrinsics: Intrinsics, bin_deg: float = DEFAULT_BIN_DEG) -> np.ndarray:
@@ -87,6 +98,7 @@ def image_model_from_columns(
     column_orientation_deg: np.ndarray,
     column_identity_prob: np.ndarray | None = None,
     identity_building_ids: np.ndarray | None = None,
+    column_distance_m: np.ndarray | None = None,
     bin_deg: float = DEFAULT_BIN_DEG,
 ) -> ImageModel:
     """Bin per-pixel-column facade evidence into an :class:`ImageModel`.
@@ -94,6 +106,8 @@ def image_model_from_columns(
     column_present: (W,) confidence in [0, 1] that a facade covers the column.
     column_orientation_deg: (W,) theta_hat per column (deg), used where present.
     column_identity_prob: optional (W, M) identity probabilities per column.
+    column_distance_m: optional (W,) facade distance per column (NaN unknown); a bin takes the geometric
+    mean of its known columns.
     Orientations are averaged as doubled angles (they are defined modulo 180), weighted by
     confidence; presence and identities are averaged over the columns of a bin.
     """
@@ -116,11 +130,19 @@ def image_model_from_columns(
         identity = np.zeros((k, prob.shape[1]))
         np.add.at(identity, bins[valid], prob[valid])
         identity /= safe_counts[:, None]
+    distance = None
+    if column_distance_m is not None:
+        known = valid & np.isfinite(column_distance_m) & (np.asarray(column_distance_m) > 0)
+        log_sum = np.bincount(bins[known], weights=np.log(np.asarray(column_distance_m)[known]), minlength=k)
+        n_known = np.bincount(bins[known], minlength=k)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            distance = np.where(n_known > 0, np.exp(log_sum / np.maximum(n_known, 1)), np.nan)
     return ImageModel(
         offsets_deg=offsets,
         facade_present=present_sum / safe_counts,
         orientation_deg=orientation,
         identity_building_ids=None if identity is None else np.asarray(identity_building_ids),
         identity_prob=identity,
+        distance_m=distance,
         bin_deg=bin_deg,
     )

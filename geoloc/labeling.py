@@ -24,11 +24,19 @@ from geoloc.identity import IdentityMap
 from geoloc.image_model import ImageModel, column_bins
 from geoloc.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, pose_likelihood
 from geoloc.osm import CityMap
-from geoloc.posterior import grid_around
+from geoloc.posterior import DEFAULT_SHARPNESS, grid_around
 from geoloc.raycast import Panoramas, cast_panoramas, panorama_window
 
-DEFAULT_REFERENCE_CELL_M = 10.0
-DEFAULT_REFERENCE_HALF_SIZE_M = 10.0  # 3 x 3 positions at 10 m: the paper's sampling
+DEFAULT_REFERENCE_CELL_M = 2.0
+DEFAULT_REFERENCE_HALF_SIZE_M = 10.0
+DEFAULT_GPS_SIGMA_M = 8.0
+"""Gaussian prior on the position around the GPS tag (phone GPS error); None gives the paper's uniform prior.
+
+Measured on 40 references of a simulated Helsinki world (5 m GPS noise, ground-truth labels), heading
+error median / within 5 deg / flipped by ~180 deg, and marginalised identity accuracy:
+paper's 3 x 3 at 10 m, uniform prior, plain weights: 11.3 deg / 30 % / 30 %, 0.55;
+11 x 11 at 2 m, uniform prior, plain weights: 1.2 deg / 72 % / 17 %, 0.57;
+11 x 11 at 2 m, this prior, weights likelihood ** 8 (the defaults): 1.3 deg / 78 % / 10 %, 0.78."""
 HEADING_PRIOR_SIGMA_DEG = 20.0
 
 
@@ -94,6 +102,8 @@ def label_reference(
     gps_xy: tuple[float, float],
     *,
     prior_yaw_deg: float | None = None,
+    gps_sigma_m: float | None = DEFAULT_GPS_SIGMA_M,
+    sharpness: float = DEFAULT_SHARPNESS,
     cell_m: float = DEFAULT_REFERENCE_CELL_M,
     half_size_m: float = DEFAULT_REFERENCE_HALF_SIZE_M,
     n_yaws: int = 120,
@@ -105,6 +115,8 @@ def label_reference(
     image_model: the photo's facade evidence (geometry only; identities are what we want to find).
     building_mask: (H, W) bool building pixels. gps_xy: the GPS tag in the local frame (m).
     prior_yaw_deg: optional heading prior (local bearing), Gaussian with HEADING_PRIOR_SIGMA_DEG.
+    gps_sigma_m: optional Gaussian prior on the position around the GPS tag (None: uniform, as the paper).
+    sharpness: pose weights are likelihood ** sharpness (as the query posterior, :mod:`geoloc.posterior`).
     Poses inside building footprints are not sampled; if every grid cell is inside, the GPS tag alone is used.
     """
     grid = grid_around(city_map, gps_xy, half_size_m, cell_m)
@@ -114,9 +126,12 @@ def label_reference(
     likelihood = pose_likelihood(
         panoramas, image_model.without_identity(), yaws, sigma_m=sigma_m, normalization=normalization
     )
-    weights = likelihood.astype(float)
+    weights = np.power(likelihood.astype(float), sharpness)
     if prior_yaw_deg is not None:
         weights = weights * heading_prior(yaws, prior_yaw_deg)[None, :]
+    if gps_sigma_m:
+        d2 = np.sum((positions - np.asarray(gps_xy, dtype=float)) ** 2, axis=1)
+        weights = weights * np.exp(-0.5 * d2 / gps_sigma_m**2)[:, None]
     best_p, best_y = np.unravel_index(int(np.argmax(weights)), weights.shape)
 
     column_ids = column_building_ids(panoramas, yaws, intrinsics, image_model.offsets_deg, image_model.bin_deg)

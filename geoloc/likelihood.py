@@ -23,6 +23,12 @@ that the building seen in bin k is the map's b_k (the paper's indicator, softene
 probabilities; ``unknown_weight`` = 0 gives the paper's hard requirement, where a column with no
 identity evidence cannot match).
 
+Distance term (beyond the paper, ``use_distance``): where the image model knows a bin's facade
+distance d_hat_k (from the facade's base line, :mod:`geoloc.ground`), S's term is also multiplied by
+exp(-(ln d_k - ln d_hat_k)^2 / (2 s^2)), s = ``distance_sigma_log``. It separates poses that see the
+same walls at the same angles but at other distances, e.g. facing the wall across the street instead
+of the one behind; Smax is unchanged, so a perfect model still scores 1 at the true pose.
+
 All positions x yaws are evaluated in one call, in chunks of positions to bound memory.
 """
 
@@ -38,6 +44,8 @@ DEFAULT_SIGMA_M = 40.0
 """Distance weight scale: a facade 40 m away counts exp(-1/2) = 0.61, one at 80 m 0.14."""
 
 DEFAULT_UNKNOWN_WEIGHT = 0.0
+DEFAULT_DISTANCE_SIGMA_LOG = 0.3
+"""Spread of the distance term in log distance: a facade 35 % nearer or farther than seen scores 0.6."""
 NORMALIZATIONS = ("weighted", "paper")
 
 
@@ -54,6 +62,8 @@ def pose_likelihood(
     use_identity: bool = True,
     unknown_weight: float = DEFAULT_UNKNOWN_WEIGHT,
     normalization: str = "weighted",
+    use_distance: bool = True,
+    distance_sigma_log: float = DEFAULT_DISTANCE_SIGMA_LOG,
     chunk_elements: int = 8_000_000,
 ) -> np.ndarray:
     """p(I | g) for every position of ``panoramas`` and every yaw: array (P, Y) in [0, 1].
@@ -62,7 +72,8 @@ def pose_likelihood(
         or divide it evenly: bins are looked up by rounding to the panorama step).
     image_model: the photo's per-bin evidence. Identities are used if present and ``use_identity``.
     yaws_deg: (Y,) camera yaws, bearing of the optical axis in the local frame (default 120 yaws).
-    sigma_m: distance weight scale (m). unknown_weight, normalization: see module docstring.
+    sigma_m: distance weight scale (m). unknown_weight, normalization, use_distance, distance_sigma_log:
+    see module docstring.
     """
     if normalization not in NORMALIZATIONS:
         raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
@@ -71,6 +82,9 @@ def pose_likelihood(
     present = np.clip(image_model.facade_present, 0.0, 1.0).astype(np.float32)  # (K,)
     theta_hat = image_model.orientation_deg.astype(np.float32)
     identity_lut = None
+    log_distance_hat = None
+    if use_distance and image_model.distance_m is not None and np.isfinite(image_model.distance_m).any():
+        log_distance_hat = np.log(image_model.distance_m).astype(np.float32)  # NaN where unknown
     if use_identity and image_model.has_identity:
         identity_lut = _identity_lookup(image_model, panoramas, unknown_weight)
 
@@ -89,6 +103,11 @@ def pose_likelihood(
         theta = wrap_orientation_deg(panoramas.normal_bearing_deg[sl][:, window] - yaw_col)
         agree = np.abs(np.cos(np.radians(theta - theta_hat[None, None, :])))
         score = weight * np.where(hit, agree, 0.0) * present[None, None, :]
+        if log_distance_hat is not None:
+            z = (
+                np.log(np.where(hit, np.maximum(dist, 0.1), 1.0)) - log_distance_hat[None, None, :]
+            ) / distance_sigma_log
+            score = score * np.where(np.isfinite(z), np.exp(-0.5 * np.square(np.nan_to_num(z))), 1.0)
         if identity_lut is not None:
             building = panoramas.building_id[sl][:, window]
             k_index = np.broadcast_to(np.arange(len(present))[None, None, :], building.shape)
@@ -120,13 +139,14 @@ def image_model_from_map(
     yaw_deg: float,
     offsets_deg: np.ndarray,
     with_identity: bool = True,
+    with_distance: bool = False,
     bin_deg: float | None = None,
 ) -> ImageModel:
     """The image model a perfect image analysis would give at a pose (position ``position_index``, yaw).
 
     Every bin whose ray hits a facade is present with confidence 1 and that facade's orientation; with
-    ``with_identity`` the identity is the hit building with probability 1. Used for tests and as the
-    ground-truth image model in evaluation.
+    ``with_identity`` the identity is the hit building with probability 1; with ``with_distance`` every hit
+    bin knows its facade distance. Used for tests and as the ground-truth image model in evaluation.
     """
     window = panorama_window(panoramas, np.array([yaw_deg]), offsets_deg)[0]
     building = panoramas.building_id[position_index, window]
@@ -142,5 +162,6 @@ def image_model_from_map(
         orientation_deg=np.where(hit, theta, 0.0),
         identity_building_ids=ids,
         identity_prob=prob,
+        distance_m=np.where(hit, panoramas.distance_m[position_index, window], np.nan) if with_distance else None,
         bin_deg=bin_deg or panoramas.bearing_step_deg,
     )

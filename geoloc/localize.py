@@ -140,13 +140,15 @@ def localize(
     grid, reason = search_grid(city_map, buildings, cell_m, search_radius_m, position_prior)
     positions = grid.positions
     yaws = default_yaws_deg(n_yaws)
+    has_identity = image_model.has_identity and float(image_model.identity_prob.sum()) > 0
     search = {
         "region": reason,
         "buildings": buildings,
         "positions": int(len(positions)),
         "yaws": n_yaws,
         "cell_m": cell_m,
-        "identity": bool(use_identity and image_model.has_identity),
+        # Without any identity evidence the identity-aware likelihood is zero everywhere: use geometry.
+        "identity": bool(use_identity and has_identity),
         "position_prior": position_prior is not None,
         "heading_prior": prior_yaw_deg is not None,
     }
@@ -159,7 +161,7 @@ def localize(
     timings["raycast"] = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
     likelihood = pose_likelihood(
-        panoramas, image_model, yaws, sigma_m=sigma_m, use_identity=use_identity, normalization=normalization
+        panoramas, image_model, yaws, sigma_m=sigma_m, use_identity=search["identity"], normalization=normalization
     )
     timings["likelihood"] = 1e3 * (time.perf_counter() - t0)
 
@@ -169,7 +171,9 @@ def localize(
     poses = top_poses(positions, posterior, yaws, n=top_n, min_separation_m=separation)
     if refine_cell_m:
         t0 = time.perf_counter()
-        poses = _refine(city_map, image_model, poses, cell_m, refine_cell_m, yaws, use_identity, sigma_m, normalization)
+        poses = _refine(
+            city_map, image_model, poses, cell_m, refine_cell_m, yaws, search["identity"], sigma_m, normalization
+        )
         timings["refine"] = 1e3 * (time.perf_counter() - t0)
         search["refine_cell_m"] = refine_cell_m
     heatmap = grid.to_image(position_heatmap(posterior))

@@ -212,3 +212,26 @@ def delete_reference(
         raise ApiError(404, "not_found", f"reference {reference_id} not found")
     remove_quietly(settings.data_dir / deleted["image_path"])
     return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+@router.get(
+    "/v1/references/{reference_id}/labels.png",
+    responses={200: {"content": {"image/png": {}}}, 409: {"model": ErrorResponse}, **_ERRORS},
+    response_class=Response,
+    dependencies=[Depends(require_read)],
+)
+def get_labels_png(
+    reference_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+) -> Response:
+    """The photo with its building pixels coloured by identity (one colour per building, as in the
+    paper's Fig. 5); uncertain columns are drawn paler. 409 until the reference is labelled."""
+    from service.rendering import identity_overlay_png
+
+    row = reference_store.get_reference(db, reference_id)
+    if row is None:
+        raise ApiError(404, "not_found", f"reference {reference_id} not found")
+    arrays = reference_store.load_labels(db, reference_id)
+    if arrays is None:
+        raise ApiError(409, "not_ready", f"reference {reference_id} is not labelled yet (status {row['status']})")
+    png = identity_overlay_png(settings.data_dir / row["image_path"], arrays)
+    return Response(png, media_type="image/png")

@@ -1,0 +1,207 @@
+"""Local features on building pixels: SIFT keypoints with RootSIFT descriptors (the paper's SBoW uses building only).
+
+Pipeline (:func:`extract_features`):
+
+1. The image is downscaled (``cv2.INTER_AREA``) so its longer side is at most ``max_side`` pixels
+   (default 1024: phone photos of 4032 x 3024 become 1024 x 768; smaller images are kept as they are).
+   Features of every image are thus computed at a comparable working resolution, and SIFT stays fast.
+2. The building mask is resized to the working size (nearest) and dilated by ``dilate_px`` working
+   pixels (default 4): segmentation tends to undershoot building outlines, and keypoints on a
+   building's silhouette (roof line against the sky, corners) are among the most distinctive ones.
+   Keypoints are detected only where this dilated mask is set.
+3. OpenCV SIFT keeps the ``max_features`` strongest keypoints; each descriptor is made RootSIFT
+   (L1-normalised, element-wise square root: unit L2 norm, so Euclidean distance between RootSIFT
+   descriptors is the Hellinger distance between the SIFT histograms, and dot products are similarities).
+4. Keypoints are sorted by response (strongest first; ties by position), and their positions are
+   returned in the *input* image's pixel coordinates (pixel centres at integer + 0.5 convention of
+   OpenCV: ``x_in = (x_work + 0.5) / scale - 0.5``).
+
+The result is deterministic for a given image, mask and parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+DEFAULT_MAX_SIDE = 1024
+DEFAULT_MAX_FEATURES = 1500
+DESCRIPTOR_DIM = 128
+
+
+@dataclass
+class Features:
+    """Local features of one image.
+
+    xy: (N, 2) float32 keypoint positions (x, y) in pixels of the input image.
+    descriptors: (N, 128) float32 RootSIFT descriptors (non-negative, unit L2 norm).
+    sizes: (N,) float32 keypoint diameters in input-image pixels. angles: (N,) float32 orientations (deg).
+    responses: (N,) float32 detector responses (strongest first).
+    image_shape: (H, W) of the input image. scale: working size / input size (<= 1); coordinates
+    multiplied by ``scale`` are in working pixels, where pixel thresholds (RANSAC) are meant.
+    """
+
+    xy: np.ndarray
+    descriptors: np.ndarray
+    sizes: np.ndarray
+    angles: np.ndarray
+    responses: np.ndarray
+    image_shape: tuple[int, int]
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        self.xy = np.asarray(self.xy, dtype=np.float32).reshape(-1, 2)
+        self.descriptors = np.asarray(self.descriptors, dtype=np.float32).reshape(-1, DESCRIPTOR_DIM)
+        self.sizes = np.asarray(self.sizes, dtype=np.float32).reshape(-1)
+        self.angles = np.asarray(self.angles, dtype=np.float32).reshape(-1)
+        self.responses = np.asarray(self.responses, dtype=np.float32).reshape(-1)
+        self.image_shape = (int(self.image_shape[0]), int(self.image_shape[1]))
+        n = len(self.xy)
+        if not (len(self.descriptors) == len(self.sizes) == len(self.angles) == len(self.responses) == n):
+            raise ValueError("xy, descriptors, sizes, angles and responses must have the same length")
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    @classmethod
+    def empty(cls, image_shape: tuple[int, int], scale: float = 1.0) -> Features:
+        """No keypoints (e.g. an image without building pixels)."""
+        z = np.zeros(0, np.float32)
+        return cls(np.zeros((0, 2)), np.zeros((0, DESCRIPTOR_DIM)), z, z, z, image_shape, scale)
+
+    def subset(self, index: np.ndarray) -> Features:
+        """The keypoints selected by ``index`` (bool mask or integer indices)."""
+        return Features(
+            self.xy[index],
+            self.descriptors[index],
+            self.sizes[index],
+            self.angles[index],
+            self.responses[index],
+            self.image_shape,
+            self.scale,
+        )
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Plain arrays for storage (descriptors as float16: RootSIFT values lie in [0, 1])."""
+        return {
+            "xy": self.xy,
+            "descriptors": self.descriptors.astype(np.float16),
+            "sizes": self.sizes,
+            "angles": self.angles,
+            "responses": self.responses,
+            "image_shape": np.asarray(self.image_shape, np.int64),
+            "scale": np.asarray(self.scale, np.float64),
+        }
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> Features:
+        """Inverse of :meth:`to_arrays` (accepts an ``np.load`` result)."""
+        return cls(
+            arrays["xy"],
+            np.asarray(arrays["descriptors"], np.float32),
+            arrays["sizes"],
+            arrays["angles"],
+            arrays["responses"],
+            tuple(np.asarray(arrays["image_shape"]).tolist()),
+            float(arrays["scale"]),
+        )
+
+    def save(self, path: str | Path) -> None:
+        """Write to ``path`` (.npz, compressed)."""
+        np.savez_compressed(path, **self.to_arrays())
+
+    @classmethod
+    def load(cls, path: str | Path) -> Features:
+        with np.load(path) as data:
+            return cls.from_arrays(dict(data))
+
+
+def working_scale(image_shape: tuple[int, int], max_side: int = DEFAULT_MAX_SIDE) -> float:
+    """Scale factor (<= 1) that brings an image of ``image_shape`` (H, W) to a longer side of at most ``max_side``."""
+    return min(1.0, float(max_side) / float(max(image_shape[:2])))
+
+
+def root_sift(descriptors: np.ndarray, eps: float = 1e-12) -> np.ndarray:
+    """(N, 128) SIFT -> RootSIFT: L1-normalise each row, then element-wise square root (rows get unit L2 norm)."""
+    d = np.maximum(np.asarray(descriptors, dtype=np.float32), 0.0)
+    d /= np.maximum(d.sum(axis=1, keepdims=True), eps)
+    return np.sqrt(d, out=d)
+
+
+def _to_gray_u8(image_rgb: np.ndarray) -> np.ndarray:
+    img = np.asarray(image_rgb)
+    if img.dtype != np.uint8:
+        scale = 255.0 if img.dtype.kind == "f" and img.max(initial=0) <= 1.0 else 1.0
+        img = np.clip(img.astype(np.float32) * scale, 0, 255).astype(np.uint8)
+    if img.ndim == 2:
+        return img
+    if img.shape[2] == 4:
+        img = img[..., :3]
+    return cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY)
+
+
+def detection_mask(building_mask: np.ndarray, size_wh: tuple[int, int], dilate_px: int) -> np.ndarray:
+    """(h, w) uint8 mask (0/255) where keypoints may be detected: the building mask at working size, dilated."""
+    mask = (np.asarray(building_mask) > 0).astype(np.uint8)
+    if (mask.shape[1], mask.shape[0]) != size_wh:
+        mask = cv2.resize(mask, size_wh, interpolation=cv2.INTER_NEAREST)
+    if dilate_px > 0:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * dilate_px + 1, 2 * dilate_px + 1))
+        mask = cv2.dilate(mask, kernel)
+    return mask * np.uint8(255)
+
+
+def extract_features(
+    image_rgb: np.ndarray,
+    building_mask: np.ndarray | None,
+    max_features: int = DEFAULT_MAX_FEATURES,
+    *,
+    max_side: int = DEFAULT_MAX_SIDE,
+    dilate_px: int = 4,
+    contrast_threshold: float = 0.02,
+    edge_threshold: float = 10.0,
+) -> Features:
+    """SIFT keypoints with RootSIFT descriptors on the building pixels of an image.
+
+    image_rgb: (H, W, 3) uint8 RGB (or (H, W) gray). building_mask: (H, W) bool/int, non-zero on building
+    pixels (any size: it is resized to the image); None means the whole image.
+    max_features: keep at most this many keypoints (strongest by SIFT response).
+    max_side: working resolution (longer side, pixels); dilate_px: mask dilation in working pixels.
+    contrast_threshold, edge_threshold: OpenCV SIFT detector thresholds.
+    Returns :class:`Features` with positions in input-image pixels, strongest first.
+    """
+    gray = _to_gray_u8(image_rgb)
+    h, w = gray.shape
+    scale = working_scale((h, w), max_side)
+    size_wh = (max(1, round(w * scale)), max(1, round(h * scale)))
+    if size_wh != (w, h):
+        gray = cv2.resize(gray, size_wh, interpolation=cv2.INTER_AREA)
+        # Exact per-axis factors (rounding of the working size).
+        sx, sy = size_wh[0] / w, size_wh[1] / h
+    else:
+        sx = sy = 1.0
+    if building_mask is None:
+        mask = np.full((size_wh[1], size_wh[0]), 255, np.uint8)
+    else:
+        mask = detection_mask(building_mask, size_wh, dilate_px)
+    if not mask.any() or max_features <= 0:
+        return Features.empty((h, w), scale)
+    sift = cv2.SIFT_create(
+        nfeatures=int(max_features), contrastThreshold=contrast_threshold, edgeThreshold=edge_threshold
+    )
+    keypoints, desc = sift.detectAndCompute(gray, mask)
+    if desc is None or len(keypoints) == 0:
+        return Features.empty((h, w), scale)
+    pts = np.array([k.pt for k in keypoints], np.float32).reshape(-1, 2)
+    sizes = np.array([k.size for k in keypoints], np.float32)
+    angles = np.array([k.angle for k in keypoints], np.float32)
+    responses = np.array([k.response for k in keypoints], np.float32)
+    # Strongest first; ties broken by position, so the order does not depend on OpenCV's internal order.
+    order = np.lexsort((pts[:, 0], pts[:, 1], -responses))[: int(max_features)]
+    xy = np.empty_like(pts[order])
+    xy[:, 0] = (pts[order, 0] + 0.5) / sx - 0.5
+    xy[:, 1] = (pts[order, 1] + 0.5) / sy - 0.5
+    return Features(xy, root_sift(desc[order]), sizes[order] / scale, angles[order], responses[order], (h, w), scale)

@@ -1,0 +1,264 @@
+"""The method's job handlers: label a reference, answer a query. Thin: all of the method is in ``geoloc``.
+
+Both compute first and then write everything in one transaction with replace semantics, so a job that
+runs again after a crash leaves the same state. Loaded maps and the segmentation session are cached
+per worker process.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+import sqlite_utils
+
+from db import maps as map_store
+from db import queries as query_store
+from db import references as reference_store
+from db import sbow, transaction
+from geoloc.config import data_dir
+from geoloc.features import Features
+from geoloc.osm import CityMap, load_map
+from geoloc.pipeline import geolocate_query, label_reference_photo, load_photo
+from geoloc.retrieval import Vocabulary, default_vocabulary, tfidf_scores
+from geoloc.transfer import ReferenceEvidence, rerank_by_inliers
+from workers.handlers import LABEL_REFERENCE, PermanentJobError, register
+
+LOCALIZE_QUERY = "localize_query"
+SHORTLIST = 20
+"""SBoW candidates re-ranked by geometrically verified inliers before the top k are used."""
+
+
+@lru_cache(maxsize=4)
+def _city_map(source_path: str, sha256: str) -> CityMap:
+    """The map's CityMap, loaded once per worker process (keyed by file and checksum)."""
+    return load_map(data_dir() / source_path)
+
+
+def city_map_for(db: sqlite_utils.Database, map_id: int) -> CityMap:
+    row = map_store.get_map(db, map_id)
+    if row is None:
+        raise PermanentJobError(f"map {map_id} no longer exists")
+    return _city_map(row["source_path"], row["sha256"])
+
+
+def vocabulary_for(db: sqlite_utils.Database, map_id: int) -> Vocabulary:
+    """The map's visual vocabulary: the default one, stored with the map the first time it is needed."""
+    stored = sbow.load_vocabulary(db, map_id)
+    if stored is not None:
+        return Vocabulary(stored["centers"])
+    vocabulary = default_vocabulary(progress=False)
+    with transaction(db):
+        if sbow.load_vocabulary(db, map_id) is None:
+            sbow.save_vocabulary(db, map_id, {"centers": vocabulary.centroids})
+    return vocabulary
+
+
+@register(LABEL_REFERENCE)
+def label_reference(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[str, Any]:
+    """Label a reference with the map, extract and index its features, store its pose and identities."""
+    reference_id, map_id = int(payload["reference_id"]), int(payload["map_id"])
+    ref = reference_store.get_reference(db, reference_id)
+    if ref is None:
+        raise PermanentJobError(f"reference {reference_id} no longer exists")
+    city = city_map_for(db, map_id)
+    frame = city.frame
+    t0 = time.perf_counter()
+    try:
+        photo = load_photo(data_dir() / ref["image_path"], focal_35mm=ref["focal_length_35mm"])
+    except (OSError, ValueError) as exc:
+        raise PermanentJobError(f"cannot read the stored photo: {exc}") from exc
+    gps_x, gps_y = (float(v) for v in frame.to_local(ref["gps_lat"], ref["gps_lon"]))
+    prior_yaw = None
+    if ref["prior_heading_deg"] is not None:
+        prior_yaw = float(frame.heading_to_bearing(ref["prior_heading_deg"], gps_x, gps_y))
+    labelled = label_reference_photo(city, photo, (gps_x, gps_y), prior_yaw_deg=prior_yaw)
+    label, identity, features = labelled.label, labelled.identity, labelled.evidence.features
+    vocabulary = vocabulary_for(db, map_id)
+    words = vocabulary.words(features.descriptors)
+
+    lat, lon = (float(v) for v in frame.to_wgs84(label.x_m, label.y_m))
+    heading = float(frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m))
+    buildings = _describe_buildings(city, identity.building_extents(), photo.original_size[0] / photo.intrinsics.width)
+    timings = {k: round(v, 1) for k, v in labelled.timings_ms.items()}
+    timings["total"] = round(1e3 * (time.perf_counter() - t0), 1)
+    with transaction(db):
+        if reference_store.get_reference(db, reference_id) is None:
+            raise PermanentJobError(f"reference {reference_id} was deleted while it was labelled")
+        reference_store.save_labels(
+            db,
+            reference_id,
+            {
+                "building_ids": identity.building_ids,
+                "column_prob": identity.column_prob.astype(np.float32),
+                "building_mask": np.packbits(identity.building_mask, axis=1),
+                "mask_width": np.array([identity.building_mask.shape[1]]),
+                "likelihood": label.likelihood.astype(np.float32),
+            },
+        )
+        reference_store.save_keypoints(
+            db,
+            reference_id,
+            {**features.to_arrays(), "identity": labelled.keypoint_identity, "building_ids": identity.building_ids},
+        )
+        sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
+        reference_store.update_reference_result(
+            db,
+            reference_id,
+            status="done",
+            estimated_lat=lat,
+            estimated_lon=lon,
+            estimated_heading_deg=round(heading, 2),
+            buildings_seen=buildings,
+            timings=timings,
+        )
+    return {"reference_id": reference_id, "heading_deg": round(heading, 2), "buildings": len(buildings)}
+
+
+def _describe_buildings(city: CityMap, extents: list[dict], column_scale: float) -> list[dict]:
+    """Add OSM ids and names to building extents and express columns in the uploaded photo's pixels."""
+    out = []
+    for entry in extents:
+        building = city.buildings[entry["building_id"]]
+        out.append(
+            {
+                **entry,
+                "osm_id": building.osm_id,
+                "name": building.name,
+                "pixel_share": round(entry["pixel_share"], 4),
+                "probability": round(entry["probability"], 4),
+                "x_start": int(entry["x_start"] * column_scale),
+                "x_end": int(round((entry["x_end"] + 1) * column_scale)) - 1,
+            }
+        )
+    return out
+
+
+def retrieve_references(db: sqlite_utils.Database, map_id: int, words: np.ndarray, k: int) -> list[tuple[int, float]]:
+    """Top-k labelled references of a map for a query's visual words: [(reference_id, score)]."""
+    postings = sbow.postings_for_words(db, map_id, words)
+    if postings.n_docs == 0 or len(postings.reference_ids) == 0:
+        return []
+    scores = tfidf_scores(words, postings.word, postings.doc, postings.count, postings.doc_lengths, postings.n_docs)
+    order = np.argsort(-scores, kind="stable")[:k]
+    return [(int(postings.reference_ids[i]), float(scores[i])) for i in order if scores[i] > 0]
+
+
+@register(LOCALIZE_QUERY)
+def localize_query(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[str, Any]:
+    """Answer a query: retrieval, identity transfer, localisation; store the JSON answer."""
+    from geoloc.localize import PositionPrior
+    from geoloc.pipeline import analyze_photo
+
+    query_id, map_id = int(payload["query_id"]), int(payload["map_id"])
+    query = query_store.get_query(db, query_id)
+    if query is None:
+        raise PermanentJobError(f"query {query_id} no longer exists")
+    params = query["params"]
+    city = city_map_for(db, map_id)
+    frame = city.frame
+    t0 = time.perf_counter()
+    try:
+        photo = load_photo(data_dir() / query["image_path"], focal_35mm=params.get("focal_length_35mm"))
+    except (OSError, ValueError) as exc:
+        raise PermanentJobError(f"cannot read the stored photo: {exc}") from exc
+    evidence = analyze_photo(photo)
+    vocabulary = vocabulary_for(db, map_id)
+    t_retrieval = time.perf_counter()
+    shortlist = retrieve_references(db, map_id, vocabulary.words(evidence.features.descriptors), SHORTLIST)
+    stored = {ref_id: reference_store.load_keypoints(db, ref_id) for ref_id, _ in shortlist}
+    stored = {ref_id: arrays for ref_id, arrays in stored.items() if arrays is not None}
+    features = {ref_id: Features.from_arrays(arrays) for ref_id, arrays in stored.items()}
+    candidates = [(ref_id, score, features[ref_id]) for ref_id, score in shortlist if ref_id in features]
+    references = [
+        ReferenceEvidence(
+            reference_id=match.reference_id,
+            features=features[match.reference_id],
+            keypoint_prob=stored[match.reference_id]["identity"],
+            building_ids=stored[match.reference_id]["building_ids"],
+            score=match.score,
+            match=match,
+        )
+        for match in rerank_by_inliers(evidence.features, candidates, int(params["k"]))
+    ]
+    retrieval_ms = 1e3 * (time.perf_counter() - t_retrieval)
+
+    position_prior = prior_yaw = None
+    prior = params.get("prior")
+    if prior:
+        x, y = (float(v) for v in frame.to_local(prior["lat"], prior["lon"]))
+        position_prior = PositionPrior(x, y, float(prior["radius_m"]))
+    if params.get("prior_heading_deg") is not None:
+        prior_yaw = float(frame.heading_to_bearing(params["prior_heading_deg"]))
+    answer = geolocate_query(
+        city,
+        photo,
+        references,
+        evidence=evidence,
+        position_prior=position_prior,
+        prior_yaw_deg=prior_yaw,
+        top_n=int(params["top_n"]),
+    )
+    result = _query_result(city, photo, answer)
+    result["timings_ms"] = {
+        **{k: round(v, 1) for k, v in answer.timings_ms.items()},
+        "retrieval": round(retrieval_ms, 1),
+        "total": round(1e3 * (time.perf_counter() - t0), 1),
+    }
+    with transaction(db):
+        if not query_store.update_query_result(db, query_id, status="done", result=result):
+            raise PermanentJobError(f"query {query_id} was deleted while it was answered")
+    return {"query_id": query_id, "locations": len(result["locations"])}
+
+
+def _query_result(city: CityMap, photo: Any, answer: Any) -> dict[str, Any]:
+    """The JSON answer (WGS84 and compass headings) of a :class:`geoloc.pipeline.QueryAnswer`."""
+    frame = city.frame
+    loc = answer.localization
+    locations = []
+    for pose in loc.poses:
+        lat, lon = (float(v) for v in frame.to_wgs84(pose.x_m, pose.y_m))
+        heading = float(frame.bearing_to_heading(pose.yaw_deg, pose.x_m, pose.y_m))
+        locations.append(
+            {
+                "rank": pose.rank,
+                "lat": round(lat, 7),
+                "lon": round(lon, 7),
+                "heading_deg": round(heading, 2),
+                "probability": round(pose.probability, 6),
+                "pose_probability": round(pose.pose_probability, 6),
+            }
+        )
+    grid = loc.grid
+    min_x, min_y, max_x, max_y = grid.bounds_m
+    corner_lat, corner_lon = frame.to_wgs84(np.array([min_x, max_x]), np.array([min_y, max_y]))
+    origin_lat, origin_lon = (float(v) for v in frame.to_wgs84(*grid.origin_m))
+    heatmap = {
+        "origin": {"lat": round(origin_lat, 7), "lon": round(origin_lon, 7)},
+        "origin_local_m": [round(grid.origin_m[0], 2), round(grid.origin_m[1], 2)],
+        "cell_m": grid.cell_m,
+        "shape": list(grid.shape),
+        "bounds": {
+            "min_lat": round(float(corner_lat.min()), 7),
+            "min_lon": round(float(corner_lon.min()), 7),
+            "max_lat": round(float(corner_lat.max()), 7),
+            "max_lon": round(float(corner_lon.max()), 7),
+        },
+        "values": np.round(loc.heatmap, 6).tolist(),
+    }
+    scale = photo.original_size[0] / photo.intrinsics.width
+    return {
+        "locations": locations,
+        "heatmap": heatmap,
+        "buildings": _describe_buildings(city, answer.buildings, scale),
+        "references": [{k: r[k] for k in ("reference_id", "score", "matches", "inliers")} for r in answer.references],
+        "search": loc.search,
+        "camera": {
+            "hfov_deg": round(photo.intrinsics.hfov_deg, 2),
+            "focal_source": photo.intrinsics.source,
+            "width": photo.original_size[0],
+            "height": photo.original_size[1],
+        },
+    }
