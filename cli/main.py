@@ -5,14 +5,18 @@ from __future__ import annotations
 import typer
 
 from cli import analyze as analyze_cmd
+from cli import eval as eval_cmd
 from cli import ingest as ingest_cmd
 from cli import map as map_cmd
+from cli import models as models_cmd
 from cli import serve as serve_cmd
 from cli import sim as sim_cmd
 
 app = typer.Typer(no_args_is_help=True, help="Map-based visual geolocation: maps, simulation, analysis, service.")
 app.add_typer(map_cmd.app, name="map")
 app.add_typer(sim_cmd.app, name="sim")
+app.add_typer(models_cmd.app, name="models")
+app.add_typer(eval_cmd.app, name="eval")
 serve_cmd.register(app)
 app.command("analyze")(analyze_cmd.analyze)
 app.command("ingest")(ingest_cmd.ingest)

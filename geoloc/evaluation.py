@@ -13,8 +13,8 @@ Everything is compared with the renderer's ground truth:
   with or without identities), the error of the best of the top-N positions for N = 1..10 (mean and
   95 % confidence interval, the paper's Fig. 7) and recall within 5 m / 10 m at N = 1;
 - ``facade_orientation``: image-side orientation accuracy per building column;
-- ``retrieval``: how often the reference sharing the most building pixels with the query is in the top k
-  (SBoW shortlist of 20, re-ranked by verified inliers);
+- ``retrieval``: how often a reference sharing the most building area with the query is in the top k
+  (SBoW shortlist of 20, re-ranked by verified inliers), over queries that share at least 0.1 with one;
 - ``timing_ms``: median per stage.
 
 ``segmentation="gt"`` replaces the network's labels by the ground-truth labels everywhere, to separate
@@ -174,9 +174,9 @@ def evaluate_world(
         matches = rerank_by_inliers(evidence.features, candidates, max(KS))
         timings["query_rerank"].append(1e3 * (time.perf_counter() - t0))
         ranked_names = [m.reference_id for m in matches]
-        best_overlap = _best_overlapping_reference(world, image.name, [r.name for r in references])
+        best_overlap = _best_overlapping_references(world, image.name, [r.name for r in references])
         for k in KS:
-            retrieval_hits[k].append(best_overlap in ranked_names[:k] if best_overlap else None)
+            retrieval_hits[k].append(bool(best_overlap & set(ranked_names[:k])) if best_overlap else None)
 
         identity_k = {}
         for k in KS:
@@ -261,13 +261,13 @@ def _reference_evidence(ref: _Reference, match: ReferenceMatch, source: str) -> 
     )
 
 
-def _best_overlapping_reference(world: World, query_name: str, reference_names: list[str]) -> str | None:
-    """The reference sharing the most building pixels (by building, min of the two shares) with the query."""
+def _best_overlapping_references(world: World, query_name: str, reference_names: list[str]) -> set[str]:
+    """The references sharing the most building area with the query (sum over buildings of the smaller
+    of the two pixel shares), ties within 0.02 included; empty when none shares 0.1 ("unseen" queries)."""
     shares = {b["building_id"]: b["pixel_share"] for b in world.image(query_name).record["buildings"]}
-    best, best_score = None, 0.0
+    overlap = {}
     for name in reference_names:
         ref_shares = {b["building_id"]: b["pixel_share"] for b in world.image(name).record["buildings"]}
-        score = sum(min(s, ref_shares.get(b, 0.0)) for b, s in shares.items())
-        if score > best_score:
-            best, best_score = name, score
-    return best
+        overlap[name] = sum(min(s, ref_shares.get(b, 0.0)) for b, s in shares.items())
+    top = max(overlap.values(), default=0.0)
+    return {name for name, value in overlap.items() if value >= top - 0.02} if top >= 0.1 else set()

@@ -1,0 +1,173 @@
+"""Exported models: build the segmentation network's ONNX file in the cache, outside git.
+
+``build_segmentation_model`` reads the published ESPNetv2 Cityscapes weights from the shared
+folder (``GEOLOC_SHARED/models``), exports them to ONNX with a fixed input size into
+``geoloc.config.cache_dir()/models/`` and writes a JSON beside it with the weights' sha256; the
+export is redone when that hash (or the export recipe version) changes, or with ``force``.
+Only this path imports torch (lazily, inside ``_export``); install it with the ``export`` extra.
+
+The ONNX graph: input ``image`` (1, 3, H, W) float32 RGB in 0..255 (normalisation is inside the
+graph); output ``logits`` (1, 20, H/2, W/2) float32 in Cityscapes trainId order (19 = void).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+from geoloc import config
+
+SEG_WEIGHTS = "espnetv2_s_2.0_city_1024x512.pth"
+SEG_SCALE = 2.0
+SEG_CLASSES = 20
+# Network input size (W, H) used by default; chosen by measuring accuracy against time on CamVid
+# (table in geoloc/segmentation.py). Multiples of 16.
+SEG_DEFAULT_SIZE: tuple[int, int] = (768, 384)
+OUTPUT_STRIDE = 2  # the graph returns logits at 1/2 of the input size
+EXPORT_VERSION = 1  # bump when the export recipe changes, to force a rebuild
+OPSET = 17
+
+
+@dataclass(frozen=True)
+class SegModelFiles:
+    """Where a segmentation export lives: the ONNX file and its JSON metadata."""
+
+    onnx: Path
+    meta: Path
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """'768x384' -> (768, 384); both multiples of 16 and at least 64, else ValueError."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise ValueError(f"size must look like WxH (e.g. 768x384), got {text!r}") from exc
+    check_size((w, h))
+    return w, h
+
+
+def check_size(size: tuple[int, int]) -> None:
+    """Raise ValueError unless (W, H) are multiples of 16 and at least 64."""
+    w, h = size
+    if w % 16 or h % 16 or w < 64 or h < 64:
+        raise ValueError(f"network size must be multiples of 16 and >= 64, got {w}x{h}")
+
+
+def segmentation_files(size: tuple[int, int] | None = None) -> SegModelFiles:
+    """Paths of the ONNX export for network input ``size`` = (W, H) (default ``SEG_DEFAULT_SIZE``)."""
+    w, h = size or SEG_DEFAULT_SIZE
+    stem = f"espnetv2_s{SEG_SCALE:g}_city_{w}x{h}"
+    folder = config.cache_dir() / "models"
+    return SegModelFiles(onnx=folder / f"{stem}.onnx", meta=folder / f"{stem}.json")
+
+
+def weights_path() -> Path:
+    """The shared ESPNetv2 weights file (FileNotFoundError with a hint if absent)."""
+    return config.shared_path("models", SEG_WEIGHTS)
+
+
+def sha256_file(path: Path) -> str:
+    """Hex sha256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def read_meta(files: SegModelFiles) -> dict | None:
+    """The export's JSON metadata, or None if missing/unreadable."""
+    try:
+        return json.loads(files.meta.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def is_current(files: SegModelFiles, weights_sha256: str) -> bool:
+    """True if the ONNX exists and was exported from these weights with this recipe."""
+    meta = read_meta(files)
+    return (
+        files.onnx.exists()
+        and meta is not None
+        and meta.get("weights_sha256") == weights_sha256
+        and meta.get("export_version") == EXPORT_VERSION
+    )
+
+
+def build_segmentation_model(force: bool = False, size: tuple[int, int] | None = None) -> Path:
+    """Export ESPNetv2 (s=2.0, Cityscapes) to ONNX in the cache unless an up-to-date export exists.
+
+    Args:
+        force: re-export even if the cached file matches the weights.
+        size: network input (W, H), multiples of 16; default ``SEG_DEFAULT_SIZE``.
+    Returns:
+        Path of the ONNX file.
+    """
+    size = size or SEG_DEFAULT_SIZE
+    check_size(size)
+    files = segmentation_files(size)
+    weights = weights_path()
+    sha = sha256_file(weights)
+    if not force and is_current(files, sha):
+        return files.onnx
+    files.onnx.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    tmp = files.onnx.with_suffix(f".tmp{os.getpid()}.onnx")
+    try:
+        versions = _export(weights, tmp, size)
+        os.replace(tmp, files.onnx)
+    finally:
+        tmp.unlink(missing_ok=True)
+    meta = {
+        "weights": SEG_WEIGHTS,
+        "weights_sha256": sha,
+        "scale": SEG_SCALE,
+        "input": {"name": "image", "shape": [1, 3, size[1], size[0]], "format": "RGB float 0..255"},
+        "output": {
+            "name": "logits",
+            "shape": [1, SEG_CLASSES, size[1] // 2, size[0] // 2],
+            "classes": "cityscapes trainId 0..18, 19 void",
+        },
+        "output_stride": OUTPUT_STRIDE,
+        "export_version": EXPORT_VERSION,
+        "opset": OPSET,
+        "export_seconds": round(time.perf_counter() - t0, 2),
+        **versions,
+    }
+    files.meta.write_text(json.dumps(meta, indent=2) + "\n")
+    return files.onnx
+
+
+def _export(weights: Path, out: Path, size: tuple[int, int]) -> dict[str, str]:
+    """Load the weights strictly, trace at ``size`` and write ONNX to ``out``; returns versions."""
+    try:
+        import torch
+
+        from geoloc.nets.espnetv2 import NormalizedSegmenter, load_espnetv2
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise RuntimeError("exporting the segmentation model needs torch: pip install -e '.[export]'") from exc
+    net = load_espnetv2(weights, s=SEG_SCALE, classes=SEG_CLASSES)
+    net.set_static_ops(True)
+    net.full_resolution = False
+    model = NormalizedSegmenter(net).eval()
+    dummy = torch.zeros(1, 3, size[1], size[0])
+    with torch.no_grad(), warnings.catch_warnings():
+        # Shapes are Python ints on purpose: the graph has a fixed input size.
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter is what we want
+        torch.onnx.export(
+            model,
+            (dummy,),
+            str(out),
+            input_names=["image"],
+            output_names=["logits"],
+            opset_version=OPSET,
+            dynamo=False,
+            do_constant_folding=True,
+        )
+    return {"torch": torch.__version__}

@@ -1,0 +1,96 @@
+"""The method on a small simulated Helsinki world (ground-truth labels, so segmentation is not under test)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geoloc.config import shared_path
+from geoloc.evaluation import KS, evaluate_world
+from geoloc.pipeline import analyze_photo, label_reference_photo, load_photo
+from geoloc.retrieval import InvertedIndex, default_vocabulary
+from geoloc.sim.world import WorldOptions, generate_world, load_world
+from geoloc.transfer import rerank_by_inliers
+
+
+@pytest.fixture(scope="module")
+def world_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("world")
+    opts = WorldOptions(n_references=20, n_queries=6, seed=3, radius_m=120.0)
+    generate_world(shared_path("data", "osm", "helsinki.osm.pbf"), out, opts)
+    return out
+
+
+@pytest.fixture(scope="module")
+def labelled(world_dir: Path) -> dict:
+    world = load_world(world_dir)
+    city = world.load_map()
+    out = {}
+    for image in world.references:
+        photo = load_photo(image.path)
+        evidence = analyze_photo(photo, world.gt(image.name)["labels"])
+        gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
+        out[image.name] = label_reference_photo(city, photo, gps_xy, evidence=evidence)
+    return out
+
+
+def _angle(a: float, b: float) -> float:
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def test_reference_labelling_recovers_headings(world_dir: Path, labelled: dict) -> None:
+    world = load_world(world_dir)
+    errors = np.array([_angle(labelled[im.name].label.yaw_deg, im.pose.yaw_deg) for im in world.references])
+    # GPS is 5 m off; most references get their heading within 6 deg (a few flip across the street).
+    assert np.mean(errors <= 6.0) >= 0.7, errors.round(1)
+    # Their identities are mostly right on ground-truth building pixels.
+    accuracy = []
+    for image in world.references:
+        truth = world.gt(image.name)["building_id"]
+        predicted = labelled[image.name].identity.pixel_ids()
+        accuracy.append(np.mean(predicted[truth >= 0] == truth[truth >= 0]))
+    assert np.median(accuracy) > 0.7
+
+
+def test_retrieval_finds_the_reference_sharing_most_building_area(world_dir: Path, labelled: dict) -> None:
+    world = load_world(world_dir)
+    vocabulary = default_vocabulary(progress=False)
+    index = InvertedIndex()
+    for name, ref in labelled.items():
+        index.add(name, vocabulary.words(ref.evidence.features.descriptors))
+    hits = []
+    for image in world.queries:
+        shares = {b["building_id"]: b["pixel_share"] for b in image.record["buildings"]}
+        overlap = {
+            ref.name: sum(min(s, r.get(b, 0.0)) for b, s in shares.items())
+            for ref in world.references
+            for r in [{b["building_id"]: b["pixel_share"] for b in ref.record["buildings"]}]
+        }
+        top = max(overlap.values())
+        if top < 0.1:  # the query shows nothing a reference shows well ("unseen" queries)
+            continue
+        best = {name for name, value in overlap.items() if value >= top - 0.02}  # ties share the top
+        photo = load_photo(image.path)
+        evidence = analyze_photo(photo, world.gt(image.name)["labels"])
+        shortlist = index.query(vocabulary.words(evidence.features.descriptors), 20)
+        candidates = [(name, score, labelled[name].evidence.features) for name, score in shortlist]
+        top4 = [m.reference_id for m in rerank_by_inliers(evidence.features, candidates, 4)]
+        hits.append(bool(best & set(top4)))
+    assert hits and np.mean(hits) >= 0.6, hits
+
+
+def test_evaluation_writes_every_key(world_dir: Path) -> None:
+    result = evaluate_world(world_dir, segmentation="gt", max_queries=3)
+    assert set(result["reference_identity_accuracy"]) == {"greedy", "marginalized"}
+    for source in ("ours", "gt_reference_labels"):
+        assert set(result["query_identity_accuracy"][source]) == {str(k) for k in KS}
+    assert result["reference_heading_error_deg"]["n"] == 20
+    for mode in ("with_identity", "geometry_only"):
+        block = result["localization"][mode]
+        assert set(block["top_n_error_m"]) == {str(n) for n in range(1, 11)}
+        errors = [block["top_n_error_m"][str(n)]["mean"] for n in range(1, 11)]
+        assert errors == sorted(errors, reverse=True)  # best of more answers is never worse
+        assert 0.0 <= block["recall_5m_at_1"] <= block["recall_10m_at_1"] <= 1.0
+    assert result["timing_ms"]["reference_labeling"] > 0
