@@ -200,3 +200,60 @@ def world(
     if json_out:
         json_out.write_text(json.dumps(result, indent=2))
         typer.echo(f"wrote {json_out}")
+
+
+@app.command("facades")
+def facades(
+    world_dir: Path = typer.Argument(..., help="A world folder written by `geoloc sim world`."),
+    segmentation: str = typer.Option("model", help="'model' (the network) or 'gt' (ground-truth labels)."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the figures here."),
+) -> None:
+    """Facade orientation accuracy per building column of every image of a world.
+
+    Prints the median absolute error of theta_hat (mod 180), the share of columns within 5 and 10 deg, and
+    the fraction of ground-truth building columns that get a hypothesis at all, pooled over all columns.
+    """
+    import numpy as np
+
+    from geoloc.facades import analyze_image
+    from geoloc.pipeline import load_photo
+    from geoloc.sim.world import load_world
+
+    if segmentation not in ("model", "gt"):
+        raise typer.BadParameter("segmentation must be 'model' or 'gt'")
+    from geoloc.image_model import column_bins
+    from geoloc.segmentation import segment
+
+    world_data = load_world(world_dir)
+    errors, covered, building_columns = [], 0, 0
+    started = time.perf_counter()
+    for image in world_data.images:
+        gt = world_data.gt(image.name)
+        photo = load_photo(image.path)
+        labels = gt["labels"] if segmentation == "gt" else segment(photo.image_rgb)
+        model = analyze_image(photo.image_rgb, labels, photo.intrinsics).image_model
+        bins = column_bins(photo.intrinsics, model.offsets_deg, model.bin_deg)
+        is_building = (gt["column_building_id"] >= 0) & (bins >= 0)
+        has = is_building & (model.facade_present[np.maximum(bins, 0)] > 0)
+        delta = model.orientation_deg[np.maximum(bins, 0)] - gt["column_theta_deg"]
+        errors.append(np.abs((delta[has] + 90.0) % 180.0 - 90.0))
+        covered += int(has.sum())
+        building_columns += int(is_building.sum())
+    err = np.concatenate(errors)
+    result = {
+        "world": str(world_dir),
+        "segmentation": segmentation,
+        "images": len(world_data.images),
+        "median_abs_error_deg": round(float(np.median(err)), 3),
+        "within_5deg": round(float(np.mean(err <= 5.0)), 4),
+        "within_10deg": round(float(np.mean(err <= 10.0)), 4),
+        "columns_with_hypothesis": round(covered / max(building_columns, 1), 4),
+        "seconds": round(time.perf_counter() - started, 1),
+    }
+    typer.echo(
+        f"{result['images']} images, segmentation={segmentation}: median |theta_hat - theta| "
+        f"{result['median_abs_error_deg']} deg, within 5 deg {result['within_5deg']}, within 10 deg "
+        f"{result['within_10deg']}; building columns with a hypothesis {result['columns_with_hypothesis']}"
+    )
+    if json_out:
+        json_out.write_text(json.dumps(result, indent=2))

@@ -275,6 +275,26 @@ BAD_INPUTS: list[tuple[str, str, Any, dict[str, str], str | None, int, str, str]
      "nope", 401, "unauthorized", "invalid API key"),
     ("ref: read-only key", "refs", lambda: {"image": ("a.jpg", jpeg_bytes(gps=INSIDE_HELSINKI, seed=8))}, {},
      READ_KEY, 403, "forbidden", "write"),
+    ("query: not an image", "queries", lambda: {"image": ("q.jpg", b"<html>not a photo</html>")}, {},
+     READ_KEY, 415, "not_an_image", "not an image"),
+    ("query: truncated jpeg", "queries", lambda: {"image": ("q.jpg", _truncated_jpeg())}, {},
+     READ_KEY, 422, "corrupt_image", "truncated"),
+    ("query: decompression bomb", "queries", lambda: {"image": ("q.png", png_header_only(100_000, 100_000))}, {},
+     READ_KEY, 413, "too_many_pixels", "decompression bomb"),
+    ("query: exif gps outside the map", "queries", lambda: {"image": ("q.jpg", jpeg_bytes(gps=LUND, seed=9))}, {},
+     READ_KEY, 422, "outside_map", "use_exif_gps=false"),
+    ("query: prior outside the map", "queries", lambda: {"image": ("q.jpg", jpeg_bytes(seed=9))},
+     {"lat": "60.19", "lon": "24.9443"}, READ_KEY, 422, "outside_map", "from request"),
+    ("query: only lon", "queries", lambda: {"image": ("q.jpg", jpeg_bytes(seed=9))}, {"lon": "24.94"},
+     READ_KEY, 422, "invalid_request", "both lat and lon"),
+    ("query: top_n out of range", "queries", lambda: {"image": ("q.jpg", jpeg_bytes(seed=9))}, {"top_n": "500"},
+     READ_KEY, 422, "invalid_request", "top_n must be between"),
+    ("query: too large", "queries", lambda: {"image": ("q.jpg", b"\xff\xd8" + os.urandom(MAX_IMAGE_BYTES))}, {},
+     READ_KEY, 413, "payload_too_large", "limit"),
+    ("query: unknown map", "queries-unknown-map", lambda: {"image": ("q.jpg", jpeg_bytes(seed=9))}, {},
+     READ_KEY, 404, "not_found", "map 999999 not found"),
+    ("query: no API key", "queries", lambda: {"image": ("q.jpg", jpeg_bytes(seed=9))}, {},
+     None, 401, "unauthorized", "X-API-Key"),
 ]  # fmt: skip
 
 
@@ -298,6 +318,8 @@ def test_bad_input_is_rejected_and_nothing_is_stored(
         "maps": "/v1/maps",
         "refs": f"/v1/maps/{helsinki['id']}/references",
         "refs-unknown-map": "/v1/maps/999999/references",
+        "queries": f"/v1/maps/{helsinki['id']}/queries",
+        "queries-unknown-map": "/v1/maps/999999/queries",
     }[target]
     before = Unchanged(service)
     with service.client(api_key) as client:
