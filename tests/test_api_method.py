@@ -75,6 +75,9 @@ def test_ingest_label_and_query_through_the_api(tmp_path: Path, built_models: Pa
         assert png.status_code == 200 and png.content[:8] == b"\x89PNG\r\n\x1a\n"
 
         # Queries (EXIF GPS 10 m off, used as a prior): right buildings named, true position among the answers.
+        seen_by_references = {
+            b["osm_id"] for im in world.references for b in im.record["buildings"] if b["pixel_share"] >= 0.02
+        }
         named_right, found = [], []
         for image in world.queries:
             response = client.post(
@@ -87,7 +90,8 @@ def test_ingest_label_and_query_through_the_api(tmp_path: Path, built_models: Pa
             assert result["search"]["position_prior"] and len(result["locations"]) == 10
             heat = np.array(result["heatmap"]["values"])
             assert list(heat.shape) == result["heatmap"]["shape"] and heat.sum() == pytest.approx(1.0, abs=1e-3)
-            truth = {b["osm_id"] for b in image.record["buildings"] if b["pixel_share"] > 0.05}
+            # Identities come from references: judge the buildings (over 5 % of the photo) that one shows.
+            truth = {b["osm_id"] for b in image.record["buildings"] if b["pixel_share"] > 0.05} & seen_by_references
             named = {b["osm_id"] for b in result["buildings"]}
             named_right.append(bool(truth & named) if truth else None)
             frame = world.load_map().frame
@@ -98,7 +102,7 @@ def test_ingest_label_and_query_through_the_api(tmp_path: Path, built_models: Pa
             assert len(geojson["features"]) == 10
             assert client.get(f"/v1/queries/{answer['id']}/heatmap.png").content[:4] == b"\x89PNG"
         judged = [n for n in named_right if n is not None]
-        assert judged and np.mean(judged) >= 0.5, named_right
+        assert judged and np.mean(judged) >= 0.6, named_right
         assert np.mean(np.array(found) <= 15.0) >= 0.5, np.round(found, 1)
 
 
