@@ -14,15 +14,10 @@ def serve(
     log_level: str = typer.Option("info", help="Log level (debug, info, warning, error)."),
 ) -> None:
     """Start the REST API and N worker processes; restart any that die; stop all on Ctrl-C/SIGTERM."""
-    from service.settings import SettingsError, is_loopback_host, load_settings
+    from service.settings import is_loopback_host
     from workers.supervisor import Supervisor, api_spec, worker_spec
 
-    _setup_logging(log_level)
-    try:
-        settings = load_settings()
-    except SettingsError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from exc
+    settings = _start(log_level)
     if not settings.auth_enabled and not is_loopback_host(host):
         typer.echo(
             f"error: refusing to listen on {host}: no API keys are configured. Set GEOLOC_API_KEYS "
@@ -30,7 +25,6 @@ def serve(
             err=True,
         )
         raise typer.Exit(2)
-    _prepare_database(settings.database_path)
     typer.echo(f"geoloc: API on http://{host}:{port} with {workers} worker(s); data in {settings.data_dir}", err=True)
     specs = [api_spec(host, port, log_level), *(worker_spec(i, log_level) for i in range(workers))]
     raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
@@ -41,8 +35,17 @@ def worker(
     log_level: str = typer.Option("info", help="Log level (debug, info, warning, error)."),
 ) -> None:
     """Run worker processes alone against the database in GEOLOC_DATA_DIR (the API may run elsewhere)."""
-    from service.settings import SettingsError, load_settings
     from workers.supervisor import Supervisor, worker_spec
+
+    settings = _start(log_level)
+    typer.echo(f"geoloc: {concurrency} worker(s) on {settings.database_path}", err=True)
+    specs = [worker_spec(i, log_level) for i in range(concurrency)]
+    raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
+
+
+def _start(log_level: str):  # noqa: ANN202  (service.settings.Settings, imported lazily)
+    """Logging, settings (exit 2 with the reason when invalid) and a migrated database."""
+    from service.settings import SettingsError, load_settings
 
     _setup_logging(log_level)
     try:
@@ -51,9 +54,7 @@ def worker(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
     _prepare_database(settings.database_path)
-    typer.echo(f"geoloc: {concurrency} worker(s) on {settings.database_path}", err=True)
-    specs = [worker_spec(i, log_level) for i in range(concurrency)]
-    raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
+    return settings
 
 
 def _setup_logging(level: str) -> None:

@@ -226,32 +226,46 @@ def cast_all_hits(
     bearings_deg: np.ndarray,
     max_range_m: float = DEFAULT_MAX_RANGE_M,
     index: FacadeIndex | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    min_distance_m: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every facade hit along rays from one position (for rendering, where taller buildings behind show).
 
-    Returns (ray_index, facade_id, distance_m) of all hits of facing facades within range, sorted by
-    ray then distance. Bearings may be arbitrary (not on a grid).
+    bearings_deg: (R,) ray bearings, any values (not on a grid); when they span less than 180 deg (a
+    camera's columns, in order), facades wholly outside that span are culled first.
+    Returns (ray_index, facade_id, distance_m, along_m) of all hits of facing facades with
+    ``min_distance_m < distance <= max_range_m``, sorted by ray then distance; ``along_m`` is the hit's
+    distance from the facade's start point along the wall.
     """
     facades = city_map.facades
     index = index or FacadeIndex(facades)
     origin = np.asarray(position, dtype=float).reshape(1, 2)
     near = index.facades_near(origin, max_range_m)
     bearings = np.radians(np.asarray(bearings_deg, dtype=float))
-    if len(near) == 0:
-        empty = np.zeros(0, dtype=np.int64)
-        return empty, empty, np.zeros(0)
     a = facades.start[near] - origin
     b = facades.end[near] - origin
-    facing = np.einsum("fk,fk->f", -a, facades.normal[near]) > 1e-6
-    near, a, b = near[facing], a[facing], b[facing]
+    keep = np.einsum("fk,fk->f", -a, facades.normal[near]) > 1e-6  # facing the position
+    if len(bearings) and bearings.max() - bearings.min() < np.pi:
+        margin = 0.02  # rad
+        left = np.array([np.sin(bearings.min() - margin), np.cos(bearings.min() - margin)])
+        right = np.array([np.sin(bearings.max() + margin), np.cos(bearings.max() + margin)])
+        keep &= ~((_cross(left, a) > 0) & (_cross(left, b) > 0))  # wholly left of the span
+        keep &= ~((_cross(right, a) < 0) & (_cross(right, b) < 0))  # wholly right of it
+    near, a, b = near[keep], a[keep], b[keep]
     ray = np.column_stack([np.sin(bearings), np.cos(bearings)])  # (R, 2)
     ab = b - a
     denom = ray[:, None, 0] * ab[None, :, 1] - ray[:, None, 1] * ab[None, :, 0]  # (R, F)
     with np.errstate(divide="ignore", invalid="ignore"):
         s = (a[None, :, 0] * ab[None, :, 1] - a[None, :, 1] * ab[None, :, 0]) / denom
         u = (a[None, :, 0] * ray[:, None, 1] - a[None, :, 1] * ray[:, None, 0]) / denom
-    ok = np.isfinite(s) & (s > 0) & (s <= max_range_m) & (u >= 0) & (u <= 1)
+    ok = np.isfinite(s) & (s > min_distance_m) & (s <= max_range_m) & (u >= 0) & (u <= 1)
     ray_i, fac_i = np.nonzero(ok)
     dist = s[ray_i, fac_i]
     order = np.lexsort((dist, ray_i))
-    return ray_i[order], near[fac_i[order]], dist[order]
+    ray_i, fac_i, dist = ray_i[order], fac_i[order], dist[order]
+    along = u[ray_i, fac_i] * facades.length_m[near[fac_i]]
+    return ray_i, near[fac_i], dist, along
+
+
+def _cross(r: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """z of the 2D cross product of vector ``r`` (2,) with each row of ``p`` (N, 2)."""
+    return r[0] * p[:, 1] - r[1] * p[:, 0]

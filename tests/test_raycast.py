@@ -70,12 +70,19 @@ def test_many_positions_match_single_casts() -> None:
 def test_all_hits_agree_with_nearest_hit() -> None:
     city = street_canyon()
     pano = cast_panoramas(city, np.array([[0.0, 0.0]]))
-    ray, facade, distance = cast_all_hits(city, np.array([0.0, 0.0]), pano.bearings_deg)
+    ray, facade, distance, along = cast_all_hits(city, np.array([0.0, 0.0]), pano.bearings_deg)
     first = np.r_[True, ray[1:] != ray[:-1]]
     nearest = np.full(len(pano.bearings_deg), -1)
     nearest[ray[first]] = facade[first]
     assert np.array_equal(nearest, pano.facade_id[0])
     assert np.all(np.diff(distance)[ray[1:] == ray[:-1]] >= 0)
+    # The along-wall position of each hit lies on its facade, and the hit point is where the ray says.
+    f = city.facades
+    assert np.all((along >= 0) & (along <= f.length_m[facade] + 1e-9))
+    direction = (f.end - f.start) / f.length_m[:, None]
+    hit = f.start[facade] + along[:, None] * direction[facade]
+    bearing = np.radians(pano.bearings_deg[ray])
+    assert np.allclose(hit, distance[:, None] * np.column_stack([np.sin(bearing), np.cos(bearing)]), atol=1e-6)
 
 
 def test_window_is_a_slice_of_bearings() -> None:

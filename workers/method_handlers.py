@@ -21,7 +21,7 @@ from db import sbow, transaction
 from geoloc.config import data_dir
 from geoloc.features import Features
 from geoloc.osm import CityMap, load_map
-from geoloc.pipeline import geolocate_query, label_reference_photo, load_photo
+from geoloc.pipeline import Photo, geolocate_query, label_reference_photo, load_photo
 from geoloc.retrieval import Vocabulary, default_vocabulary, tfidf_scores
 from geoloc.transfer import ReferenceEvidence, rerank_by_inliers
 from workers.handlers import LABEL_REFERENCE, PermanentJobError, register
@@ -42,6 +42,14 @@ def city_map_for(db: sqlite_utils.Database, map_id: int) -> CityMap:
     if row is None:
         raise PermanentJobError(f"map {map_id} no longer exists")
     return _city_map(row["source_path"], row["sha256"])
+
+
+def _stored_photo(relative_path: str, focal_35mm: float | None) -> Photo:
+    """A stored photo (path relative to the data folder); an unreadable one fails the job for good."""
+    try:
+        return load_photo(data_dir() / relative_path, focal_35mm=focal_35mm)
+    except (OSError, ValueError) as exc:
+        raise PermanentJobError(f"cannot read the stored photo: {exc}") from exc
 
 
 def vocabulary_for(db: sqlite_utils.Database, map_id: int) -> Vocabulary:
@@ -66,10 +74,7 @@ def label_reference(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[
     city = city_map_for(db, map_id)
     frame = city.frame
     t0 = time.perf_counter()
-    try:
-        photo = load_photo(data_dir() / ref["image_path"], focal_35mm=ref["focal_length_35mm"])
-    except (OSError, ValueError) as exc:
-        raise PermanentJobError(f"cannot read the stored photo: {exc}") from exc
+    photo = _stored_photo(ref["image_path"], ref["focal_length_35mm"])
     gps_x, gps_y = (float(v) for v in frame.to_local(ref["gps_lat"], ref["gps_lon"]))
     prior_yaw = None
     if ref["prior_heading_deg"] is not None:
@@ -160,10 +165,7 @@ def localize_query(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[s
     city = city_map_for(db, map_id)
     frame = city.frame
     t0 = time.perf_counter()
-    try:
-        photo = load_photo(data_dir() / query["image_path"], focal_35mm=params.get("focal_length_35mm"))
-    except (OSError, ValueError) as exc:
-        raise PermanentJobError(f"cannot read the stored photo: {exc}") from exc
+    photo = _stored_photo(query["image_path"], params.get("focal_length_35mm"))
     evidence = analyze_photo(photo)
     vocabulary = vocabulary_for(db, map_id)
     t_retrieval = time.perf_counter()

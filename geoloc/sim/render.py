@@ -37,6 +37,7 @@ import numpy as np
 
 from geoloc import labels
 from geoloc.camera import Intrinsics, wrap_orientation_deg
+from geoloc.raycast import cast_all_hits
 from geoloc.sim.scene import Scene
 from geoloc.sim.textures import (
     DETAIL_HEIGHT_M,
@@ -167,34 +168,9 @@ def _cast_layers(scene: Scene, pose: Pose, canvas: Intrinsics, max_range_m: floa
     pos = np.array([pose.x_m, pose.y_m])
     alpha = np.arctan((np.arange(w) + 0.5 - canvas.cx) / f)
     bearing = math.radians(pose.yaw_deg) + alpha
-    ray = np.column_stack([np.sin(bearing), np.cos(bearing)])
-    near = scene.index.facades_near(pos[None], max_range_m)
-    a = fac.start[near] - pos
-    b = fac.end[near] - pos
-    keep = np.einsum("fk,fk->f", -a, fac.normal[near]) > 1e-6  # facing the camera
-    # Frustum culling against the two side rays (with a small margin).
-    margin = 0.02
-    rl = np.array([math.sin(bearing[0] - margin), math.cos(bearing[0] - margin)])
-    rr = np.array([math.sin(bearing[-1] + margin), math.cos(bearing[-1] + margin)])
-
-    def cross(r: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return r[0] * p[:, 1] - r[1] * p[:, 0]
-
-    keep &= ~((cross(rl, a) > 0) & (cross(rl, b) > 0))
-    keep &= ~((cross(rr, a) < 0) & (cross(rr, b) < 0))
-    near, a, b = near[keep], a[keep], b[keep]
-    ab = b - a
-    denom = ray[:, None, 0] * ab[None, :, 1] - ray[:, None, 1] * ab[None, :, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = (a[None, :, 0] * ab[None, :, 1] - a[None, :, 1] * ab[None, :, 0]) / denom
-        t = (a[None, :, 0] * ray[:, None, 1] - a[None, :, 1] * ray[:, None, 0]) / denom
-    ok = np.isfinite(s) & (s > 0.05) & (s <= max_range_m) & (t >= 0.0) & (t <= 1.0)
-    ray_i, j = np.nonzero(ok)
-    dist = s[ray_i, j]
-    tpar = t[ray_i, j]
-    fid = near[j]
-    order = np.lexsort((dist, ray_i))
-    ray_i, dist, tpar, fid = ray_i[order], dist[order], tpar[order], fid[order]
+    ray_i, fid, dist, u_m = cast_all_hits(
+        scene.map, pos, np.degrees(bearing), max_range_m, index=scene.index, min_distance_m=0.05
+    )
 
     bid = fac.building_id[fid].astype(np.int64)
     depth = dist * np.cos(alpha[ray_i])
@@ -205,8 +181,16 @@ def _cast_layers(scene: Scene, pose: Pose, canvas: Intrinsics, max_range_m: floa
     n_hits = len(ray_i)
     if n_hits == 0:
         empty = np.zeros((w, 1))
-        return _Layers(empty - np.inf, empty - np.inf, np.full((w, 1), -1), np.full((w, 1), -1), empty,
-                       empty, empty, np.zeros(w, np.int64))
+        return _Layers(
+            empty - np.inf,
+            empty - np.inf,
+            np.full((w, 1), -1),
+            np.full((w, 1), -1),
+            empty,
+            empty,
+            empty,
+            np.zeros(w, np.int64),
+        )
     rank = np.arange(n_hits) - np.repeat(np.cumsum(n_per) - n_per, n_per)
     pad = np.full((w, int(n_per.max())), np.inf)
     pad[ray_i, rank] = top
@@ -223,10 +207,15 @@ def _cast_layers(scene: Scene, pose: Pose, canvas: Intrinsics, max_range_m: floa
         out[ray_v, rank_v] = values[visible]
         return out
 
-    u_m = tpar * fac.length_m[fid]
     return _Layers(
-        padded(top, -np.inf), padded(bottom, -np.inf), padded(fid, -1, np.int64), padded(bid, -1, np.int64),
-        padded(dist, np.inf), padded(depth, np.inf), padded(u_m, 0.0), nv,
+        padded(top, -np.inf),
+        padded(bottom, -np.inf),
+        padded(fid, -1, np.int64),
+        padded(bid, -1, np.int64),
+        padded(dist, np.inf),
+        padded(depth, np.inf),
+        padded(u_m, 0.0),
+        nv,
     )
 
 
@@ -336,8 +325,9 @@ def _shade_buildings(
         if ground.any():
             g = _hash(np.int64(scene.seed), np.int64(b), f[ground], bay_i[ground]) % np.uint64(10)
             var = np.where(g < 7, 0, np.where(g < 9, 1, 2)) if look.shops else np.where(g < 3, 1, 2)
-            rgb[ground] = _sample_mip(look.ground, level[ground], var, fu[ground],
-                                      1.0 - v[ground] / look.ground_m, False, True)
+            rgb[ground] = _sample_mip(
+                look.ground, level[ground], var, fu[ground], 1.0 - v[ground] / look.ground_m, False, True
+            )
         if upper.any():
             fl = (v[upper] - look.ground_m) / look.floor_m
             fl_i = np.floor(fl).astype(np.int64)
@@ -357,8 +347,15 @@ def _shade_buildings(
             on = look.sign_mask[sx]
             if on.any():
                 sel = np.flatnonzero(band)[on]
-                rgb[sel] = _sample_mip(look.sign, level[sel], np.zeros(len(sel), np.int64), u_ring[sel] * d,
-                                       (SIGN_BAND_M[1] - v[sel]) * d, False, False)
+                rgb[sel] = _sample_mip(
+                    look.sign,
+                    level[sel],
+                    np.zeros(len(sel), np.int64),
+                    u_ring[sel] * d,
+                    (SIGN_BAND_M[1] - v[sel]) * d,
+                    False,
+                    False,
+                )
         # Stains and large-scale variation, continuous around the building.
         nh, nw = look.stain.shape
         sy = np.clip((v * NOISE_TEXELS_PER_M).astype(np.int64), 0, nh - 1)
@@ -420,36 +417,60 @@ def _car_geometry(c: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, list[tuple[
     for box_i, (off, length, width, z0, z1) in enumerate(_CAR_BOXES):
         centre = c + d * off
         hl, hw = length / 2, width / 2
-        c2 = np.array([centre + d * hl + n * hw, centre + d * hl - n * hw, centre - d * hl - n * hw,
-                       centre - d * hl + n * hw])
+        c2 = np.array(
+            [centre + d * hl + n * hw, centre + d * hl - n * hw, centre - d * hl - n * hw, centre - d * hl + n * hw]
+        )
         lo = np.column_stack([c2, np.full(4, z0)])
         inset = _CABIN_TOP_INSET_M if box_i == 1 else 0.0
         c2t = c2 - np.outer([1.0, 1.0, -1.0, -1.0], d) * inset
         hi = np.column_stack([c2t, np.full(4, z1)])
         slope = inset / (z1 - z0)
-        for (i, j), normal, kind in (((0, 1), d, "front"), ((1, 2), -n, "side"), ((2, 3), -d, "back"),
-                                     ((3, 0), n, "side")):
+        for (i, j), normal, kind in (
+            ((0, 1), d, "front"),
+            ((1, 2), -n, "side"),
+            ((2, 3), -d, "back"),
+            ((3, 0), n, "side"),
+        ):
             n3 = np.array([*normal, slope if kind != "side" else 0.0])
             add(f"{kind}{box_i}", np.array([lo[i], lo[j], hi[j], hi[i], n3 / np.linalg.norm(n3)]))
         add(f"top{box_i}", np.vstack([hi, [0.0, 0.0, 1.0]]))
     for side in (-1.0, 1.0):
         for sgn in (-1.0, 1.0):
             wc = c + d * 1.35 * sgn + n * side * 0.92
-            add("wheel", np.column_stack([wc[0] + d[0] * 0.33 * np.cos(_WHEEL_ANGLES),
-                                          wc[1] + d[1] * 0.33 * np.cos(_WHEEL_ANGLES),
-                                          0.33 + 0.33 * np.sin(_WHEEL_ANGLES)]))
+            add(
+                "wheel",
+                np.column_stack(
+                    [
+                        wc[0] + d[0] * 0.33 * np.cos(_WHEEL_ANGLES),
+                        wc[1] + d[1] * 0.33 * np.cos(_WHEEL_ANGLES),
+                        0.33 + 0.33 * np.sin(_WHEEL_ANGLES),
+                    ]
+                ),
+            )
     for end, kind in ((1.0, "lamp_f"), (-1.0, "lamp_b")):
         face = c + d * (2.2 * end + 0.01 * end)
         for sgn in (-1.0, 1.0):
             m = face + n * sgn * 0.7
-            add(kind, np.array([[*(m + n * 0.15), 0.72], [*(m - n * 0.15), 0.72], [*(m - n * 0.15), 0.85],
-                                [*(m + n * 0.15), 0.85]]))
+            add(
+                kind,
+                np.array(
+                    [[*(m + n * 0.15), 0.72], [*(m - n * 0.15), 0.72], [*(m - n * 0.15), 0.85], [*(m + n * 0.15), 0.85]]
+                ),
+            )
     return np.concatenate(pts), polys
 
 
 def _draw_car(
-    k: int, scene: Scene, pose: Pose, canvas: Intrinsics, rgb: np.ndarray, lab: np.ndarray,
-    bld: np.ndarray, fcd: np.ndarray, zbuf: np.ndarray, light: tuple[float, float],
+    k: int,
+    scene: Scene,
+    pose: Pose,
+    canvas: Intrinsics,
+    rgb: np.ndarray,
+    lab: np.ndarray,
+    bld: np.ndarray,
+    fcd: np.ndarray,
+    zbuf: np.ndarray,
+    light: tuple[float, float],
 ) -> None:
     cars = scene.cars
     c, d, body = cars.xy[k], cars.direction[k], cars.rgb[k]
@@ -525,8 +546,16 @@ def _draw_car(
 
 
 def _draw_tree(
-    k: int, scene: Scene, pose: Pose, canvas: Intrinsics, rgb: np.ndarray, lab: np.ndarray,
-    bld: np.ndarray, fcd: np.ndarray, zbuf: np.ndarray, light: tuple[float, float],
+    k: int,
+    scene: Scene,
+    pose: Pose,
+    canvas: Intrinsics,
+    rgb: np.ndarray,
+    lab: np.ndarray,
+    bld: np.ndarray,
+    fcd: np.ndarray,
+    zbuf: np.ndarray,
+    light: tuple[float, float],
 ) -> None:
     trees = scene.trees
     px, z = _project(np.array([[*trees.xy[k], 0.0]]), pose, canvas)
@@ -662,7 +691,7 @@ def render(
     frac = (gxy / slab) % 1.0
     joint = (np.minimum(frac, 1.0 - frac) < 0.035).any(axis=1) & (cls == 0)
     g[joint] *= (1.0 - 0.25 * fade[joint])[:, None]
-    g *= (ambient * 0.9 + direct * max(0.0, sun_v[2]))
+    g *= ambient * 0.9 + direct * max(0.0, sun_v[2])
     rgb[gr, gc] = g
     lab[gr, gc] = labels.ROAD
     zbuf[gr, gc] = gz
@@ -710,8 +739,9 @@ def render(
         lab = cv2.warpPerspective(lab, hcv, size, flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
         bld = _warp_int(bld, hcv, size)
         fcd = _warp_int(fcd, hcv, size)
-        centre = np.vstack([np.arange(intrinsics.width) + 0.5, np.full(intrinsics.width, intrinsics.cy),
-                            np.ones(intrinsics.width)])
+        centre = np.vstack(
+            [np.arange(intrinsics.width) + 0.5, np.full(intrinsics.width, intrinsics.cy), np.ones(intrinsics.width)]
+        )
         back = np.linalg.inv(hmat) @ centre
         src_col = np.clip(np.floor(back[0] / back[2]).astype(np.int64), 0, wc - 1)
         col_fid, col_bid = col_fid[src_col], col_bid[src_col]
@@ -726,14 +756,22 @@ def render(
 
 def _warp_int(img: np.ndarray, hcv: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Nearest-neighbour warp of an int32 id map (ids up to 2**24 kept exact via float32)."""
-    warped = cv2.warpPerspective(img.astype(np.float32), hcv, size, flags=cv2.INTER_NEAREST,
-                                 borderMode=cv2.BORDER_REPLICATE)
+    warped = cv2.warpPerspective(
+        img.astype(np.float32), hcv, size, flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE
+    )
     return np.round(warped).astype(np.int32)
 
 
 def _draw_occluders(
-    scene: Scene, pose: Pose, canvas: Intrinsics, rgb: np.ndarray, lab: np.ndarray, bld: np.ndarray,
-    fcd: np.ndarray, zbuf: np.ndarray, light: tuple[float, float],
+    scene: Scene,
+    pose: Pose,
+    canvas: Intrinsics,
+    rgb: np.ndarray,
+    lab: np.ndarray,
+    bld: np.ndarray,
+    fcd: np.ndarray,
+    zbuf: np.ndarray,
+    light: tuple[float, float],
 ) -> None:
     pos = np.array([pose.x_m, pose.y_m])
     yaw = math.radians(pose.yaw_deg)
