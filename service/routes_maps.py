@@ -17,7 +17,7 @@ from service.deps import get_db, get_settings
 from service.errors import ApiError
 from service.models import BoundingBox, ErrorResponse, LatLon, MapList, MapOut, timestamp
 from service.settings import Settings
-from service.uploads import move_into_place, receive_upload, remove_quietly
+from service.uploads import received_upload, remove_quietly
 
 log = logging.getLogger("geoloc.api")
 router = APIRouter(prefix="/v1/maps", tags=["maps"])
@@ -80,10 +80,7 @@ def upload_map(
 
     if not name.strip():
         raise ApiError(422, "invalid_request", "name must not be blank")
-    received = receive_upload(file, settings.data_dir, settings.max_map_bytes, "the map file")
-    final_path = None
-    created = False
-    try:
+    with received_upload(file, settings.data_dir, settings.max_map_bytes, "the map file") as received:
         existing = map_store.find_map_by_sha256(db, received.sha256)
         if existing is not None:
             out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
@@ -100,7 +97,7 @@ def upload_map(
         with transaction(db):  # BEGIN IMMEDIATE: the duplicate check and the insert are atomic
             existing = map_store.find_map_by_sha256(db, received.sha256)
             if existing is None:
-                created = move_into_place(received.path, final_path)
+                received.move_to(final_path)
                 map_id = map_store.insert_map(
                     db,
                     name=name.strip(),
@@ -114,12 +111,6 @@ def upload_map(
         if existing is not None:
             out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
             return JSONResponse(out.model_dump(mode="json"), status_code=200)
-    except BaseException:
-        if created and final_path is not None:
-            remove_quietly(final_path)
-        raise
-    finally:
-        remove_quietly(received.path)
     log.info("map %d stored: %d buildings, %d facades", map_id, len(content.buildings), len(city_map.facades))
     row = map_store.get_map(db, map_id)
     assert row is not None

@@ -25,7 +25,7 @@ from service.images import distance_outside_bbox_m, validate_image
 from service.models import ErrorResponse, QueryOut, timestamp
 from service.routes_maps import require_map
 from service.settings import Settings
-from service.uploads import move_into_place, receive_upload, remove_quietly
+from service.uploads import received_upload, remove_quietly
 
 router = APIRouter(tags=["queries"])
 _ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 413, 415, 422)}
@@ -108,10 +108,7 @@ def create_query(
         _check(name, value, low, high)
     if (lat is None) != (lon is None):
         raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
-    received = receive_upload(image, settings.data_dir, settings.max_image_bytes, "the image")
-    final_path = None
-    created = False
-    try:
+    with received_upload(image, settings.data_dir, settings.max_image_bytes, "the image") as received:
         info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
         prior = None
         if lat is not None and lon is not None:
@@ -141,7 +138,7 @@ def create_query(
         relative = f"queries/{map_id}/{received.sha256}.{info.extension}"
         final_path = settings.data_dir / relative
         with transaction(db):
-            created = move_into_place(received.path, final_path)
+            received.move_to(final_path)
             query_id = query_store.insert_query(
                 db, map_id=map_id, params=params, image_path=relative, sha256=received.sha256
             )
@@ -153,12 +150,6 @@ def create_query(
                 map_id=map_id,
             )
             query_store.set_query_job(db, query_id, job_id)
-    except BaseException:
-        if created and final_path is not None:
-            remove_quietly(final_path)
-        raise
-    finally:
-        remove_quietly(received.path)
 
     deadline = time.monotonic() + wait_s
     row, job = _load(db, query_id)

@@ -20,7 +20,7 @@ from service.images import distance_outside_bbox_m, validate_image
 from service.models import ErrorResponse, EstimatedPose, Position, ReferenceAccepted, ReferenceOut, timestamp
 from service.routes_maps import require_map
 from service.settings import Settings
-from service.uploads import move_into_place, receive_upload, remove_quietly
+from service.uploads import received_upload, remove_quietly
 
 log = logging.getLogger("geoloc.api")
 router = APIRouter(tags=["references"])
@@ -80,10 +80,7 @@ def upload_reference(
     map_row = require_map(db, map_id)
     _check_number("heading_deg", heading_deg, 0.0, 360.0)
     _check_number("focal_length_35mm", focal_length_35mm, 1.0, 2000.0)
-    received = receive_upload(image, settings.data_dir, settings.max_image_bytes, "the image")
-    final_path = None
-    created = False
-    try:
+    with received_upload(image, settings.data_dir, settings.max_image_bytes, "the image") as received:
         info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
         ref_lat, ref_lon, source = resolve_position(lat, lon, info.gps_lat, info.gps_lon)
         distance = distance_outside_bbox_m(ref_lat, ref_lon, map_row["bbox_wgs84"])
@@ -105,7 +102,7 @@ def upload_reference(
         with transaction(db):  # BEGIN IMMEDIATE: duplicate check, rows and job are one unit
             existing = reference_store.find_reference_by_sha256(db, map_id, received.sha256)
             if existing is None:
-                created = move_into_place(received.path, final_path)
+                received.move_to(final_path)
                 reference_id = reference_store.insert_reference(
                     db,
                     map_id=map_id,
@@ -131,12 +128,6 @@ def upload_reference(
                     reference_id=reference_id,
                 )
                 reference_store.set_reference_job(db, reference_id, job_id)
-    except BaseException:
-        if created and final_path is not None:
-            remove_quietly(final_path)
-        raise
-    finally:
-        remove_quietly(received.path)
     if existing is not None:
         out = ReferenceAccepted(
             id=existing["id"],

@@ -8,7 +8,8 @@ import hashlib
 import os
 import secrets
 import time
-from dataclasses import dataclass
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from fastapi import UploadFile
@@ -21,12 +22,32 @@ STALE_TEMP_S = 3600.0
 
 @dataclass
 class ReceivedFile:
-    """An upload saved to a temp file."""
+    """An upload saved to a temp file; :meth:`move_to` puts it in its final place."""
 
     path: Path
     sha256: str
     size_bytes: int
     filename: str | None
+    placed: list[Path] = field(default_factory=list)
+
+    def move_to(self, final_path: Path) -> None:
+        """Move the temp file to ``final_path`` (call inside the database transaction that records it)."""
+        if move_into_place(self.path, final_path):
+            self.placed.append(final_path)
+
+
+@contextlib.contextmanager
+def received_upload(upload: UploadFile, data_dir: Path, max_bytes: int, what: str) -> Iterator[ReceivedFile]:
+    """Receive an upload (:func:`receive_upload`) for the duration of a block: if the block fails, a file it
+    moved into place is removed again (nothing half-stored); the temp file is always removed."""
+    received = receive_upload(upload, data_dir, max_bytes, what)
+    try:
+        yield received
+    except BaseException:
+        remove_quietly(*received.placed)
+        raise
+    finally:
+        remove_quietly(received.path)
 
 
 def temp_dir(data_dir: Path) -> Path:
