@@ -215,13 +215,12 @@ def facades(
     """
     import numpy as np
 
-    from geoloc.facades import analyze_image
+    from geoloc.facades import analyze_image, column_orientation_errors
     from geoloc.pipeline import load_photo
     from geoloc.sim.world import load_world
 
     if segmentation not in ("model", "gt"):
         raise typer.BadParameter("segmentation must be 'model' or 'gt'")
-    from geoloc.image_model import column_bins
     from geoloc.segmentation import segment
 
     world_data = load_world(world_dir)
@@ -232,13 +231,12 @@ def facades(
         photo = load_photo(image.path)
         labels = gt["labels"] if segmentation == "gt" else segment(photo.image_rgb)
         model = analyze_image(photo.image_rgb, labels, photo.intrinsics).image_model
-        bins = column_bins(photo.intrinsics, model.offsets_deg, model.bin_deg)
-        is_building = (gt["column_building_id"] >= 0) & (bins >= 0)
-        has = is_building & (model.facade_present[np.maximum(bins, 0)] > 0)
-        delta = model.orientation_deg[np.maximum(bins, 0)] - gt["column_theta_deg"]
-        errors.append(np.abs((delta[has] + 90.0) % 180.0 - 90.0))
-        covered += int(has.sum())
-        building_columns += int(is_building.sum())
+        err, n_building, n_covered = column_orientation_errors(
+            model, gt["column_theta_deg"], gt["column_building_id"] >= 0, photo.intrinsics
+        )
+        errors.append(err)
+        covered += n_covered
+        building_columns += n_building
     err = np.concatenate(errors)
     result = {
         "world": str(world_dir),

@@ -18,6 +18,7 @@ from db import maps as map_store
 from db import queries as query_store
 from db import references as reference_store
 from db import sbow, transaction
+from db.jobs import LOCALIZE_QUERY
 from geoloc.config import data_dir
 from geoloc.features import Features
 from geoloc.osm import CityMap, load_map
@@ -26,7 +27,6 @@ from geoloc.retrieval import Vocabulary, default_vocabulary, tfidf_scores
 from geoloc.transfer import ReferenceEvidence, rerank_by_inliers
 from workers.handlers import LABEL_REFERENCE, PermanentJobError, register
 
-LOCALIZE_QUERY = "localize_query"
 SHORTLIST = 20
 """SBoW candidates re-ranked by geometrically verified inliers before the top k are used."""
 
