@@ -63,3 +63,38 @@ def facade_base_distances(
     distance[ok] = camera_height_m / tan_depression[ok]
     distance[distance > max_distance_m] = np.nan
     return distance
+
+
+def facade_top_elevations(
+    labels: np.ndarray,
+    intrinsics: Intrinsics,
+    rotation_upright_from_cam: np.ndarray | None = None,
+    min_elevation_deg: float = 2.0,
+) -> np.ndarray:
+    """(W,) tangent of the elevation angle of the building's top edge in each column, NaN where it is not seen.
+
+    The top edge of a column is its highest building pixel; it counts when the pixels just above it are sky
+    (a roof line against the sky, not a tree or the image's top border). With the building's height H from
+    the map, ``(H - camera height) / tan(elevation)`` is the facade's horizontal distance, a cue that does
+    not need the facade's base to be visible (:func:`geoloc.likelihood.pose_likelihood`, skyline term).
+    """
+    lab = np.asarray(labels)
+    height, width = lab.shape
+    building = lab == classes.BUILDING
+    rows = np.arange(height)[:, None]
+    highest = np.where(building.any(axis=0), np.min(np.where(building, rows, height), axis=0), -1)  # (W,)
+    above = highest[None, :] - 1 - np.arange(GROUND_ROWS)[:, None]  # (G, W)
+    inside = (highest >= 0) & (above[-1] >= 0)
+    sky = np.zeros(width, dtype=bool)
+    cols = np.flatnonzero(inside)
+    sky[cols] = np.all(lab[above[:, cols], cols[None, :]] == classes.SKY, axis=0)
+    x = np.arange(width) + 0.5
+    y = highest.astype(float)  # the top edge of the highest building pixel
+    rays = np.stack(
+        [(x - intrinsics.cx) / intrinsics.focal_px, (y - intrinsics.cy) / intrinsics.focal_px, np.ones(width)]
+    )
+    rotation = np.eye(3) if rotation_upright_from_cam is None else np.asarray(rotation_upright_from_cam)
+    upright = rotation @ rays
+    tan_elevation = -upright[1] / np.hypot(upright[0], upright[2])
+    ok = sky & (tan_elevation > np.tan(np.radians(min_elevation_deg)))
+    return np.where(ok, tan_elevation, np.nan)

@@ -30,6 +30,8 @@ class ImageModel:
         (rows may sum to less than 1: the rest is "unknown"), or ``None`` for geometry only.
     distance_m: (K,) horizontal distance of the facade in bin k estimated from the image (NaN where
         unknown; see :mod:`geoloc.ground`), or ``None``.
+    top_tan_elevation: (K,) tangent of the elevation angle of the building's top edge against the sky in
+        bin k (NaN where not seen; :func:`geoloc.ground.facade_top_elevations`), or ``None``.
     """
 
     offsets_deg: np.ndarray
@@ -38,6 +40,7 @@ class ImageModel:
     identity_building_ids: np.ndarray | None = None
     identity_prob: np.ndarray | None = None
     distance_m: np.ndarray | None = None
+    top_tan_elevation: np.ndarray | None = None
     bin_deg: float = DEFAULT_BIN_DEG
     meta: dict = field(default_factory=dict)
 
@@ -54,6 +57,8 @@ class ImageModel:
             raise ValueError("identity_prob must be (bins, buildings)")
         if self.distance_m is not None and self.distance_m.shape != (k,):
             raise ValueError("distance_m must have one value per bin")
+        if self.top_tan_elevation is not None and self.top_tan_elevation.shape != (k,):
+            raise ValueError("top_tan_elevation must have one value per bin")
 
     @property
     def n_bins(self) -> int:
@@ -70,6 +75,7 @@ class ImageModel:
             self.facade_present,
             self.orientation_deg,
             distance_m=self.distance_m,
+            top_tan_elevation=self.top_tan_elevation,
             bin_deg=self.bin_deg,
         )
 
@@ -100,6 +106,7 @@ def image_model_from_columns(
     identity_building_ids: np.ndarray | None = None,
     column_distance_m: np.ndarray | None = None,
     bin_deg: float = DEFAULT_BIN_DEG,
+    column_top_tan_elevation: np.ndarray | None = None,
 ) -> ImageModel:
     """Bin per-pixel-column facade evidence into an :class:`ImageModel`.
 
@@ -108,6 +115,8 @@ def image_model_from_columns(
     column_identity_prob: optional (W, M) identity probabilities per column.
     column_distance_m: optional (W,) facade distance per column (NaN unknown); a bin takes the geometric
     mean of its known columns.
+    column_top_tan_elevation: optional (W,) tangent of the top edge's elevation (NaN unknown); a bin takes
+    the mean of its known columns.
     Orientations are averaged as doubled angles (they are defined modulo 180), weighted by
     confidence; presence and identities are averaged over the columns of a bin.
     """
@@ -137,6 +146,13 @@ def image_model_from_columns(
         n_known = np.bincount(bins[known], minlength=k)
         with np.errstate(invalid="ignore", divide="ignore"):
             distance = np.where(n_known > 0, np.exp(log_sum / np.maximum(n_known, 1)), np.nan)
+    top = None
+    if column_top_tan_elevation is not None:
+        tops = np.asarray(column_top_tan_elevation, dtype=float)
+        known = valid & np.isfinite(tops)
+        top_sum = np.bincount(bins[known], weights=tops[known], minlength=k)
+        n_top = np.bincount(bins[known], minlength=k)
+        top = np.where(n_top > 0, top_sum / np.maximum(n_top, 1), np.nan)
     return ImageModel(
         offsets_deg=offsets,
         facade_present=present_sum / safe_counts,
@@ -144,5 +160,6 @@ def image_model_from_columns(
         identity_building_ids=None if identity is None else np.asarray(identity_building_ids),
         identity_prob=identity,
         distance_m=distance,
+        top_tan_elevation=top,
         bin_deg=bin_deg,
     )

@@ -22,8 +22,9 @@ import numpy as np
 from geoloc.camera import Intrinsics
 from geoloc.identity import IdentityMap
 from geoloc.image_model import ImageModel, column_bins
-from geoloc.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, pose_likelihood
+from geoloc.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, known_building_heights, pose_likelihood
 from geoloc.osm import CityMap
+from geoloc.pose_refinement import RefinedPose, refine_pose
 from geoloc.posterior import DEFAULT_SHARPNESS, grid_around
 from geoloc.raycast import Panoramas, cast_panoramas, panorama_window
 
@@ -38,13 +39,19 @@ paper's 3 x 3 at 10 m, uniform prior, plain weights: 11.3 deg / 30 % / 30 %, 0.5
 11 x 11 at 2 m, uniform prior, plain weights: 1.2 deg / 72 % / 17 %, 0.57;
 11 x 11 at 2 m, this prior, weights likelihood ** 8 (the defaults): 1.3 deg / 78 % / 10 %, 0.78."""
 HEADING_PRIOR_SIGMA_DEG = 20.0
+MODE_SEPARATION_M = 6.0
+MODE_YAW_SEPARATION_DEG = 30.0
+MODE_MIN_RELATIVE_WEIGHT = 1e-3
+"""Grid modes weaker than this share of the strongest are not refined."""
 
 
 @dataclass
 class ReferenceLabel:
     """What labelling found for one reference photo (local frame, metres and degrees).
 
-    x_m, y_m, yaw_deg: the best pose (yaw = local bearing of the optical axis).
+    x_m, y_m, yaw_deg: the refined best pose (yaw = local bearing of the optical axis).
+    position_covariance: (2, 2) m^2 spread of the refined pose's position posterior; vp_bins: image bins that
+    supported the vanishing-point yaw (0: grid yaw).
     likelihood: (P, Y) pose likelihood over ``positions`` (P, 2) x ``yaws_deg`` (Y,).
     greedy, marginalized: identity maps of the photo.
     """
@@ -58,6 +65,8 @@ class ReferenceLabel:
     likelihood: np.ndarray
     greedy: IdentityMap
     marginalized: IdentityMap
+    position_covariance: np.ndarray
+    vp_bins: int
 
 
 def heading_prior(yaws_deg: np.ndarray, prior_yaw_deg: float, sigma_deg: float = HEADING_PRIOR_SIGMA_DEG) -> np.ndarray:
@@ -109,6 +118,8 @@ def label_reference(
     n_yaws: int = 120,
     sigma_m: float = DEFAULT_SIGMA_M,
     normalization: str = "weighted",
+    use_skyline: bool = True,
+    n_modes: int = 3,
 ) -> ReferenceLabel:
     """Label one geo-tagged photo with the map.
 
@@ -118,13 +129,21 @@ def label_reference(
     gps_sigma_m: optional Gaussian prior on the position around the GPS tag (None: uniform, as the paper).
     sharpness: pose weights are likelihood ** sharpness (as the query posterior, :mod:`geoloc.posterior`).
     Poses inside building footprints are not sampled; if every grid cell is inside, the GPS tag alone is used.
+    n_modes: the strongest distinct grid modes (e.g. the wall in front and the one behind) are refined
+    continuously (:func:`geoloc.pose_refinement.refine_pose`: vanishing-point yaw, 0.5 m position search) and
+    the best refined pose is the label's pose.
     """
     grid = grid_around(city_map, gps_xy, half_size_m, cell_m)
     positions = grid.positions if grid.valid.any() else np.asarray([gps_xy], dtype=float)
     yaws = default_yaws_deg(n_yaws)
     panoramas = cast_panoramas(city_map, positions, bearing_step_deg=image_model.bin_deg)
     likelihood = pose_likelihood(
-        panoramas, image_model.without_identity(), yaws, sigma_m=sigma_m, normalization=normalization
+        panoramas,
+        image_model.without_identity(),
+        yaws,
+        sigma_m=sigma_m,
+        normalization=normalization,
+        building_height_m=known_building_heights(city_map) if use_skyline else None,
     )
     weights = np.power(likelihood.astype(float), sharpness)
     if prior_yaw_deg is not None:
@@ -132,20 +151,93 @@ def label_reference(
     if gps_sigma_m:
         d2 = np.sum((positions - np.asarray(gps_xy, dtype=float)) ** 2, axis=1)
         weights = weights * np.exp(-0.5 * d2 / gps_sigma_m**2)[:, None]
-    best_p, best_y = np.unravel_index(int(np.argmax(weights)), weights.shape)
 
+    # Continuous refinement of the distinct grid modes; the best refined pose wins.
+    best: RefinedPose | None = None
+    best_score = -1.0
+    for p_index, y_index in distinct_modes(positions, yaws, weights, n_modes):
+        refined = refine_pose(
+            city_map,
+            image_model.without_identity(),
+            float(positions[p_index, 0]),
+            float(positions[p_index, 1]),
+            float(yaws[y_index]),
+            prior_xy=gps_xy if gps_sigma_m else None,
+            prior_sigma_m=gps_sigma_m,
+            sharpness=sharpness,
+            sigma_m=sigma_m,
+        )
+        score = refined.posterior * (
+            1.0 if prior_yaw_deg is None else float(heading_prior(refined.yaw_deg, prior_yaw_deg))
+        )
+        if score > best_score:
+            best, best_score = refined, score
+    assert best is not None
+
+    # Identities: greedy from the refined pose; marginalised over the grid poses of the chosen mode.
     column_ids = column_building_ids(panoramas, yaws, intrinsics, image_model.offsets_deg, image_model.bin_deg)
     width = column_ids.shape[-1]
-    greedy = identity_from_poses(column_ids[best_p, best_y][None, :], np.ones(1), building_mask)
-    marginal = identity_from_poses(column_ids.reshape(-1, width), weights.ravel(), building_mask)
+    at_best = cast_panoramas(city_map, np.array([[best.x_m, best.y_m]]), bearing_step_deg=image_model.bin_deg)
+    greedy_ids = column_building_ids(
+        at_best, np.array([best.yaw_deg]), intrinsics, image_model.offsets_deg, image_model.bin_deg
+    )[0, 0]
+    greedy = identity_from_poses(greedy_ids[None, :], np.ones(1), building_mask)
+    in_mode = _near_pose(positions, yaws, (best.x_m, best.y_m), best.yaw_deg)
+    marginal_weights = np.where(in_mode, weights, 0.0) if (weights * in_mode).sum() > 0 else weights
+    marginal = identity_from_poses(column_ids.reshape(-1, width), marginal_weights.ravel(), building_mask)
     return ReferenceLabel(
-        x_m=float(positions[best_p, 0]),
-        y_m=float(positions[best_p, 1]),
-        yaw_deg=float(yaws[best_y]),
-        best_likelihood=float(likelihood[best_p, best_y]),
+        x_m=best.x_m,
+        y_m=best.y_m,
+        yaw_deg=best.yaw_deg,
+        best_likelihood=best.likelihood,
         positions=positions,
         yaws_deg=yaws,
         likelihood=likelihood,
         greedy=greedy,
         marginalized=marginal,
+        position_covariance=best.position_covariance,
+        vp_bins=best.vp_bins,
     )
+
+
+def distinct_modes(
+    positions: np.ndarray,
+    yaws_deg: np.ndarray,
+    weights: np.ndarray,
+    n_modes: int,
+    min_separation_m: float = MODE_SEPARATION_M,
+    min_yaw_separation_deg: float = MODE_YAW_SEPARATION_DEG,
+) -> list[tuple[int, int]]:
+    """Up to ``n_modes`` (position index, yaw index) local maxima of a (P, Y) weight table, strongest first.
+
+    Two poses belong to the same mode when they are within ``min_separation_m`` and ``min_yaw_separation_deg``.
+    """
+    remaining = np.asarray(weights, dtype=float).copy()
+    modes: list[tuple[int, int]] = []
+    top = float(remaining.max(initial=0.0))
+    while len(modes) < n_modes:
+        p_index, y_index = np.unravel_index(int(np.argmax(remaining)), remaining.shape)
+        value = remaining[p_index, y_index]
+        if value <= 0 or (modes and value < MODE_MIN_RELATIVE_WEIGHT * top):
+            break
+        modes.append((int(p_index), int(y_index)))
+        remaining[
+            _near_pose(
+                positions, yaws_deg, positions[p_index], yaws_deg[y_index], min_separation_m, min_yaw_separation_deg
+            )
+        ] = 0.0
+    return modes
+
+
+def _near_pose(
+    positions: np.ndarray,
+    yaws_deg: np.ndarray,
+    xy: tuple[float, float] | np.ndarray,
+    yaw_deg: float,
+    separation_m: float = MODE_SEPARATION_M,
+    yaw_separation_deg: float = MODE_YAW_SEPARATION_DEG,
+) -> np.ndarray:
+    """(P, Y) bool: poses within ``separation_m`` and ``yaw_separation_deg`` of a pose."""
+    near_xy = np.hypot(*(positions - np.asarray(xy, dtype=float)).T) < separation_m
+    near_yaw = np.abs((np.asarray(yaws_deg) - yaw_deg + 180.0) % 360.0 - 180.0) < yaw_separation_deg
+    return near_xy[:, None] & near_yaw[None, :]

@@ -25,9 +25,22 @@ identity evidence cannot match).
 
 Distance term (beyond the paper, ``use_distance``): where the image model knows a bin's facade
 distance d_hat_k (from the facade's base line, :mod:`geoloc.ground`), S's term is also multiplied by
-exp(-(ln d_k - ln d_hat_k)^2 / (2 s^2)), s = ``distance_sigma_log``. It separates poses that see the
+exp(-(ln d_k - ln d_hat_k)^2 / (2 s^2)), s = ``distance_sigma_log``, with the deviation scaled by
+``DISTANCE_NEAR_SLACK`` where the map's facade is nearer than the image's (segmentation tends to end a
+building above its true base, which lengthens the image's distance; measured on simulated worlds with the
+network's labels: 57 % of columns 10 % too far, 5 % 10 % too near). It separates poses that see the
 same walls at the same angles but at other distances, e.g. facing the wall across the street instead
 of the one behind; Smax is unchanged, so a perfect model still scores 1 at the true pose.
+
+Skyline term (beyond the paper, ``building_height_m``): where the image sees a bin's building top
+against the sky at elevation e_hat_k (:func:`geoloc.ground.facade_top_elevations`) and the map knows
+the height H_k of the building hit there (a tagged ``height`` or ``building:levels``; default heights
+are not evidence), the facade's distance is (H_k - h) / tan(e_hat_k) for a camera at height h. S's
+term is multiplied by exp(-(ln(d_k tan e_hat_k) - ln(H_k - h))^2 / (2 s_h^2)), s_h =
+``height_sigma_log``. It works where the base line is hidden and tells buildings of different heights
+apart; Smax is unchanged. A taller building behind a lower one shows its top above the lower one's:
+the observed top is then higher than the map's first hit predicts, so only the opposite disagreement
+(seen lower than the map's building) is penalised at full weight.
 
 All positions x yaws are evaluated in one call, in chunks of positions to bound memory.
 """
@@ -38,6 +51,7 @@ import numpy as np
 
 from geoloc.camera import wrap_orientation_deg
 from geoloc.image_model import ImageModel
+from geoloc.osm import CityMap
 from geoloc.raycast import Panoramas, panorama_window
 
 DEFAULT_SIGMA_M = 40.0
@@ -46,6 +60,11 @@ DEFAULT_SIGMA_M = 40.0
 DEFAULT_UNKNOWN_WEIGHT = 0.0
 DEFAULT_DISTANCE_SIGMA_LOG = 0.3
 """Spread of the distance term in log distance: a facade 35 % nearer or farther than seen scores 0.6."""
+DISTANCE_NEAR_SLACK = 0.3
+"""Factor on the distance term's deviation where the map's facade is nearer than the image's estimate."""
+DEFAULT_HEIGHT_SIGMA_LOG = 0.15
+"""Spread of the skyline term in log height above the camera (a storey in five)."""
+CAMERA_HEIGHT_M = 1.6
 NORMALIZATIONS = ("weighted", "paper")
 
 
@@ -64,6 +83,8 @@ def pose_likelihood(
     normalization: str = "weighted",
     use_distance: bool = True,
     distance_sigma_log: float = DEFAULT_DISTANCE_SIGMA_LOG,
+    building_height_m: np.ndarray | None = None,
+    height_sigma_log: float = DEFAULT_HEIGHT_SIGMA_LOG,
     chunk_elements: int = 8_000_000,
 ) -> np.ndarray:
     """p(I | g) for every position of ``panoramas`` and every yaw: array (P, Y) in [0, 1].
@@ -73,7 +94,8 @@ def pose_likelihood(
     image_model: the photo's per-bin evidence. Identities are used if present and ``use_identity``.
     yaws_deg: (Y,) camera yaws, bearing of the optical axis in the local frame (default 120 yaws).
     sigma_m: distance weight scale (m). unknown_weight, normalization, use_distance, distance_sigma_log:
-    see module docstring.
+    see module docstring. building_height_m: (B,) height of each map building where it is known (NaN where
+    the map only has a default), enabling the skyline term; height_sigma_log: its spread.
     """
     if normalization not in NORMALIZATIONS:
         raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
@@ -87,6 +109,15 @@ def pose_likelihood(
         log_distance_hat = np.log(image_model.distance_m).astype(np.float32)  # NaN where unknown
     if use_identity and image_model.has_identity:
         identity_lut = _identity_lookup(image_model, panoramas, unknown_weight)
+    log_rise = log_top_hat = None
+    if building_height_m is not None and image_model.top_tan_elevation is not None:
+        top_hat = image_model.top_tan_elevation
+        if np.isfinite(top_hat).any():
+            rise = np.asarray(building_height_m, dtype=np.float64) - CAMERA_HEIGHT_M
+            # Column 0: no hit; unknown or too low buildings give NaN (no evidence).
+            log_rise = np.concatenate([[np.nan], np.where(rise > 0.5, np.log(np.maximum(rise, 0.5)), np.nan)])
+            log_rise = log_rise.astype(np.float32)
+            log_top_hat = np.log(top_hat).astype(np.float32)
 
     n_pos = len(panoramas)
     out = np.zeros((n_pos, len(yaws)), dtype=np.float32)
@@ -107,6 +138,19 @@ def pose_likelihood(
             z = (
                 np.log(np.where(hit, np.maximum(dist, 0.1), 1.0)) - log_distance_hat[None, None, :]
             ) / distance_sigma_log
+            # A base line seen too high (its bottom rows taken for road, a shadow, a kerb) makes the image's
+            # distance too long; one seen too low is rare. So a map facade nearer than the image says costs less.
+            z = np.where(z < 0, DISTANCE_NEAR_SLACK * z, z)
+            score = score * np.where(np.isfinite(z), np.exp(-0.5 * np.square(np.nan_to_num(z))), 1.0)
+        if log_rise is not None:
+            building_hit = panoramas.building_id[sl][:, window]
+            # ln(implied rise) - ln(map rise): > 0 where the image's top is higher than the map's building.
+            z = (
+                np.log(np.where(hit, np.maximum(dist, 0.1), 1.0))
+                + log_top_hat[None, None, :]
+                - log_rise[building_hit + 1]
+            ) / height_sigma_log
+            z = np.where(z > 0, 0.25 * z, z)  # a taller building behind may show above: penalise less
             score = score * np.where(np.isfinite(z), np.exp(-0.5 * np.square(np.nan_to_num(z))), 1.0)
         if identity_lut is not None:
             building = panoramas.building_id[sl][:, window]
@@ -119,6 +163,12 @@ def pose_likelihood(
             s_max = (weight + present[None, None, :] * ~hit).sum(axis=-1)
         out[sl] = np.where(s_max > 0, s / np.maximum(s_max, 1e-12), 0.0)
     return out
+
+
+def known_building_heights(city_map: CityMap) -> np.ndarray:
+    """(B,) building heights where the map states them (``height`` or ``building:levels``), NaN for defaults."""
+    known = np.array([b.height_source != "default" for b in city_map.buildings], dtype=bool)
+    return np.where(known, np.asarray(city_map.building_height_m, dtype=float), np.nan)
 
 
 def _identity_lookup(image_model: ImageModel, panoramas: Panoramas, unknown_weight: float) -> np.ndarray:

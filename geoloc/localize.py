@@ -6,8 +6,7 @@ photo's identities name. With no identified building the region comes from the p
 and with neither the whole map is searched. A position prior (GPS with a radius) and a heading prior
 multiply the likelihood; the answer says which priors were used.
 
-Optionally (``refine_cell_m``) the best positions are re-scored on a finer grid around them
-(coarse-to-fine); the heatmap stays on the coarse grid.
+Continuous refinement of the best poses is :mod:`geoloc.pose_refinement`'s (used by :mod:`geoloc.query`).
 """
 
 from __future__ import annotations
@@ -21,7 +20,7 @@ from shapely.ops import unary_union
 
 from geoloc.image_model import ImageModel
 from geoloc.labeling import heading_prior
-from geoloc.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, pose_likelihood
+from geoloc.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, known_building_heights, pose_likelihood
 from geoloc.osm import CityMap
 from geoloc.posterior import (
     DEFAULT_SHARPNESS,
@@ -58,6 +57,7 @@ class Localization:
 
     grid: the candidate grid; positions: (P, 2) its valid cells; posterior: (P, Y) over positions x yaws.
     heatmap: (rows, cols) probability per grid cell (summed over yaws). poses: top-N distinct poses.
+    likelihood: (P, Y) p(I | pose) before priors.
     search: how the candidate region was chosen and which priors were applied.
     """
 
@@ -67,6 +67,7 @@ class Localization:
     posterior: np.ndarray
     heatmap: np.ndarray
     poses: list[RankedPose]
+    likelihood: np.ndarray
     search: dict = field(default_factory=dict)
     timings_ms: dict = field(default_factory=dict)
 
@@ -125,7 +126,7 @@ def localize(
     sharpness: float = DEFAULT_SHARPNESS,
     top_n: int = 10,
     min_separation_m: float | None = None,
-    refine_cell_m: float | None = None,
+    use_skyline: bool = True,
 ) -> Localization:
     """Localise a photo from its image model (with identities, from transfer) on the map.
 
@@ -160,24 +161,24 @@ def localize(
     panoramas = cast_panoramas(city_map, positions, bearing_step_deg=image_model.bin_deg)
     timings["raycast"] = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
+    heights = known_building_heights(city_map) if use_skyline else None
     likelihood = pose_likelihood(
-        panoramas, image_model, yaws, sigma_m=sigma_m, use_identity=search["identity"], normalization=normalization
+        panoramas,
+        image_model,
+        yaws,
+        sigma_m=sigma_m,
+        use_identity=search["identity"],
+        normalization=normalization,
+        building_height_m=heights,
     )
     timings["likelihood"] = 1e3 * (time.perf_counter() - t0)
 
     prior = _prior(positions, yaws, position_prior, prior_yaw_deg)
     posterior = pose_posterior(likelihood, prior, sharpness)
     separation = cell_m if min_separation_m is None else min_separation_m
-    poses = top_poses(positions, posterior, yaws, n=top_n, min_separation_m=separation)
-    if refine_cell_m:
-        t0 = time.perf_counter()
-        poses = _refine(
-            city_map, image_model, poses, cell_m, refine_cell_m, yaws, search["identity"], sigma_m, normalization
-        )
-        timings["refine"] = 1e3 * (time.perf_counter() - t0)
-        search["refine_cell_m"] = refine_cell_m
+    poses = top_poses(positions, posterior, yaws, n=top_n, min_separation_m=separation, likelihood=likelihood)
     heatmap = grid.to_image(position_heatmap(posterior))
-    return Localization(grid, positions, yaws, posterior, heatmap, poses, search, timings)
+    return Localization(grid, positions, yaws, posterior, heatmap, poses, likelihood, search, timings)
 
 
 def _prior(
@@ -191,48 +192,3 @@ def _prior(
     if prior_yaw_deg is not None:
         prior *= heading_prior(yaws, prior_yaw_deg)[None, :]
     return prior
-
-
-def _refine(
-    city_map: CityMap,
-    image_model: ImageModel,
-    poses: list[RankedPose],
-    cell_m: float,
-    refine_cell_m: float,
-    yaws: np.ndarray,
-    use_identity: bool,
-    sigma_m: float,
-    normalization: str,
-) -> list[RankedPose]:
-    """Move each ranked position to the best of a finer grid within one coarse cell around it."""
-    n = int(np.floor(cell_m / 2.0 / refine_cell_m))
-    offsets = np.arange(-n, n + 1) * refine_cell_m
-    local = np.stack(np.meshgrid(offsets, offsets), axis=-1).reshape(-1, 2)
-    candidates = np.concatenate([local + [p.x_m, p.y_m] for p in poses])
-    owner = np.repeat(np.arange(len(poses)), len(local))
-    keep = ~city_map.inside_buildings(candidates)
-    candidates, owner = candidates[keep], owner[keep]
-    panoramas = cast_panoramas(city_map, candidates, bearing_step_deg=image_model.bin_deg)
-    lik = pose_likelihood(
-        panoramas, image_model, yaws, sigma_m=sigma_m, use_identity=use_identity, normalization=normalization
-    )
-    best_yaw = lik.argmax(axis=1)
-    score = lik.max(axis=1)
-    refined = []
-    for i, pose in enumerate(poses):
-        mine = np.flatnonzero(owner == i)
-        if len(mine) == 0:
-            refined.append(pose)
-            continue
-        j = mine[np.argmax(score[mine])]
-        refined.append(
-            RankedPose(
-                pose.rank,
-                float(candidates[j, 0]),
-                float(candidates[j, 1]),
-                float(yaws[best_yaw[j]]),
-                pose.probability,
-                pose.pose_probability,
-            )
-        )
-    return refined

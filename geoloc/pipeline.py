@@ -6,8 +6,7 @@
   on building pixels.
 - :func:`label_reference_photo`: a geo-tagged photo -> heading, corrected position, per-column
   building identities (greedy and marginalised) and its keypoints' identity probabilities.
-- :func:`geolocate_query`: a photo + retrieved references -> transferred identities, probability
-  map, ranked poses and the buildings in the photo.
+- the query stage (retrieval, transfer, anchored pose, likelihood) is :func:`geoloc.query.geolocate`.
 
 Positions in and out of this module are local metres of the map's frame; converting to WGS84 and
 compass headings is the caller's (``city_map.frame``).
@@ -17,23 +16,28 @@ from __future__ import annotations
 
 import io
 import time
+from collections.abc import Hashable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PIL import Image, ImageOps
 
 from geoloc import labels as classes
+from geoloc.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.camera import DEFAULT_HFOV_DEG, Intrinsics, intrinsics_from_focal
 from geoloc.exif import ExifInfo, read_exif
 from geoloc.facades import ImageAnalysis, analyze_image
 from geoloc.features import Features, extract_features
-from geoloc.ground import facade_base_distances
+from geoloc.ground import DEFAULT_CAMERA_HEIGHT_M, facade_base_distances, facade_top_elevations
 from geoloc.identity import IdentityMap
 from geoloc.image_model import ImageModel, image_model_from_columns
 from geoloc.labeling import ReferenceLabel, label_reference
-from geoloc.localize import Localization, PositionPrior, localize
 from geoloc.osm import CityMap
+
+if TYPE_CHECKING:
+    from geoloc.query import StoredReference
 
 WORKING_MAX_SIDE = 1024
 """Photos are analysed at most this many pixels on their long side (phone photos are 3-12 MP)."""
@@ -101,6 +105,7 @@ class PhotoEvidence:
     labels: np.ndarray
     analysis: ImageAnalysis
     column_distance_m: np.ndarray
+    column_top_tan_elevation: np.ndarray
     image_model: ImageModel
     features: Features
     timings_ms: dict[str, float] = field(default_factory=dict)
@@ -121,17 +126,23 @@ def analyze_photo(photo: Photo, labels: np.ndarray | None = None) -> PhotoEviden
         timings["segmentation"] = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
     analysis = analyze_image(photo.image_rgb, labels, photo.intrinsics)
-    distances = facade_base_distances(labels, photo.intrinsics, analysis.vanishing_points.rotation_upright_from_cam)
-    model = _image_model(analysis, distances, photo.intrinsics)
+    rotation = analysis.vanishing_points.rotation_upright_from_cam
+    distances = facade_base_distances(labels, photo.intrinsics, rotation)
+    tops = facade_top_elevations(labels, photo.intrinsics, rotation)
+    model = _image_model(analysis, distances, tops, photo.intrinsics)
     timings["facades"] = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
     features = extract_features(photo.image_rgb, labels == classes.BUILDING)
     timings["features"] = 1e3 * (time.perf_counter() - t0)
-    return PhotoEvidence(np.asarray(labels), analysis, distances, model, features, timings)
+    return PhotoEvidence(np.asarray(labels), analysis, distances, tops, model, features, timings)
 
 
 def _image_model(
-    analysis: ImageAnalysis, column_distance_m: np.ndarray, intrinsics: Intrinsics, identity: IdentityMap | None = None
+    analysis: ImageAnalysis,
+    column_distance_m: np.ndarray,
+    column_top_tan_elevation: np.ndarray,
+    intrinsics: Intrinsics,
+    identity: IdentityMap | None = None,
 ) -> ImageModel:
     deco = analysis.decomposition
     return image_model_from_columns(
@@ -142,6 +153,7 @@ def _image_model(
         identity_building_ids=None if identity is None else identity.building_ids,
         column_distance_m=column_distance_m,
         bin_deg=analysis.image_model.bin_deg,
+        column_top_tan_elevation=column_top_tan_elevation,
     )
 
 
@@ -150,14 +162,26 @@ class LabelledReference:
     """A reference photo labelled with the map: its pose, identities and keypoint identities.
 
     identity: the identity map used downstream (marginalised by default);
-    keypoint_identity: (N, M) identity probabilities of ``evidence.features`` over ``identity.building_ids``.
+    keypoint_identity: (N, M) identity probabilities of ``evidence.features`` over ``identity.building_ids``;
+    anchors: the keypoints' 3D points on the map's facades seen from the label's pose (:mod:`geoloc.anchors`).
     """
 
     label: ReferenceLabel
     evidence: PhotoEvidence
     identity: IdentityMap
     keypoint_identity: np.ndarray
+    anchors: MapAnchors
     timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def camera_pose(self) -> CameraPose:
+        """The labelled pose as a camera pose (pitch and roll from the photo's vertical vanishing point)."""
+        return _camera_pose(self.label, self.evidence)
+
+
+def _camera_pose(label: ReferenceLabel, evidence: PhotoEvidence) -> CameraPose:
+    rotation = evidence.analysis.vanishing_points.rotation_upright_from_cam
+    return CameraPose(label.x_m, label.y_m, label.yaw_deg, DEFAULT_CAMERA_HEIGHT_M, rotation)
 
 
 def label_reference_photo(
@@ -191,66 +215,28 @@ def label_reference_photo(
     identity = label.marginalized if strategy == "marginalized" else label.greedy
     keypoint_identity = identity.probabilities_at(evidence.features.xy)
     timings = dict(evidence.timings_ms, labeling=1e3 * (time.perf_counter() - t0))
-    return LabelledReference(label, evidence, identity, keypoint_identity, timings)
+    t0 = time.perf_counter()
+    anchors = anchor_keypoints(city_map, _camera_pose(label, evidence), photo.intrinsics, evidence.features.xy)
+    timings["anchors"] = 1e3 * (time.perf_counter() - t0)
+    return LabelledReference(label, evidence, identity, keypoint_identity, anchors, timings)
+
+
+def stored_reference(reference_id: Hashable, labelled: LabelledReference) -> StoredReference:
+    """What the query stage keeps of a labelled reference (:class:`geoloc.query.StoredReference`)."""
+    from geoloc.query import StoredReference
+
+    return StoredReference(
+        reference_id,
+        labelled.evidence.features,
+        labelled.keypoint_identity,
+        labelled.identity.building_ids,
+        labelled.anchors,
+        labelled.label.position_covariance,
+    )
 
 
 def image_model_with_identity(evidence: PhotoEvidence, identity: IdentityMap, intrinsics: Intrinsics) -> ImageModel:
     """The photo's facade image model with per-column identities binned in (identity-aware likelihood)."""
-    return _image_model(evidence.analysis, evidence.column_distance_m, intrinsics, identity)
-
-
-@dataclass
-class QueryAnswer:
-    """A geolocated query: where (localization), what (identity) and from which references."""
-
-    localization: Localization
-    identity: IdentityMap
-    buildings: list[dict]
-    references: list[dict]
-    timings_ms: dict[str, float] = field(default_factory=dict)
-
-
-def geolocate_query(
-    city_map: CityMap,
-    photo: Photo,
-    references: list,
-    *,
-    evidence: PhotoEvidence | None = None,
-    use_identity: bool = True,
-    position_prior: PositionPrior | None = None,
-    prior_yaw_deg: float | None = None,
-    top_n: int = 10,
-    **localize_options: float,
-) -> QueryAnswer:
-    """Geolocate a query photo given its retrieved references.
-
-    references: :class:`geoloc.transfer.ReferenceEvidence` of the top-k retrieved references (their
-    features and keypoint identities). With ``use_identity=False`` the identities still choose the
-    search region but the likelihood is geometry-only (the paper's baseline).
-    """
-    from geoloc.transfer import transfer_identities
-
-    evidence = evidence or analyze_photo(photo)
-    timings = dict(evidence.timings_ms)
-    t0 = time.perf_counter()
-    transferred = transfer_identities(evidence.features, evidence.building_mask, references)
-    identity = transferred.identity
-    timings["transfer"] = 1e3 * (time.perf_counter() - t0)
-    model = image_model_with_identity(evidence, identity, photo.intrinsics)
-    t0 = time.perf_counter()
-    localization = localize(
-        city_map,
-        model,
-        use_identity=use_identity,
-        position_prior=position_prior,
-        prior_yaw_deg=prior_yaw_deg,
-        top_n=top_n,
-        **localize_options,
+    return _image_model(
+        evidence.analysis, evidence.column_distance_m, evidence.column_top_tan_elevation, intrinsics, identity
     )
-    timings["localize"] = 1e3 * (time.perf_counter() - t0)
-    timings.update({f"localize_{k}": v for k, v in localization.timings_ms.items()})
-    buildings = identity.building_extents()
-    for entry in buildings:
-        building = city_map.buildings[entry["building_id"]]
-        entry.update(osm_id=building.osm_id, name=building.name)
-    return QueryAnswer(localization, identity, buildings, [r.as_dict() for r in transferred.references], timings)

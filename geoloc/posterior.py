@@ -120,6 +120,7 @@ class RankedPose:
     yaw_deg: float
     probability: float  # of the position, summed over yaws
     pose_probability: float  # of this exact (position, yaw)
+    likelihood: float = float("nan")  # p(I | pose) at this exact (position, yaw), when known
 
 
 def top_poses(
@@ -128,10 +129,12 @@ def top_poses(
     yaws_deg: np.ndarray,
     n: int = 10,
     min_separation_m: float = 10.0,
+    likelihood: np.ndarray | None = None,
 ) -> list[RankedPose]:
     """The ``n`` most probable positions, at least ``min_separation_m`` apart, with their best yaws.
 
-    positions: (P, 2); posterior: (P, Y); yaws_deg: (Y,).
+    positions: (P, 2); posterior: (P, Y); yaws_deg: (Y,); likelihood: optional (P, Y) p(I | pose) reported
+    with each pose.
     """
     heat = position_heatmap(posterior)
     remaining = heat.astype(float).copy()
@@ -156,6 +159,7 @@ def top_poses(
                 float(yaws_deg[best_yaw]),
                 float(heat[index]),
                 float(posterior[index, best_yaw]),
+                float("nan") if likelihood is None else float(likelihood[index, best_yaw]),
             )
         )
     return result

@@ -100,6 +100,7 @@ class ReferenceMatch:
     n_inliers: int
     model: str  # "F", "H" or "none"
     pairs: np.ndarray = field(repr=False)  # (n_inliers, 2) int (query index, reference index)
+    putative: np.ndarray | None = field(default=None, repr=False)  # (n_matches, 2) all ratio-test pairs
 
     def as_dict(self) -> dict:
         return {
@@ -270,7 +271,7 @@ def rerank_by_inliers(
         pairs, inliers, model = match_and_verify(
             query, feats, ratio=ratio, threshold_px=threshold_px, min_inliers=min_inliers
         )
-        out.append(ReferenceMatch(ref_id, float(score), len(pairs), int(inliers.sum()), model, pairs[inliers]))
+        out.append(ReferenceMatch(ref_id, float(score), len(pairs), int(inliers.sum()), model, pairs[inliers], pairs))
     order = sorted(range(len(out)), key=lambda i: (-out[i].n_inliers, -out[i].score, i))
     return [out[i] for i in order[:k]]
 
@@ -424,7 +425,9 @@ def transfer_identities(
             query_features, ref.features, ratio=ratio, threshold_px=threshold_px, min_inliers=min_inliers
         )
         good = pairs[inliers]
-        diagnostics.append(ReferenceMatch(ref.reference_id, float(ref.score), len(pairs), len(good), model, good))
+        diagnostics.append(
+            ReferenceMatch(ref.reference_id, float(ref.score), len(pairs), len(good), model, good, pairs)
+        )
     most = max((d.n_inliers for d in diagnostics), default=0)
     vote_kp: list[np.ndarray] = []
     vote_dist: list[np.ndarray] = []

@@ -57,8 +57,17 @@ class Sun:
 
 
 _CAR_COLOURS = np.array(
-    [[0.92, 0.92, 0.92], [0.08, 0.08, 0.09], [0.62, 0.64, 0.66], [0.35, 0.36, 0.38], [0.12, 0.18, 0.40],
-     [0.62, 0.08, 0.08], [0.85, 0.85, 0.80], [0.15, 0.30, 0.20], [0.70, 0.55, 0.30]]
+    [
+        [0.92, 0.92, 0.92],
+        [0.08, 0.08, 0.09],
+        [0.62, 0.64, 0.66],
+        [0.35, 0.36, 0.38],
+        [0.12, 0.18, 0.40],
+        [0.62, 0.08, 0.08],
+        [0.85, 0.85, 0.80],
+        [0.15, 0.30, 0.20],
+        [0.70, 0.55, 0.30],
+    ]
 )
 
 
@@ -113,8 +122,15 @@ class Scene:
         if look is None:
             mask = self.map.facades.building_id == building_id
             b = self.map.buildings[building_id]
-            look = make_look(self.seed, building_id, float(b.height_m), float(self.perimeter_m[building_id]),
-                             self.facade_offset_m[mask], self.map.facades.length_m[mask], b.name)
+            look = make_look(
+                self.seed,
+                building_id,
+                float(b.height_m),
+                float(self.perimeter_m[building_id]),
+                self.facade_offset_m[mask],
+                self.map.facades.length_m[mask],
+                b.name,
+            )
             self._looks[building_id] = look
         return look
 

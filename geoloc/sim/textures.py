@@ -52,8 +52,27 @@ _SIGN_COLOURS = np.array(
     ]
 )
 _SYLLABLES = ("KA", "MA", "RI", "TO", "LA", "NE", "SU", "PO", "VI", "HE", "JO", "KU", "SA", "TI", "RO", "BE")
-_SHOP_WORDS = ("CAFE", "BAR", "APTEEKKI", "KIRJA", "PANKKI", "HOTEL", "MARKET", "SHOP", "KUKKA", "OPTIKKO",
-               "RAVINTOLA", "BAKERY", "SALON", "R-KIOSKI", "BOUTIQUE", "PIZZA", "SUSHI", "KEBAB", "GALLERY")
+_SHOP_WORDS = (
+    "CAFE",
+    "BAR",
+    "APTEEKKI",
+    "KIRJA",
+    "PANKKI",
+    "HOTEL",
+    "MARKET",
+    "SHOP",
+    "KUKKA",
+    "OPTIKKO",
+    "RAVINTOLA",
+    "BAKERY",
+    "SALON",
+    "R-KIOSKI",
+    "BOUTIQUE",
+    "PIZZA",
+    "SUSHI",
+    "KEBAB",
+    "GALLERY",
+)
 
 
 def _u8(img: np.ndarray) -> np.ndarray:
@@ -68,8 +87,11 @@ def mip_pyramid(img_u8: np.ndarray, levels: int = MIP_LEVELS) -> list[np.ndarray
         h, w = prev.shape[-3:-1]
         nh, nw = max(1, h // 2), max(1, w // 2)
         flat = prev.reshape(-1, h, w, 3)
-        out.append(np.stack([cv2.resize(t, (nw, nh), interpolation=cv2.INTER_AREA) for t in flat]).reshape(
-            (*prev.shape[:-3], nh, nw, 3)))
+        out.append(
+            np.stack([cv2.resize(t, (nw, nh), interpolation=cv2.INTER_AREA) for t in flat]).reshape(
+                (*prev.shape[:-3], nh, nw, 3)
+            )
+        )
     return out
 
 
@@ -153,13 +175,27 @@ def make_look(
     streaks = smooth_noise(rng, (1, nw), 1.2, 1)[0]
     stain -= 0.05 * np.clip(streaks, 0, None)[None, :] * np.linspace(1.0, 0.2, nh)[:, None]
     detail = _detail_field(rng, perimeter_m, facade_offsets_m, facade_lengths_m)
-    return BuildingLook(wall, trim, bay_m, floor_m, ground_m, n_floors, style, shops,
-                        mip_pyramid(tiles), mip_pyramid(ground), mip_pyramid(sign), sign_mask,
-                        stain.astype(np.float32), detail)
+    return BuildingLook(
+        wall,
+        trim,
+        bay_m,
+        floor_m,
+        ground_m,
+        n_floors,
+        style,
+        shops,
+        mip_pyramid(tiles),
+        mip_pyramid(ground),
+        mip_pyramid(sign),
+        sign_mask,
+        stain.astype(np.float32),
+        detail,
+    )
 
 
-def _detail_field(rng: np.random.Generator, perimeter_m: float, offsets_m: np.ndarray,
-                  lengths_m: np.ndarray) -> np.ndarray:
+def _detail_field(
+    rng: np.random.Generator, perimeter_m: float, offsets_m: np.ndarray, lengths_m: np.ndarray
+) -> np.ndarray:
     """(dh, dw) uint8 street-level detail (128 = no change), row 0 at the ground (see BuildingLook)."""
     d = DETAIL_TEXELS_PER_M
     dh, dw = int(DETAIL_HEIGHT_M * d), max(2, int(np.ceil(perimeter_m * d)) + 2)
@@ -171,16 +207,22 @@ def _detail_field(rng: np.random.Generator, perimeter_m: float, offsets_m: np.nd
         if kind < 0.35:  # graffiti scribble low on the wall
             pts = np.column_stack([x + np.cumsum(rng.normal(2.5, 2.0, 8)), rng.uniform(0.4, 1.8, 8) * d])
             tone = int(rng.choice([40, 60, 200, 230]))
-            cv2.polylines(img, [pts.astype(np.int32).reshape(-1, 1, 2)], False, tone, int(rng.integers(1, 3)),
-                          cv2.LINE_AA)
+            cv2.polylines(
+                img, [pts.astype(np.int32).reshape(-1, 1, 2)], False, tone, int(rng.integers(1, 3)), cv2.LINE_AA
+            )
         elif kind < 0.65:  # poster with a pattern
             w, h = int(rng.uniform(0.5, 1.0) * d), int(rng.uniform(0.7, 1.3) * d)
             y = int(rng.uniform(1.0, 1.6) * d)
             cv2.rectangle(img, (x, y), (x + w, y + h), int(rng.integers(150, 240)), -1)
             for _ in range(int(rng.integers(2, 6))):
                 px, py = x + int(rng.integers(0, max(1, w - 2))), y + int(rng.integers(0, max(1, h - 2)))
-                cv2.rectangle(img, (px, py), (px + int(rng.integers(1, 4)), py + int(rng.integers(1, 4))),
-                              int(rng.integers(20, 120)), -1)
+                cv2.rectangle(
+                    img,
+                    (px, py),
+                    (px + int(rng.integers(1, 4)), py + int(rng.integers(1, 4))),
+                    int(rng.integers(20, 120)),
+                    -1,
+                )
         elif kind < 0.8:  # plaque or house number
             y = int(rng.uniform(2.3, 2.9) * d)
             cv2.rectangle(img, (x, y), (x + 3, y + 2), int(rng.integers(30, 90)), -1)
@@ -195,7 +237,7 @@ def _detail_field(rng: np.random.Generator, perimeter_m: float, offsets_m: np.nd
     for off, length in zip(offsets_m, lengths_m, strict=True):  # drainpipes at some corners
         if length > 4.0 and rng.random() < 0.4:
             x = int((off + 0.3) * d)
-            img[:, x:x + 1] = 80
+            img[:, x : x + 1] = 80
     return img
 
 
@@ -205,7 +247,7 @@ def _wall_base(rng: np.random.Generator, style: str, wall: np.ndarray, h: int, w
     img = np.broadcast_to(wall, (h, w, 3)).astype(np.float32) * (1.0 + grain)
     if style == "brick":
         course = int(round(0.075 * TEXELS_PER_M * 2))  # two texels per 7.5 cm course, drawn at 15 cm
-        img[::max(course, 3)] *= 0.8
+        img[:: max(course, 3)] *= 0.8
         img *= 1.0 + 0.06 * rng.standard_normal((1, w, 3)).astype(np.float32)
     elif style == "stone":
         img[:: int(0.6 * TEXELS_PER_M)] *= 0.78
@@ -239,14 +281,14 @@ def _window_tiles(
     for k in range(4):
         img = _wall_base(rng, style, wall, th, tw)
         if band:
-            img[th - int(0.22 * d):] = trim
+            img[th - int(0.22 * d) :] = trim
             img[th - int(0.22 * d)] *= 0.7
         if lintel:
-            img[y0 - int(0.25 * d):y0, x0 - fr:x1 + fr] = trim
+            img[y0 - int(0.25 * d) : y0, x0 - fr : x1 + fr] = trim
         # Sill ledge and its shadow.
-        img[y1:y1 + max(2, int(0.08 * d)), x0 - fr:x1 + fr] = np.clip(frame_rgb * 1.05, 0, 1)
-        img[y1 + max(2, int(0.08 * d)):y1 + max(3, int(0.14 * d)), x0 - fr:x1 + fr] *= 0.6
-        img[y0 - fr:y1, x0 - fr:x1 + fr] = frame_rgb
+        img[y1 : y1 + max(2, int(0.08 * d)), x0 - fr : x1 + fr] = np.clip(frame_rgb * 1.05, 0, 1)
+        img[y1 + max(2, int(0.08 * d)) : y1 + max(3, int(0.14 * d)), x0 - fr : x1 + fr] *= 0.6
+        img[y0 - fr : y1, x0 - fr : x1 + fr] = frame_rgb
         gy = np.linspace(1.5, 0.8, y1 - y0)[:, None, None]  # sky reflection brighter at the top
         tint = glass * (1.0 + 0.25 * (k == 1)) + (0.05 * k) * np.array([0.0, 0.02, 0.04])
         pane = np.broadcast_to(tint * gy, (y1 - y0, x1 - x0, 3)).copy()
@@ -260,12 +302,12 @@ def _window_tiles(
             pane[:bh] = np.array([0.80, 0.80, 0.78])
             pane[:bh:3] *= 0.8
         img[y0:y1, x0:x1] = pane
-        img[y0:y0 + fr, x0:x1] *= 0.55  # reveal shadow under the lintel
+        img[y0 : y0 + fr, x0:x1] *= 0.55  # reveal shadow under the lintel
         if mullion:
             mx = (x0 + x1) // 2
-            img[y0:y1, mx - fr // 2:mx + fr - fr // 2] = frame_rgb
+            img[y0:y1, mx - fr // 2 : mx + fr - fr // 2] = frame_rgb
             ty = y0 + (y1 - y0) // 3
-            img[ty - fr // 2:ty + fr - fr // 2, x0:x1] = frame_rgb
+            img[ty - fr // 2 : ty + fr - fr // 2, x0:x1] = frame_rgb
         variants.append(img)
     return _u8(np.stack(variants))
 
@@ -291,7 +333,7 @@ def _ground_tiles(
     out = []
     for k in range(3):
         img = _wall_base(rng, style, base_wall, gh, tw)
-        img[gh - plinth:] = np.array([0.32, 0.31, 0.30]) + 0.02 * k
+        img[gh - plinth :] = np.array([0.32, 0.31, 0.30]) + 0.02 * k
         if k == 0 and shops:  # shop window: glass over most of the bay, reflections, a lit display
             x0, x1 = fr * 2, tw - fr * 2
             y0, y1 = top_glass, gh - plinth + fr
@@ -303,30 +345,30 @@ def _ground_tiles(
             for _ in range(int(rng.integers(3, 8))):  # goods and shelves on display
                 bw, bh = int(rng.integers(3, max(4, iw // 3))), int(rng.integers(3, max(4, ih // 3)))
                 bx, by = int(rng.integers(0, max(1, iw - bw))), int(rng.integers(ih // 3, max(ih // 3 + 1, ih - bh)))
-                inner[by:by + bh, bx:bx + bw] = rng.uniform(0.15, 0.95, 3)
+                inner[by : by + bh, bx : bx + bw] = rng.uniform(0.15, 0.95, 3)
             refl = np.linspace(0.55, 0.15, ih)[:, None, None] * np.array([0.75, 0.82, 0.9])
             diag = ((np.arange(iw)[None, :] + np.arange(ih)[:, None]) // max(4, iw // 3)) % 2
             inner = inner * 0.55 + refl * (0.8 + 0.2 * diag[..., None])
-            img[y0 + fr:y1 - fr, x0 + fr:x1 - fr] = inner
+            img[y0 + fr : y1 - fr, x0 + fr : x1 - fr] = inner
             for mx in np.linspace(x0, x1, int(rng.integers(2, 4)) + 1)[1:-1].astype(int):
-                img[y0:y1, mx - fr // 2:mx + fr // 2 + 1] = frame_rgb
+                img[y0:y1, mx - fr // 2 : mx + fr // 2 + 1] = frame_rgb
             tr = y0 + int(0.22 * (y1 - y0))
-            img[tr:tr + fr, x0:x1] = frame_rgb
+            img[tr : tr + fr, x0:x1] = frame_rgb
         elif k == 1 or (k == 0 and not shops):  # door
             dw = int(round(min(1.4, bay_m * 0.45) * d))
             x0 = (tw - dw) // 2
             y0 = gh - int(round(2.4 * d))
             door = np.array([0.30, 0.20, 0.12]) if rng.random() < 0.5 else rng.uniform(0.1, 0.5, 3)
-            img[y0 - fr:gh, x0 - fr:x0 + dw + fr] = frame_rgb
-            img[y0:gh, x0:x0 + dw] = door
-            img[y0 + fr * 2:y0 + int(0.9 * d), x0 + fr * 2:x0 + dw - fr * 2] = glass * 1.4
-            img[y0:y0 + fr, x0:x0 + dw] *= 0.5
+            img[y0 - fr : gh, x0 - fr : x0 + dw + fr] = frame_rgb
+            img[y0:gh, x0 : x0 + dw] = door
+            img[y0 + fr * 2 : y0 + int(0.9 * d), x0 + fr * 2 : x0 + dw - fr * 2] = glass * 1.4
+            img[y0 : y0 + fr, x0 : x0 + dw] *= 0.5
         else:  # small barred window
             x0, x1 = int(tw * 0.3), int(tw * 0.7)
             y0, y1 = int(gh * 0.3), int(gh * 0.62)
-            img[y0 - fr:y1 + fr, x0 - fr:x1 + fr] = frame_rgb
+            img[y0 - fr : y1 + fr, x0 - fr : x1 + fr] = frame_rgb
             img[y0:y1, x0:x1] = glass * 1.2
-            img[y0:y1, x0:x1:max(3, fr * 2)] = np.array([0.15, 0.15, 0.15])
+            img[y0:y1, x0 : x1 : max(3, fr * 2)] = np.array([0.15, 0.15, 0.15])
         out.append(img)
     return _u8(np.stack(out))
 

@@ -94,8 +94,9 @@ def _world_centre(city_map: CityMap) -> np.ndarray:
     return np.median(cent, axis=0)
 
 
-def _street_points(city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray,
-                   radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _street_points(
+    city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray, radius_m: float
+) -> tuple[np.ndarray, np.ndarray]:
     """n random points on streets inside the disk (uniform by length): (n, 2) xy, (n, 2) unit directions."""
     segs_a, segs_b = [], []
     for line in city_map.streets:
@@ -119,8 +120,9 @@ def _street_points(city_map: CityMap, rng: np.random.Generator, n: int, centre: 
     return a[k] + t * (b[k] - a[k]), (b[k] - a[k]) / length[k, None]
 
 
-def _facade_points(city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray,
-                   radius_m: float) -> _Candidates:
+def _facade_points(
+    city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray, radius_m: float
+) -> _Candidates:
     """Free-space fallback: points 8-25 m in front of random facades, looking at them."""
     fac = city_map.facades
     mid = (fac.start + fac.end) / 2
@@ -135,8 +137,9 @@ def _facade_points(city_map: CityMap, rng: np.random.Generator, n: int, centre: 
     return _Candidates(xy, yaw)
 
 
-def _street_candidates(city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray,
-                       radius_m: float) -> _Candidates:
+def _street_candidates(
+    city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray, radius_m: float
+) -> _Candidates:
     """Street positions (on the road or the pavement) looking across the street, either side."""
     xy, d = _street_points(city_map, rng, n, centre, radius_m)
     if len(xy) == 0:
@@ -168,8 +171,9 @@ def _views(scene: Scene, xy: np.ndarray, yaw_deg: np.ndarray, hfov_deg: float, n
     near = dist <= near_m
     coverage = near.mean(axis=1)
     masked = np.where(near, dist, np.inf)
-    med = np.where(near.any(axis=1), np.sort(masked, axis=1)[np.arange(len(xy)), np.maximum(near.sum(1) // 2, 0)],
-                   np.inf)
+    med = np.where(
+        near.any(axis=1), np.sort(masked, axis=1)[np.arange(len(xy)), np.maximum(near.sum(1) // 2, 0)], np.inf
+    )
     main = np.full(len(xy), -1)
     for i in range(len(xy)):
         ids = bid[i][near[i]]
@@ -188,8 +192,7 @@ def _pitch_roll(rng: np.random.Generator, opts: WorldOptions) -> tuple[float, fl
     return round(pitch, 3), round(roll, 3)
 
 
-def sample_references(scene: Scene, opts: WorldOptions, rng: np.random.Generator,
-                      centre: np.ndarray) -> list[Pose]:
+def sample_references(scene: Scene, opts: WorldOptions, rng: np.random.Generator, centre: np.ndarray) -> list[Pose]:
     """Reference poses along streets facing buildings (see module docstring)."""
     chosen: list[np.ndarray] = []
     yaws: list[float] = []
@@ -216,8 +219,14 @@ def sample_references(scene: Scene, opts: WorldOptions, rng: np.random.Generator
     return poses
 
 
-def sample_queries(scene: Scene, opts: WorldOptions, rng: np.random.Generator, centre: np.ndarray,
-                   refs: list[Pose], ref_seen: dict[int, float]) -> list[tuple[str, Pose]]:
+def sample_queries(
+    scene: Scene,
+    opts: WorldOptions,
+    rng: np.random.Generator,
+    centre: np.ndarray,
+    refs: list[Pose],
+    ref_seen: dict[int, float],
+) -> list[tuple[str, Pose]]:
     """Query poses: ``between`` / ``offset`` references and ``unseen`` buildings (module docstring).
 
     ref_seen: building id -> largest pixel share it has in any reference.
@@ -294,12 +303,26 @@ def _gps_with_noise(scene: Scene, pose: Pose, noise_m: float, rng: np.random.Gen
         return None
     dx, dy = rng.normal(0, noise_m, 2) if noise_m > 0 else (0.0, 0.0)
     lat, lon = scene.map.frame.to_wgs84(pose.x_m + dx, pose.y_m + dy)
-    return {"lat": float(lat), "lon": float(lon), "noise_east_m": float(dx), "noise_north_m": float(dy),
-            "noise_std_m": float(noise_m)}
+    return {
+        "lat": float(lat),
+        "lon": float(lon),
+        "noise_east_m": float(dx),
+        "noise_north_m": float(dy),
+        "noise_std_m": float(noise_m),
+    }
 
 
-def _image_record(scene: Scene, name: str, role: str, kind: str, r: Render, f35: int, fmm: float,
-                  gps: dict[str, Any] | None, folder: str) -> dict[str, Any]:
+def _image_record(
+    scene: Scene,
+    name: str,
+    role: str,
+    kind: str,
+    r: Render,
+    f35: int,
+    fmm: float,
+    gps: dict[str, Any] | None,
+    folder: str,
+) -> dict[str, Any]:
     frame = scene.map.frame
     lat, lon = frame.to_wgs84(r.pose.x_m, r.pose.y_m)
     heading = float(frame.bearing_to_heading(r.pose.yaw_deg, r.pose.x_m, r.pose.y_m))
@@ -315,22 +338,40 @@ def _image_record(scene: Scene, name: str, role: str, kind: str, r: Render, f35:
         "file": f"{folder}/{name}.jpg",
         "gt": f"gt/{name}.npz",
         "pose": {**r.pose.as_dict(), "lat": float(lat), "lon": float(lon), "heading_deg": round(heading, 4)},
-        "intrinsics": {"width": intr.width, "height": intr.height, "focal_px": intr.focal_px, "cx": intr.cx,
-                       "cy": intr.cy, "hfov_deg": intr.hfov_deg, "focal_35mm": f35, "focal_mm": fmm},
+        "intrinsics": {
+            "width": intr.width,
+            "height": intr.height,
+            "focal_px": intr.focal_px,
+            "cx": intr.cx,
+            "cy": intr.cy,
+            "hfov_deg": intr.hfov_deg,
+            "focal_35mm": f35,
+            "focal_mm": fmm,
+        },
         "gps": gps,
         "building_fraction": float((r.building_id >= 0).mean()),
-        "label_fractions": {k: float(v) for k, v in zip(
-            ("other", "building", "tree", "road", "sky", "car"),
-            np.bincount(r.labels.ravel(), minlength=6)[:6] / r.labels.size, strict=True)},
+        "label_fractions": {
+            k: float(v)
+            for k, v in zip(
+                ("other", "building", "tree", "road", "sky", "car"),
+                np.bincount(r.labels.ravel(), minlength=6)[:6] / r.labels.size,
+                strict=True,
+            )
+        },
         "buildings": buildings,
     }
 
 
 def _save_gt(path: Path, r: Render) -> None:
     np.savez_compressed(
-        path, labels=r.labels, building_id=r.building_id, facade_id=r.facade_id,
-        column_theta_deg=r.column_theta_deg, column_distance_m=r.column_distance_m,
-        column_building_id=r.column_building_id, column_facade_id=r.column_facade_id,
+        path,
+        labels=r.labels,
+        building_id=r.building_id,
+        facade_id=r.facade_id,
+        column_theta_deg=r.column_theta_deg,
+        column_distance_m=r.column_distance_m,
+        column_building_id=r.column_building_id,
+        column_facade_id=r.column_facade_id,
     )
 
 
@@ -350,8 +391,10 @@ def generate_world(
         (out / sub).mkdir(parents=True, exist_ok=True)
     city_map = city_map or load_map(map_path)
     scene = Scene(city_map, seed=opts.seed)
-    say(f"map {city_map.source}: {len(city_map.buildings)} buildings, {len(scene.trees.xy)} trees, "
-        f"{len(scene.cars.xy)} cars ({time.perf_counter() - t0:.1f} s)")
+    say(
+        f"map {city_map.source}: {len(city_map.buildings)} buildings, {len(scene.trees.xy)} trees, "
+        f"{len(scene.cars.xy)} cars ({time.perf_counter() - t0:.1f} s)"
+    )
     rng = np.random.default_rng([opts.seed, 100])
     centre = _world_centre(city_map)
     intr, f35, fmm = camera_for(opts.width, opts.height, opts.hfov_deg)
@@ -384,11 +427,17 @@ def generate_world(
     manifest = {
         "version": MANIFEST_VERSION,
         "generator": "geoloc.sim.world",
-        "map": {"path": str(Path(map_path).resolve()) if map_path else None, "source": city_map.source,
-                "origin_wgs84": {"lat": city_map.frame.origin_lat, "lon": city_map.frame.origin_lon}},
+        "map": {
+            "path": str(Path(map_path).resolve()) if map_path else None,
+            "source": city_map.source,
+            "origin_wgs84": {"lat": city_map.frame.origin_lat, "lon": city_map.frame.origin_lon},
+        },
         "options": {k: getattr(opts, k) for k in opts.__dataclass_fields__},
-        "region": {"centre_m": [float(centre[0]), float(centre[1])], "centre_wgs84": [float(lat0), float(lon0)],
-                   "radius_m": opts.radius_m},
+        "region": {
+            "centre_m": [float(centre[0]), float(centre[1])],
+            "centre_wgs84": [float(lat0), float(lon0)],
+            "radius_m": opts.radius_m,
+        },
         "sun": {"azimuth_deg": scene.sun.azimuth_deg, "elevation_deg": scene.sun.elevation_deg},
         "camera_height_m": refs[0].height_m if refs else None,
         "conventions": {
@@ -407,13 +456,31 @@ def generate_world(
     return manifest
 
 
-def _write(out: Path, folder: str, name: str, r: Render, gps: dict[str, Any] | None, f35: int, fmm: float,
-           opts: WorldOptions, index: int) -> None:
+def _write(
+    out: Path,
+    folder: str,
+    name: str,
+    r: Render,
+    gps: dict[str, Any] | None,
+    f35: int,
+    fmm: float,
+    opts: WorldOptions,
+    index: int,
+) -> None:
     from datetime import datetime, timedelta
 
     taken = datetime(2024, 6, 1, 10, 0, 0) + timedelta(seconds=37 * index)
-    write_jpeg(out / folder / f"{name}.jpg", r.rgb, lat=gps["lat"] if gps else None, lon=gps["lon"] if gps else None,
-               focal_35mm=f35, focal_mm=fmm, quality=opts.jpeg_quality, altitude=12.0 if gps else None, taken=taken)
+    write_jpeg(
+        out / folder / f"{name}.jpg",
+        r.rgb,
+        lat=gps["lat"] if gps else None,
+        lon=gps["lon"] if gps else None,
+        focal_35mm=f35,
+        focal_mm=fmm,
+        quality=opts.jpeg_quality,
+        altitude=12.0 if gps else None,
+        taken=taken,
+    )
     _save_gt(out / "gt" / f"{name}.npz", r)
 
 
@@ -434,12 +501,11 @@ def contact_sheet(out: Path, manifest: dict[str, Any], scene: Scene, thumb_w: in
             continue
         thumb = cv2.resize(img, (thumb_w, th), interpolation=cv2.INTER_AREA)
         y, x = (i // cols) * (th + label_h), (i % cols) * thumb_w
-        grid[y:y + th, x:x + thumb_w] = thumb
+        grid[y : y + th, x : x + thumb_w] = thumb
         colour = (230, 140, 40) if rec["role"] == "reference" else (40, 40, 230)
-        grid[y + th:y + th + label_h, x:x + thumb_w] = colour
+        grid[y + th : y + th + label_h, x : x + thumb_w] = colour
         text = rec["name"] + ("" if rec["role"] == "reference" else f" {rec['kind']}")
-        cv2.putText(grid, text, (x + 4, y + th + 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (255, 255, 255), 1,
-                    cv2.LINE_AA)
+        cv2.putText(grid, text, (x + 4, y + th + 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (255, 255, 255), 1, cv2.LINE_AA)
     side = grid.shape[0]
     plan = _pose_map(manifest, scene, side)
     sheet = np.hstack([grid, plan])
@@ -480,10 +546,26 @@ def _pose_map(manifest: dict[str, Any], scene: Scene, side: int) -> np.ndarray:
             tip = to_px(p + 15.0 * np.array([[math.sin(a), math.cos(a)]]))[0]
             cv2.line(img, tuple(int(v) for v in c), tuple(int(v) for v in tip), colour, 1, cv2.LINE_AA)
         cv2.circle(img, tuple(int(v) for v in c), 4, colour, -1, cv2.LINE_AA)
-        cv2.putText(img, rec["name"].split("_")[-1], (int(c[0]) + 5, int(c[1]) - 4), cv2.FONT_HERSHEY_SIMPLEX,
-                    0.35, colour, 1, cv2.LINE_AA)
-    cv2.putText(img, f"references (blue) and queries (red); 15 m view wedges; {span:.0f} m across",
-                (10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(
+            img,
+            rec["name"].split("_")[-1],
+            (int(c[0]) + 5, int(c[1]) - 4),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.35,
+            colour,
+            1,
+            cv2.LINE_AA,
+        )
+    cv2.putText(
+        img,
+        f"references (blue) and queries (red); 15 m view wedges; {span:.0f} m across",
+        (10, 20),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.5,
+        (0, 0, 0),
+        1,
+        cv2.LINE_AA,
+    )
     return img
 
 
