@@ -13,7 +13,7 @@ from fastapi import FastAPI
 from db import connect, migrate
 from db.stats import stored_file_paths
 from service.errors import error_body, install_error_handlers
-from service.settings import Settings, load_settings
+from service.settings import Settings, get_settings
 from service.uploads import clean_orphan_files, clean_stale_temp_files
 
 log = logging.getLogger("geoloc.api")
@@ -99,7 +99,7 @@ class BodySizeLimit:
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the application (``uvicorn --factory service.app:create_app``)."""
-    settings = settings or load_settings()
+    settings = settings or get_settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

@@ -39,7 +39,7 @@ def build_schema() -> tuple[dict[str, Any], dict[tuple[str, str], str | None]]:
     from service.auth import require_read, require_write
     from service.settings import Settings
 
-    app = create_app(Settings(data_dir=Path("/nonexistent-geoloc-data")))  # not touched: no lifespan runs
+    app = create_app(Settings.from_values(data_dir=Path("/nonexistent-geoloc-data")))  # not touched: no lifespan runs
     scopes: dict[tuple[str, str], str | None] = {}
     for route in _api_routes(app.router.routes):
         calls = {dep.call for dep in route.dependant.dependencies}

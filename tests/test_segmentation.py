@@ -4,7 +4,6 @@ and the runtime labels real CamVid pixels correctly."""
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -13,6 +12,8 @@ import numpy as np
 import pytest
 
 from geoloc import config, labels, models, segmentation
+
+from .model_fixtures import data_dir_environment
 
 CAMVID_IMAGE = "Seq05VD_f01110"  # a test image with ~40 % building pixels
 
@@ -32,16 +33,8 @@ def _rgb(path: Path) -> np.ndarray:
 def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """A temporary GEOLOC_DATA_DIR holding the ONNX export for the whole session."""
     _shared_or_skip("models", models.SEG_WEIGHTS)
-    folder = tmp_path_factory.mktemp("geoloc_data")
-    old = os.environ.get("GEOLOC_DATA_DIR")
-    os.environ["GEOLOC_DATA_DIR"] = str(folder)
-    try:
+    with data_dir_environment(tmp_path_factory.mktemp("geoloc_data")) as folder:
         yield folder
-    finally:
-        if old is None:
-            os.environ.pop("GEOLOC_DATA_DIR", None)
-        else:
-            os.environ["GEOLOC_DATA_DIR"] = old
 
 
 @pytest.fixture(scope="session")
@@ -128,6 +121,7 @@ def test_segment_camvid_building_pixels(onnx_path: Path, camvid_pair: tuple[np.n
 
 def test_missing_model_error_is_clear(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("GEOLOC_DATA_DIR", str(tmp_path))
+    config.reset_settings()
     with pytest.raises(segmentation.ModelNotBuiltError, match="geoloc models build"):
         segmentation.segment(np.zeros((60, 80, 3), dtype=np.uint8))
 
