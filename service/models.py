@@ -11,6 +11,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon, QueryResult
+from service.errors import ERROR_CODES
 
 
 def timestamp(value: float | None) -> datetime | None:
@@ -19,7 +20,14 @@ def timestamp(value: float | None) -> datetime | None:
 
 
 class ErrorDetail(BaseModel):
-    code: str = Field(description="Machine-readable error code", examples=["outside_map"])
+    code: str = Field(
+        description="Machine-readable error code",
+        examples=["outside_map"],
+        json_schema_extra={
+            "enum": sorted({code for _, code in ERROR_CODES}),
+            "x-error-codes": [{"status": status, "code": code} for status, code in sorted(ERROR_CODES)],
+        },
+    )
     message: str = Field(description="What went wrong, for people", examples=["position is 5300 m outside the map"])
     details: dict[str, Any] | None = Field(default=None, description="Extra facts (limits, distances, fields)")
 
