@@ -20,6 +20,8 @@ from .service_fixtures import read_rows, running_service, wait_for
 
 N_REFERENCES = 16
 
+pytestmark = pytest.mark.slow  # the real method end to end: minutes
+
 
 @pytest.fixture(scope="module")
 def world_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:

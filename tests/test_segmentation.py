@@ -52,6 +52,7 @@ def camvid_pair() -> tuple[np.ndarray, np.ndarray]:
     return image, label
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_state_dicts_load_strictly() -> None:
     torch = pytest.importorskip("torch")
     from geoloc.nets.espnetv2 import load_espnetv2
@@ -66,6 +67,7 @@ def test_state_dicts_load_strictly() -> None:
             assert net(torch.zeros(1, 3, 64, 128)).shape == (1, 20, 64, 128)
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_onnx_matches_torch(onnx_path: Path, camvid_pair: tuple[np.ndarray, np.ndarray]) -> None:
     torch = pytest.importorskip("torch")
     from geoloc.nets.espnetv2 import NormalizedSegmenter, load_espnetv2
@@ -83,6 +85,7 @@ def test_onnx_matches_torch(onnx_path: Path, camvid_pair: tuple[np.ndarray, np.n
     assert same > 0.999
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_build_is_cached_and_tracks_weights(onnx_path: Path) -> None:
     files = models.segmentation_files()
     meta = json.loads(files.meta.read_text())
@@ -93,6 +96,7 @@ def test_build_is_cached_and_tracks_weights(onnx_path: Path) -> None:
     assert not models.is_current(files, "0" * 64)  # other weights -> stale -> rebuilt
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_segment_shape_dtype_on_phone_photo(onnx_path: Path) -> None:
     image = _rgb(_shared_or_skip("data", "lund", "images", "05.jpg"))
     out = segmentation.segment(image)
@@ -105,6 +109,7 @@ def test_segment_shape_dtype_on_phone_photo(onnx_path: Path) -> None:
     np.testing.assert_allclose(probs.sum(axis=2), 1.0, atol=1e-4)
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_segment_camvid_building_pixels(onnx_path: Path, camvid_pair: tuple[np.ndarray, np.ndarray]) -> None:
     from cli.eval import CAMVID_TO_OURS
 
@@ -126,6 +131,7 @@ def test_missing_model_error_is_clear(tmp_path: Path, monkeypatch: pytest.Monkey
         segmentation.segment(np.zeros((60, 80, 3), dtype=np.uint8))
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_cli_eval_camvid_writes_json(onnx_path: Path, tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
