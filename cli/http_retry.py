@@ -21,7 +21,7 @@ MAX_BACKOFF_S = 30.0
 """Longest wait between two tries (s)."""
 
 
-class ServiceUnreachable(Exception):
+class ServiceUnreachableError(Exception):
     """The service did not answer (connection or protocol errors) after all retries."""
 
 
@@ -77,7 +77,7 @@ class RetryingClient:
         """The response and the number of attempts; retries 408/429/5xx and transport errors.
 
         Returns the last response when retries run out on a retryable status; raises
-        :class:`ServiceUnreachable` when they run out on transport errors.
+        :class:`ServiceUnreachableError` when they run out on transport errors.
         """
         attempt = 0
         while True:
@@ -86,7 +86,7 @@ class RetryingClient:
                 response = self.http.request(method, path, **kwargs)
             except httpx.TransportError as exc:
                 if attempt > self.retries or self.stop.is_set():
-                    raise ServiceUnreachable(f"{type(exc).__name__}: {exc}") from exc
+                    raise ServiceUnreachableError(f"{type(exc).__name__}: {exc}") from exc
                 self.sleep(self._delay(attempt, None))
                 continue
             if response.status_code not in RETRY_STATUSES or attempt > self.retries or self.stop.is_set():
@@ -103,4 +103,4 @@ class RetryingClient:
     def _delay(self, attempt: int, retry_after: float | None) -> float:
         if retry_after is not None:
             return retry_after
-        return min(self.backoff_s * 2 ** (attempt - 1), MAX_BACKOFF_S) * random.uniform(0.75, 1.25)
+        return float(min(self.backoff_s * 2 ** (attempt - 1), MAX_BACKOFF_S) * random.uniform(0.75, 1.25))

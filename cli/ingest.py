@@ -31,7 +31,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-from cli.http_retry import RETRY_STATUSES, RetryingClient, ServiceUnreachable, error_fields
+from cli.http_retry import RETRY_STATUSES, RetryingClient, ServiceUnreachableError, error_fields
 from cli.ingest_report import IngestReport, print_summary
 from cli.photo_files import Candidate, FileResult, path_order, scan_folder
 
@@ -40,7 +40,7 @@ NOT_THE_PHOTOS_FAULT = frozenset({401, 403, 404})
 FINAL_REFERENCE_STATES = frozenset({"done", "failed"})
 
 
-class IngestAbort(Exception):
+class IngestAbortError(Exception):
     """The run cannot start (unknown map, bad API key, service unreachable)."""
 
 
@@ -48,12 +48,12 @@ def fetch_map(client: RetryingClient, map_id: int) -> dict[str, Any]:
     """The map (checks reachability, the API key and the map id before anything is uploaded)."""
     try:
         response, _ = client.request("GET", f"/v1/maps/{map_id}")
-    except ServiceUnreachable as exc:
-        raise IngestAbort(f"cannot reach the service at {client.http.base_url}: {exc}") from exc
+    except ServiceUnreachableError as exc:
+        raise IngestAbortError(f"cannot reach the service at {client.http.base_url}: {exc}") from exc
     if response.status_code == 200:
-        return response.json()
+        return dict(response.json())
     code, message, _ = error_fields(response)
-    raise IngestAbort(
+    raise IngestAbortError(
         f"GET /v1/maps/{map_id} answered {response.status_code} {code or ''}: {message}".replace("  ", " ")
     )
 
@@ -75,7 +75,7 @@ def upload_one(client: RetryingClient, map_id: int, photo: Candidate) -> FileRes
         response, result.attempts = client.request(
             "POST", f"/v1/maps/{map_id}/references", files={"image": (photo.path.name, data, photo.mime_type)}
         )
-    except ServiceUnreachable as exc:
+    except ServiceUnreachableError as exc:
         if not client.alive():
             client.stop.set()  # the rest would only wait for the same dead service
         result.attempts = client.retries + 1
@@ -152,7 +152,7 @@ def wait_for_labelling(
             for reference_id, result in list(pending.items()):
                 try:
                     response, _ = client.request("GET", f"/v1/references/{reference_id}")
-                except ServiceUnreachable:
+                except ServiceUnreachableError:
                     continue  # keep waiting: the service may come back
                 if response.status_code == 200:
                     body = response.json()
@@ -191,7 +191,7 @@ def ingest_folder(
     console: Console | None = None,
     transport: httpx.BaseTransport | None = None,
 ) -> IngestReport:
-    """Scan, upload and (optionally) wait; raises :class:`IngestAbort` when nothing can be done."""
+    """Scan, upload and (optionally) wait; raises :class:`IngestAbortError` when nothing can be done."""
     console = console or Console(stderr=True)
     client = RetryingClient(
         url, api_key, retries=retries, backoff_s=backoff_s, timeout_s=timeout_s, transport=transport
@@ -254,7 +254,7 @@ def ingest(
             timeout_s=timeout,
             console=stderr,
         )
-    except IngestAbort as exc:
+    except IngestAbortError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
     except KeyboardInterrupt as exc:

@@ -34,6 +34,7 @@ class IngestReport:
 
     @property
     def exit_code(self) -> int:
+        """1 when a photo failed (with ``--wait``: or its labelling failed, or the wait ran out), else 0."""
         failed = self.counts()["failed"] > 0
         if self.waited:
             labels = self.labelling_counts()
@@ -41,6 +42,7 @@ class IngestReport:
         return 1 if failed else 0
 
     def as_json(self) -> dict[str, Any]:
+        """The ``--json`` report: summary, exit code, every file (and the labelling with ``--wait``)."""
         out: dict[str, Any] = {
             "url": self.url,
             "map_id": self.map_id,
@@ -62,9 +64,22 @@ def _first_line(text: str | None, limit: int = 160) -> str:
 
 
 def print_summary(report: IngestReport, console: Console, *, max_rows: int = 100) -> None:
-    """The summary table, the files that were not accepted with their reasons, and what it means."""
-    counts = report.counts()
+    """Print the counts per outcome, the files not accepted (or not labelled) and why, and what it means."""
     console.print(f"geoloc ingest: map {report.map_id} ({report.map_name}) at {report.url}", highlight=False)
+    console.print(_outcome_table(report))
+    listed = [f for f in report.files if f.outcome in ("rejected", "failed", "skipped", "duplicate")]
+    if report.waited:
+        listed += [f for f in report.files if f.outcome == "accepted" and f.final_status != "done"]
+    if listed:
+        console.print(_reasons_table(listed[:max_rows]))
+        if len(listed) > max_rows:
+            console.print(f"... and {len(listed) - max_rows} more (use --json for every file)")
+    console.print("\n".join(_notes(report)))
+
+
+def _outcome_table(report: IngestReport) -> Table:
+    """Files per outcome, the HTTP status and error code behind rejections and failures, labelling."""
+    counts = report.counts()
     table = Table()
     table.add_column("outcome")
     table.add_column("files", justify="right")
@@ -80,25 +95,26 @@ def print_summary(report: IngestReport, console: Console, *, max_rows: int = 100
     if report.waited:
         for status, n in sorted(report.labelling_counts().items()):
             table.add_row(f"labelling of new references: {status}", str(n))
-    console.print(table)
+    return table
 
-    listed = [f for f in report.files if f.outcome in ("rejected", "failed", "skipped", "duplicate")]
-    if report.waited:
-        listed += [f for f in report.files if f.outcome == "accepted" and f.final_status != "done"]
-    if listed:
-        details = Table(title="files that were not accepted (or not labelled), and why", title_justify="left")
-        details.add_column("file", overflow="fold")
-        details.add_column("outcome")
-        details.add_column("reason", overflow="fold")
-        for f in listed[:max_rows]:
-            if f.outcome == "accepted":
-                details.add_row(f.path, f"labelling {f.final_status or 'pending'}", _first_line(f.final_error))
-            else:
-                details.add_row(f.path, f.outcome, f.reason or "")
-        console.print(details)
-        if len(listed) > max_rows:
-            console.print(f"... and {len(listed) - max_rows} more (use --json for every file)")
 
+def _reasons_table(listed: list[FileResult]) -> Table:
+    """One row per file that was not accepted (or not labelled), with the reason."""
+    details = Table(title="files that were not accepted (or not labelled), and why", title_justify="left")
+    details.add_column("file", overflow="fold")
+    details.add_column("outcome")
+    details.add_column("reason", overflow="fold")
+    for f in listed:
+        if f.outcome == "accepted":
+            details.add_row(f.path, f"labelling {f.final_status or 'pending'}", _first_line(f.final_error))
+        else:
+            details.add_row(f.path, f.outcome, f.reason or "")
+    return details
+
+
+def _notes(report: IngestReport) -> list[str]:
+    """What the counts mean for the user, ending with the exit code."""
+    counts = report.counts()
     notes = []
     if counts["rejected"]:
         notes.append(
@@ -113,4 +129,4 @@ def print_summary(report: IngestReport, console: Console, *, max_rows: int = 100
     if report.waited and report.wait_timed_out:
         notes.append("stopped waiting before every new reference was labelled (--wait-timeout).")
     notes.append(f"exit code {report.exit_code}")
-    console.print("\n".join(notes))
+    return notes

@@ -26,7 +26,7 @@ def segment_class_fraction(
     if len(seg) == 0:
         return np.zeros(0)
     xi, yi = sample_points_along(seg, n_samples, lab.shape[1], lab.shape[0])
-    return np.isin(lab[yi, xi], classes).mean(axis=1)
+    return np.asarray(np.isin(lab[yi, xi], classes).mean(axis=1), dtype=float)
 
 
 def estimate_scene_vanishing_points(

@@ -1,5 +1,6 @@
-"""Piecewise-planar facade decomposition of a photo's building regions (paper: "Decomposition of
-Building Facades").
+"""Piecewise-planar facade decomposition of a photo's building regions.
+
+The paper's "Decomposition of Building Facades".
 
 Pipeline on one image (all pixel coordinates in the input image; columns are pixel columns):
 
@@ -32,6 +33,7 @@ Pipeline on one image (all pixel coordinates in the input image; columns are pix
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -60,7 +62,8 @@ class FacadePiece:
     support_px: float
     confidence: float
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly form (rounded)."""
         return {
             "x_start": int(self.x_start),
             "x_end": int(self.x_end),
@@ -104,7 +107,8 @@ class FacadeDecomposition:
         cuts = [p.x_start for p in self.pieces] + [p.x_end for p in self.pieces]
         return np.unique(np.asarray(cuts, dtype=int))
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly form: the pieces and the cutting-line columns."""
         return {"pieces": [p.to_dict() for p in self.pieces], "cut_columns": self.cut_columns.tolist()}
 
 
@@ -144,8 +148,8 @@ def _box_filter_last_axis(values: np.ndarray, window: int) -> np.ndarray:
     """Centred moving mean over the last axis (odd ``window``; zeros outside), via cumulative sums."""
     half = window // 2
     pad = [(0, 0)] * (values.ndim - 1) + [(half + 1, half)]
-    c = np.cumsum(np.pad(values, pad), axis=-1)
-    return (c[..., window:] - c[..., :-window]) / window
+    c: np.ndarray = np.cumsum(np.pad(values, pad), axis=-1)
+    return np.asarray((c[..., window:] - c[..., :-window]) / window)
 
 
 def _runs(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

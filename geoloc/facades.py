@@ -1,6 +1,8 @@
-"""The image side of the method on one photo: line segments, vanishing points (without clutter),
-facade decomposition (:mod:`geoloc.decomposition`) and the per-column image model
-(:mod:`geoloc.image_model`), with timings.
+"""The image side of the method on one photo.
+
+Line segments, vanishing points (without clutter), facade decomposition
+(:mod:`geoloc.decomposition`) and the per-column image model (:mod:`geoloc.image_model`), with
+timings.
 """
 
 from __future__ import annotations
@@ -28,9 +30,9 @@ class ImageAnalysis:
     vanishing_points: VanishingPoints
     decomposition: FacadeDecomposition
     image_model: ImageModel
-    timings_s: dict = field(default_factory=dict)
+    timings_s: dict[str, float] = field(default_factory=dict)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-friendly summary (no per-pixel arrays)."""
         intr = self.intrinsics
         m = self.image_model

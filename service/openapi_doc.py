@@ -94,7 +94,7 @@ def type_of(schema: Schema) -> str:
     if "$ref" in schema:
         return _model_link(_ref_name(schema["$ref"]))
     if "anyOf" in schema or "oneOf" in schema:
-        parts = [type_of(s) for s in schema.get("anyOf", schema.get("oneOf", []))]
+        parts = [type_of(s) for s in schema.get("anyOf") or schema.get("oneOf") or []]
         return " \\| ".join(dict.fromkeys(parts))
     if "const" in schema:
         return json.dumps(schema["const"])
@@ -122,25 +122,35 @@ def constraints(schema: Schema, *, required: bool) -> str:
     merged = dict(schema)
     for branch in schema.get("anyOf", []):
         merged.update({k: v for k, v in branch.items() if k not in merged})
-    parts = []
-    low, high = merged.get("minimum"), merged.get("maximum")
-    if low is not None and high is not None:
-        parts.append(f"{_number(low)} – {_number(high)}")
-    else:
-        for key, sign in (("minimum", "≥"), ("maximum", "≤")):
-            if merged.get(key) is not None:
-                parts.append(f"{sign} {_number(merged[key])}")
-    for key, sign in (("exclusiveMinimum", ">"), ("exclusiveMaximum", "<")):
-        if key in merged:
-            parts.append(f"{sign} {_number(merged[key])}")
-    for unit, low_key, high_key in (("characters", "minLength", "maxLength"), ("items", "minItems", "maxItems")):
-        if low_key in merged or high_key in merged:
-            parts.append(f"{merged.get(low_key, 0)} – {merged.get(high_key, '∞')} {unit}")
+    parts = [*_bounds(merged), *_sizes(merged)]
     if merged.get("enum"):
         parts.append("one of " + ", ".join(f"`{json.dumps(v)}`" for v in merged["enum"]))
     if not required and merged.get("default") is not None:
         parts.append(f"default `{json.dumps(merged['default'])}`")
     return "; ".join(parts)
+
+
+def _bounds(schema: Schema) -> list[str]:
+    """Numeric bounds: ``low – high`` when both are inclusive, else one ``≥ / ≤ / > / <`` each."""
+    low, high = schema.get("minimum"), schema.get("maximum")
+    if low is not None and high is not None:
+        parts = [f"{_number(low)} – {_number(high)}"]
+    else:
+        parts = [
+            f"{sign} {_number(schema[key])}" for key, sign in (("minimum", "≥"), ("maximum", "≤")) if key in schema
+        ]
+    signs = (("exclusiveMinimum", ">"), ("exclusiveMaximum", "<"))
+    return parts + [f"{sign} {_number(schema[key])}" for key, sign in signs if key in schema]
+
+
+def _sizes(schema: Schema) -> list[str]:
+    """Length limits of strings (characters) and arrays (items)."""
+    sizes = (("characters", "minLength", "maxLength"), ("items", "minItems", "maxItems"))
+    return [
+        f"{schema.get(low, 0)} – {schema.get(high, '∞')} {unit}"
+        for unit, low, high in sizes
+        if low in schema or high in schema
+    ]
 
 
 class Renderer:
@@ -243,7 +253,7 @@ class Renderer:
         lines = [f"### {method.upper()} {path}", "", _prose(op.get("description")) or _cell(op.get("summary"))]
         lines += ["", f"Auth: {auth}.", ""]
         for where in ("path", "query", "header"):
-            rows = [
+            parameter_rows = [
                 [
                     f"`{p['name']}`",
                     type_of(p.get("schema", {})),
@@ -254,9 +264,9 @@ class Renderer:
                 for p in op.get("parameters", [])
                 if p.get("in") == where
             ]
-            if rows:
+            if parameter_rows:
                 lines += [f"**{where.capitalize()} parameters**", ""]
-                lines += _table(["name", "type", "required", "constraints", "description"], rows) + [""]
+                lines += _table(["name", "type", "required", "constraints", "description"], parameter_rows) + [""]
         body = op.get("requestBody")
         if body:
             media, entry = sorted(body.get("content", {}).items())[0]

@@ -1,5 +1,7 @@
-"""The answer contract: workers check answers with the API's own models before storing them, so a
-malformed answer fails its job at once with a reason, and a stored answer is always servable."""
+"""The answer contract: workers check answers with the API's own models before storing them.
+
+A malformed answer fails its job at once with a reason, and a stored answer is always servable.
+"""
 
 from __future__ import annotations
 
