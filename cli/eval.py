@@ -215,7 +215,8 @@ def facades(
     """
     import numpy as np
 
-    from geoloc.facades import analyze_image, column_orientation_errors
+    from geoloc.facade_metrics import column_orientation_errors
+    from geoloc.facades import analyze_image
     from geoloc.pipeline import load_photo
     from geoloc.sim.world import load_world
 

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 import typer
+
+if TYPE_CHECKING:
+    from geoloc.config import Settings
 
 
 def serve(
@@ -43,13 +47,13 @@ def worker(
     raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
 
 
-def _start(log_level: str):  # noqa: ANN202  (service.settings.Settings, imported lazily)
+def _start(log_level: str) -> Settings:
     """Logging, settings (exit 2 with the reason when invalid) and a migrated database."""
-    from service.settings import SettingsError, load_settings
+    from service.settings import SettingsError, get_settings
 
     _setup_logging(log_level)
     try:
-        settings = load_settings()
+        settings = get_settings()
     except SettingsError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc

@@ -225,9 +225,3 @@ def live_workers(db: sqlite_utils.Database, within_s: float) -> list[dict[str, A
             (time.time() - within_s,),
         )
     )
-
-
-def prune_workers(db: sqlite_utils.Database, older_than_s: float = 86_400.0) -> int:
-    """Forget worker rows whose last heartbeat is older than ``older_than_s``."""
-    cursor = db.execute("DELETE FROM workers WHERE heartbeat_at < ?", (time.time() - older_than_s,))
-    return cursor.rowcount

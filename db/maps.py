@@ -19,6 +19,7 @@ import numpy as np
 import sqlite_utils
 
 from db.blobs import pack_arrays, unpack_arrays
+from db.jobs import cancel_queued_jobs
 
 
 @dataclass
@@ -206,11 +207,7 @@ def delete_map(db: sqlite_utils.Database, map_id: int) -> dict[str, Any] | None:
         r["image_path"]
         for r in db.query("SELECT image_path FROM queries WHERE map_id = ? AND image_path IS NOT NULL", (map_id,))
     ]
-    now = time.time()
-    db.execute(
-        "UPDATE jobs SET status = 'cancelled', updated_at = ?, finished_at = ? WHERE map_id = ? AND status = 'queued'",
-        (now, now, map_id),
-    )
+    cancel_queued_jobs(db, map_id=map_id)
     db.execute("DELETE FROM maps WHERE id = ?", (map_id,))
     map_row["image_paths"] = image_paths
     return map_row

@@ -17,6 +17,7 @@ import numpy as np
 import sqlite_utils
 
 from db.blobs import pack_arrays, unpack_arrays
+from db.jobs import cancel_queued_jobs
 
 _JSON_COLUMNS = ("buildings_seen", "timings")
 
@@ -154,12 +155,7 @@ def delete_reference(db: sqlite_utils.Database, reference_id: int) -> dict[str, 
     row = get_reference(db, reference_id)
     if row is None:
         return None
-    now = time.time()
-    db.execute(
-        "UPDATE jobs SET status = 'cancelled', updated_at = ?, finished_at = ?"
-        " WHERE reference_id = ? AND status = 'queued'",
-        (now, now, reference_id),
-    )
+    cancel_queued_jobs(db, reference_id=reference_id)
     db.execute("DELETE FROM reference_images WHERE id = ?", (reference_id,))
     return row
 

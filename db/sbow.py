@@ -62,11 +62,6 @@ def index_reference(
     return len(unique_words)
 
 
-def unindex_reference(db: sqlite_utils.Database, reference_id: int) -> None:
-    """Remove a reference from the index (its postings cascade)."""
-    db.execute("DELETE FROM sbow_documents WHERE reference_id = ?", (reference_id,))
-
-
 def document_count(db: sqlite_utils.Database, map_id: int) -> int:
     """Number of indexed references of a map."""
     return int(db.execute("SELECT COUNT(*) FROM sbow_documents WHERE map_id = ?", (map_id,)).fetchone()[0])

@@ -106,11 +106,6 @@ def wrap_orientation_deg(theta_deg: np.ndarray | float) -> np.ndarray:
     return (np.asarray(theta_deg, dtype=float) + 90.0) % 180.0 - 90.0
 
 
-def wrap_bearing_deg(bearing_deg: np.ndarray | float) -> np.ndarray:
-    """Wrap bearings (deg) into [0, 360)."""
-    return np.asarray(bearing_deg, dtype=float) % 360.0
-
-
 def orientation_from_direction(direction_cam: np.ndarray) -> np.ndarray:
     """Facade orientation theta (deg) from the facade's horizontal direction(s) in the upright camera frame.
 

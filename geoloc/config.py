@@ -1,31 +1,250 @@
-"""The two settings that say where things live, read in one place.
+"""The one settings object of geoloc: the API, the workers, the CLI and the method read it.
 
-- ``GEOLOC_SHARED``: the shared data and weights (read-only). Default: ``../shared`` from the
-  repository root.
-- ``GEOLOC_DATA_DIR``: the service's database, stored photos and caches (exported models).
-  Default: ``~/.local/share/geoloc``.
+Every setting is an environment variable ``GEOLOC_<NAME>``; its default and meaning are written
+once, in :class:`Settings` below. The README's settings table is generated from this class
+(``python -m geoloc.config`` prints it; ``tests/test_settings.py`` fails when the README differs).
+
+The environment is read once per process, on the first :func:`get_settings` call. Code that
+changes ``os.environ`` afterwards (tests that point ``GEOLOC_DATA_DIR`` at a temporary folder) calls
+:func:`reset_settings` after the change and again after restoring it; ``tests/conftest.py`` also
+resets before and after every test.
+
+This module lives in ``geoloc`` because the method needs two of the settings itself (where the
+shared data and the model cache are); ``service``, ``workers`` and ``cli`` import it from here.
 """
 
 from __future__ import annotations
 
 import os
+from functools import lru_cache
 from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import Field, ValidationError, field_validator
+from pydantic.fields import FieldInfo
+from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
+ENV_PREFIX = "GEOLOC_"
+SCOPES = ("read", "write")
+"""API-key scopes: ``read`` (GETs, queries) and ``write`` (maps, references; implies ``read``)."""
+
+
+class SettingsError(ValueError):
+    """A setting has an invalid value; the message names the variable, its value and the rule."""
+
+
+def parse_api_keys(raw: str) -> dict[str, frozenset[str]]:
+    """Parse ``GEOLOC_API_KEYS``.
+
+    Parameters
+    ----------
+    raw
+        Comma-separated ``KEY:SCOPES`` entries, scopes among :data:`SCOPES` joined by ``+``
+        (``KEY`` alone means ``read+write``), e.g. ``'k1:read+write,k2:read'``.
+
+    Returns
+    -------
+    dict[str, frozenset[str]]
+        Scopes per key; ``write`` implies ``read``.
+
+    Raises
+    ------
+    ValueError
+        An entry has no key or an unknown scope.
+    """
+    keys: dict[str, frozenset[str]] = {}
+    for entry in raw.split(","):
+        item = entry.strip()
+        if not item:
+            continue
+        key, _, scope_text = item.partition(":")
+        scopes = {s.strip() for s in (scope_text or "read+write").split("+") if s.strip()}
+        if not key.strip() or scopes - set(SCOPES):
+            raise ValueError(f"bad entry {item!r} (expected KEY:read, KEY:write or KEY:read+write)")
+        if "write" in scopes:
+            scopes.add("read")
+        keys[key.strip()] = frozenset(scopes)
+    return keys
+
+
+def _shown(default: str) -> dict[str, Any]:
+    """Field metadata: how the README shows a default that depends on the machine."""
+    return {"shown_default": default}
+
+
+class Settings(BaseSettings):
+    """Every setting of the service, its workers and the method, read from ``GEOLOC_*`` variables.
+
+    Build with :func:`get_settings` (the process's settings, from the environment) or
+    :meth:`from_values` (defaults and explicit values only, for documentation and tests).
+    An empty variable counts as unset. Invalid values raise :class:`SettingsError`.
+    """
+
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, env_ignore_empty=True, frozen=True, extra="ignore")
+
+    shared: Path = Field(
+        default=REPO_ROOT.parent / "shared",
+        description="shared data and pretrained weights (read-only; never copied into the repo)",
+        json_schema_extra=_shown("`../shared` from the repo root"),
+    )
+    data_dir: Path = Field(
+        default=Path.home() / ".local" / "share" / "geoloc",
+        description="the database (`geoloc.sqlite3`), stored maps and photos, temporary uploads (`tmp/`), "
+        "and caches (`cache/models`: ONNX, vocabulary)",
+        json_schema_extra=_shown("`~/.local/share/geoloc`"),
+    )
+    api_keys: Annotated[dict[str, frozenset[str]], NoDecode] = Field(
+        default_factory=dict,
+        description="`KEY:SCOPES,…` with scopes `read`, `write` joined by `+` (`write` implies `read`); "
+        "with no keys, auth is off and the service binds to loopback only",
+        json_schema_extra=_shown("(none)"),
+    )
+    max_map_bytes: int = Field(default=256 * 1024 * 1024, ge=0, description="largest map upload (413 above)")
+    max_image_bytes: int = Field(default=32 * 1024 * 1024, ge=0, description="largest photo upload (413 above)")
+    max_image_pixels: int = Field(
+        default=60_000_000,
+        ge=0,
+        description="most pixels per photo, checked from the header (decompression-bomb guard, 413)",
+    )
+    min_image_side: int = Field(default=64, ge=0, description="smallest accepted side in pixels (422)")
+    position_margin_m: float = Field(
+        default=250.0,
+        ge=0,
+        description="how far outside the map's bounding box a reference (or a query's prior) may lie (422 beyond)",
+    )
+    job_lease_s: float = Field(
+        default=60.0,
+        ge=0.5,
+        description="job lease, renewed every lease/3 s; a dead worker's job is taken again after it expires",
+    )
+    job_max_attempts: int = Field(default=3, ge=1, description="attempts per job before `failed`")
+    job_retry_delay_s: float = Field(
+        default=5.0, ge=0, description="delay before a retry, doubled per attempt (≤ 300 s)"
+    )
+    worker_poll_max_s: float = Field(default=2.0, ge=0.05, description="longest idle sleep between polls")
+    worker_grace_s: float = Field(
+        default=20.0, ge=0, description="on SIGTERM, how long a worker lets its job run before handing it back"
+    )
+    worker_plugins: Annotated[tuple[str, ...], NoDecode] = Field(
+        default=(),
+        description="extra modules or `.py` files with job handlers, comma-separated",
+        json_schema_extra=_shown("(none)"),
+    )
+    ready_worker_s: float = Field(default=30.0, ge=0, description="`/readyz` needs a worker heartbeat this recent")
+    seg_threads: int | None = Field(
+        default=None,
+        ge=1,
+        description="onnxruntime threads for segmentation",
+        json_schema_extra=_shown("min(4, cores)"),
+    )
+    log_level: str = Field(default="INFO", description="log level of the workers")
+
+    @field_validator("shared", "data_dir", mode="after")
+    @classmethod
+    def _absolute(cls, path: Path) -> Path:
+        return path.expanduser().resolve()
+
+    @field_validator("api_keys", mode="before")
+    @classmethod
+    def _parse_api_keys(cls, value: object) -> object:
+        return parse_api_keys(value) if isinstance(value, str) else value
+
+    @field_validator("worker_plugins", mode="before")
+    @classmethod
+    def _split_plugins(cls, value: object) -> object:
+        return tuple(p.strip() for p in value.split(",") if p.strip()) if isinstance(value, str) else value
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        """Explicit values, then the environment; no ``.env`` or secrets files."""
+        return (init_settings, env_settings)
+
+    @classmethod
+    def from_values(cls, **values: Any) -> Settings:
+        """Settings from the defaults and ``values`` only: the environment is not read.
+
+        Raises
+        ------
+        SettingsError
+            A value is invalid.
+        """
+        return _validated(_DefaultsOnly, values)
+
+    @property
+    def database_path(self) -> Path:
+        """The SQLite database: ``data_dir/geoloc.sqlite3``."""
+        return self.data_dir / "geoloc.sqlite3"
+
+    @property
+    def auth_enabled(self) -> bool:
+        """Whether API keys are required (some are configured)."""
+        return bool(self.api_keys)
+
+
+class _DefaultsOnly(Settings):
+    """:class:`Settings` that ignores the environment (see :meth:`Settings.from_values`)."""
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        """Explicit values only."""
+        return (init_settings,)
+
+
+def _validated(settings_cls: type[Settings], values: dict[str, Any]) -> Settings:
+    """Build ``settings_cls``, turning pydantic's errors into one :class:`SettingsError` per variable."""
+    try:
+        return settings_cls(**values)
+    except ValidationError as exc:
+        problems = []
+        for error in exc.errors(include_url=False):
+            name = ENV_PREFIX + str(error["loc"][0]).upper() if error["loc"] else "settings"
+            message = str(error["msg"]).removeprefix("Value error, ")
+            problems.append(f"{name}={error['input']!r}: {message}")
+        raise SettingsError("invalid setting: " + "; ".join(problems)) from None
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> Settings:
+    """The process's settings, read from the environment on the first call and then cached.
+
+    Raises
+    ------
+    SettingsError
+        A variable has an invalid value (the message names it).
+    """
+    return _validated(Settings, {})
+
+
+def reset_settings() -> None:
+    """Forget the cached settings: the next :func:`get_settings` reads the environment again."""
+    get_settings.cache_clear()
 
 
 def shared_dir() -> Path:
     """Folder with the shared data and weights (``GEOLOC_SHARED``)."""
-    value = os.environ.get("GEOLOC_SHARED")
-    return Path(value).expanduser().resolve() if value else (REPO_ROOT.parent / "shared").resolve()
+    return get_settings().shared
 
 
 def data_dir() -> Path:
     """Folder for the database, photos and caches (``GEOLOC_DATA_DIR``); created on demand."""
-    value = os.environ.get("GEOLOC_DATA_DIR")
-    path = Path(value).expanduser() if value else Path.home() / ".local" / "share" / "geoloc"
+    path = get_settings().data_dir
     path.mkdir(parents=True, exist_ok=True)
-    return path.resolve()
+    return path
 
 
 def cache_dir() -> Path:
@@ -36,8 +255,46 @@ def cache_dir() -> Path:
 
 
 def shared_path(*parts: str) -> Path:
-    """A path inside the shared folder, with a clear error when it is missing."""
+    """A path inside the shared folder.
+
+    Raises
+    ------
+    FileNotFoundError
+        The path does not exist; the message says which setting to fix.
+    """
     path = shared_dir().joinpath(*parts)
     if not path.exists():
         raise FileNotFoundError(f"{path} not found; set GEOLOC_SHARED to the shared data folder (now {shared_dir()})")
     return path
+
+
+def default_threads() -> int:
+    """Threads for the segmentation network: ``GEOLOC_SEG_THREADS``, else min(4, CPU cores)."""
+    return get_settings().seg_threads or min(4, os.cpu_count() or 1)
+
+
+def settings_table() -> str:
+    """The README's settings table (markdown): variable, default, lower bound, meaning; one row per field."""
+    rows = ["| variable | default | valid | what |", "| --- | --- | --- | --- |"]
+    for name, info in Settings.model_fields.items():
+        rows.append(
+            f"| `{ENV_PREFIX}{name.upper()}` | {_shown_default(info)} | {_lower_bound(info)} | {info.description} |"
+        )
+    return "\n".join(rows)
+
+
+def _lower_bound(info: FieldInfo) -> str:
+    bounds = [f"≥ {m.ge:g}" for m in info.metadata if isinstance(getattr(m, "ge", None), int | float)]
+    return bounds[0] if bounds else ""
+
+
+def _shown_default(info: FieldInfo) -> str:
+    extra = info.json_schema_extra
+    if isinstance(extra, dict) and "shown_default" in extra:
+        return str(extra["shown_default"])
+    default = info.get_default(call_default_factory=True)
+    return f"{default:g}" if isinstance(default, float) else str(default)
+
+
+if __name__ == "__main__":
+    print(settings_table())

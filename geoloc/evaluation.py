@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoloc.facades import orientation_errors
+from geoloc.facade_metrics import orientation_errors
 from geoloc.identity import identity_accuracy
 from geoloc.localize import localize
 from geoloc.pipeline import (

@@ -102,20 +102,20 @@ def read_exif(data: bytes | str | Path) -> ExifInfo:
         with Image.open(io.BytesIO(raw)) as img:
             info.width, info.height = img.size
             exif_bytes = img.info.get("exif")
-    except Exception:  # noqa: BLE001 - not an image we can open (e.g. truncated): try the raw bytes
+    except Exception:  # not an image we can open (e.g. truncated): try the raw bytes
         exif_bytes = raw if raw[:2] == b"\xff\xd8" else None
     if not exif_bytes:
         return info
     try:
         exif = piexif.load(exif_bytes)
-    except Exception:  # noqa: BLE001 - malformed EXIF
+    except Exception:  # malformed EXIF
         return info
     zeroth, ex, gps = exif.get("0th") or {}, exif.get("Exif") or {}, exif.get("GPS") or {}
 
     def safe(fn: Any, *args: Any) -> Any:
         try:
             return fn(*args)
-        except Exception:  # noqa: BLE001
+        except Exception:
             return None
 
     info.make = safe(_text, zeroth.get(piexif.ImageIFD.Make))

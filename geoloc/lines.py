@@ -40,6 +40,32 @@ def segment_lengths_px(segments: np.ndarray) -> np.ndarray:
     return np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1])
 
 
+def sample_points_along(segments: np.ndarray, n_samples: int, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels sampled evenly along segments.
+
+    Parameters
+    ----------
+    segments
+        (N, 4) ``x1, y1, x2, y2`` in pixels.
+    n_samples
+        Points per segment (S), at the centres of S equal parts.
+    width, height
+        Image size in pixels; points are clipped into it.
+
+    Returns
+    -------
+    tuple[np.ndarray, np.ndarray]
+        (N, S) integer x and y of the points.
+    """
+    t = (np.arange(n_samples) + 0.5) / n_samples
+    s = np.asarray(segments, dtype=float).reshape(-1, 4)
+    x = s[:, 0:1] + t[None, :] * (s[:, 2:3] - s[:, 0:1])
+    y = s[:, 1:2] + t[None, :] * (s[:, 3:4] - s[:, 1:2])
+    xi = np.clip(np.round(x).astype(int), 0, width - 1)
+    yi = np.clip(np.round(y).astype(int), 0, height - 1)
+    return xi, yi
+
+
 def _raw_detect(gray: np.ndarray, method: str) -> np.ndarray:
     import cv2
 

@@ -47,7 +47,7 @@ are synthetic); spatial re-ranking (:func:`geoloc.transfer.rerank_by_inliers`) r
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Hashable, Iterable, Sequence
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -374,9 +374,3 @@ class InvertedIndex:
         for doc_id, words in documents:
             index.add(doc_id, words)
         return index
-
-
-def precision_at_k(ranked: Sequence[Hashable], relevant: Iterable[Hashable], k: int) -> float:
-    """Share of the first ``k`` ranked ids that are relevant (divided by k)."""
-    rel = set(relevant)
-    return sum(1 for r in list(ranked)[:k] if r in rel) / float(k)

@@ -51,7 +51,6 @@ calls vegetation while CamVid labels the sky between the branches.
 
 from __future__ import annotations
 
-import os
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -60,6 +59,7 @@ import cv2
 import numpy as np
 
 from geoloc import labels
+from geoloc.config import default_threads
 from geoloc.models import SEG_DEFAULT_SIZE, segmentation_files
 
 if TYPE_CHECKING:
@@ -95,16 +95,8 @@ CITYSCAPES_TO_OURS = np.array(
     dtype=np.uint8,
 )
 
-THREADS_ENV = "GEOLOC_SEG_THREADS"
-
-
 class ModelNotBuiltError(FileNotFoundError):
     """The ONNX export is missing; the message says how to build it."""
-
-
-def _default_threads() -> int:
-    value = os.environ.get(THREADS_ENV)
-    return int(value) if value else min(4, os.cpu_count() or 1)
 
 
 @lru_cache(maxsize=8)
@@ -134,7 +126,7 @@ def load_session(size: tuple[int, int] | None = None, threads: int | None = None
             f"segmentation model not found at {path}; build it once with `geoloc models build{flag}` "
             "(needs the export extra: pip install -e '.[export]')"
         )
-    return _cached_session(str(path), threads or _default_threads())
+    return _cached_session(str(path), threads or default_threads())
 
 
 def network_size(session: ort.InferenceSession) -> tuple[int, int]:

@@ -9,7 +9,7 @@ import sys
 import threading
 import time
 
-from service.settings import is_loopback_host, load_settings
+from service.settings import SettingsError, get_settings, is_loopback_host
 
 
 def _watch_parent(parent_pid: int) -> None:
@@ -26,7 +26,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--port", type=int, default=8000)
     parser.add_argument("--log-level", default="info")
     args = parser.parse_args(argv)
-    settings = load_settings()
+    try:
+        settings = get_settings()
+    except SettingsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if not settings.auth_enabled and not is_loopback_host(args.host):
         print(
             f"refusing to bind to {args.host}: no API keys are configured (GEOLOC_API_KEYS), "

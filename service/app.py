@@ -13,7 +13,7 @@ from fastapi import FastAPI
 from db import connect, migrate
 from db.stats import stored_file_paths
 from service.errors import error_body, install_error_handlers
-from service.settings import Settings, load_settings
+from service.settings import Settings, get_settings
 from service.uploads import clean_orphan_files, clean_stale_temp_files
 
 log = logging.getLogger("geoloc.api")
@@ -99,7 +99,7 @@ class BodySizeLimit:
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the application (``uvicorn --factory service.app:create_app``)."""
-    settings = settings or load_settings()
+    settings = settings or get_settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -120,7 +120,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description=(
             "Upload a map (OpenStreetMap or GeoJSON buildings), ingest geo-tagged reference photos, "
             "then query photos for their position, heading and the buildings they show. "
-            'Errors always have the body `{"error": {"code", "message", "details"}}`.'
+            'Errors always have the body `{"error": {"code", "message", "details"}}`.\n\n'
+            "Positions are WGS84 latitude/longitude in degrees; headings are degrees clockwise from north; "
+            "times are ISO 8601 in UTC. Uploads are `multipart/form-data`; files are checked by their content, "
+            "not their name. Request validation errors (a missing field, a value of the wrong type) are `422` "
+            "with code `invalid_request` and `details.problems`, a list of `{field, problem}`."
         ),
         lifespan=lifespan,
     )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import hmac
 from collections.abc import Callable
 
-from fastapi import Depends, Request
+from fastapi import Request, Security
 from fastapi.security import APIKeyHeader
 
 from service.errors import ApiError
@@ -14,7 +14,12 @@ from service.settings import Settings
 api_key_header = APIKeyHeader(
     name="X-API-Key",
     auto_error=False,
-    description="API key; scope `write` for maps and references, `read` for the rest",
+    description=(
+        "API key; scope `write` for maps and references, `read` for the rest (`write` implies `read`). "
+        "Keys and their scopes are configured with `GEOLOC_API_KEYS` (`KEY:SCOPES`, scopes joined by `+`). "
+        "A missing or unknown key is `401`, a key without the endpoint's scope is `403`. With no keys "
+        "configured authentication is off and the service only listens on a loopback address."
+    ),
 )
 
 
@@ -26,9 +31,12 @@ def _scopes_of(settings: Settings, presented: str) -> frozenset[str] | None:
 
 
 def require_scope(scope: str) -> Callable[..., None]:
-    """A dependency that admits requests whose key has ``scope`` (everyone when auth is off)."""
+    """A dependency that admits requests whose key has ``scope`` (everyone when auth is off).
 
-    def dependency(request: Request, api_key: str | None = Depends(api_key_header)) -> None:
+    The scope is declared on the security requirement, so the OpenAPI schema shows it per operation.
+    """
+
+    def dependency(request: Request, api_key: str | None = Security(api_key_header, scopes=[scope])) -> None:
         settings: Settings = request.app.state.settings
         if not settings.auth_enabled:
             return

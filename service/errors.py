@@ -26,6 +26,23 @@ _CODES_BY_STATUS = {
     503: "unavailable",
 }
 
+ERROR_CODES: tuple[tuple[int, str], ...] = (
+    *sorted(_CODES_BY_STATUS.items()),
+    (409, "not_ready"),
+    (413, "too_many_pixels"),
+    (415, "not_an_image"),
+    (415, "unsupported_image_format"),
+    (422, "corrupt_image"),
+    (422, "empty_file"),
+    (422, "image_too_small"),
+    (422, "invalid_map"),
+    (422, "no_position"),
+    (422, "outside_map"),
+    (503, "not_ready"),
+)
+"""Every (status, code) the service answers with; the OpenAPI schema of ``ErrorDetail.code`` lists them
+(``tests/test_openapi_doc.py`` fails when a code is raised that is not here)."""
+
 
 class ApiError(Exception):
     """An error answered as ``status`` with a machine code, a human message and optional details."""

@@ -1,4 +1,7 @@
-"""Request/response models of the API (pydantic), with examples for the OpenAPI docs."""
+"""Request/response models of the API (pydantic), with examples for the OpenAPI docs.
+
+The parts that workers compute (query answers, reference labels) are in :mod:`service.answers`.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +10,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from service.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon, QueryResult
+from service.errors import ERROR_CODES
+
 
 def timestamp(value: float | None) -> datetime | None:
     """Unix seconds -> aware UTC datetime (None stays None)."""
@@ -14,7 +20,14 @@ def timestamp(value: float | None) -> datetime | None:
 
 
 class ErrorDetail(BaseModel):
-    code: str = Field(description="Machine-readable error code", examples=["outside_map"])
+    code: str = Field(
+        description="Machine-readable error code",
+        examples=["outside_map"],
+        json_schema_extra={
+            "enum": sorted({code for _, code in ERROR_CODES}),
+            "x-error-codes": [{"status": status, "code": code} for status, code in sorted(ERROR_CODES)],
+        },
+    )
     message: str = Field(description="What went wrong, for people", examples=["position is 5300 m outside the map"])
     details: dict[str, Any] | None = Field(default=None, description="Extra facts (limits, distances, fields)")
 
@@ -23,18 +36,6 @@ class ErrorResponse(BaseModel):
     """The body of every 4xx/5xx answer."""
 
     error: ErrorDetail
-
-
-class BoundingBox(BaseModel):
-    min_lat: float = Field(examples=[60.1641551])
-    min_lon: float = Field(examples=[24.9351773])
-    max_lat: float = Field(examples=[60.1791068])
-    max_lon: float = Field(examples=[24.9534066])
-
-
-class LatLon(BaseModel):
-    lat: float = Field(examples=[60.1699])
-    lon: float = Field(examples=[24.9384])
 
 
 class MapOut(BaseModel):
@@ -146,12 +147,6 @@ class Position(BaseModel):
     source: Literal["exif", "request"] = Field(description="Where the position came from")
 
 
-class EstimatedPose(BaseModel):
-    lat: float | None = None
-    lon: float | None = None
-    heading_deg: float | None = Field(default=None, description="Degrees clockwise from north")
-
-
 class ReferenceOut(BaseModel):
     """A reference photo and, once labelled, what the method found."""
 
@@ -172,8 +167,24 @@ class ReferenceOut(BaseModel):
                     "prior_heading_deg": None,
                     "focal_length_35mm": 26.0,
                     "estimated": {"lat": 60.16992, "lon": 24.93851, "heading_deg": 87.0},
-                    "buildings_seen": [{"building_id": 12, "osm_id": "way/123", "name": "Kiasma", "pixel_share": 0.31}],
-                    "timings": {"label_s": 4.2},
+                    "buildings_seen": [
+                        {
+                            "building_id": 12,
+                            "osm_id": "way/123",
+                            "name": "Kiasma",
+                            "pixel_share": 0.31,
+                            "x_start": 0,
+                            "x_end": 1830,
+                            "probability": 0.82,
+                        }
+                    ],
+                    "timings": {
+                        "segmentation": 163.6,
+                        "facades": 95.8,
+                        "features": 55.7,
+                        "labeling": 2504.1,
+                        "total": 2840.2,
+                    },
                     "created_at": "2025-01-01T12:00:00Z",
                     "updated_at": "2025-01-01T12:00:05Z",
                 }
@@ -194,8 +205,8 @@ class ReferenceOut(BaseModel):
     prior_heading_deg: float | None = None
     focal_length_35mm: float | None = None
     estimated: EstimatedPose | None = None
-    buildings_seen: list[dict[str, Any]] | None = None
-    timings: dict[str, Any] | None = None
+    buildings_seen: list[BuildingInPhoto] | None = None
+    timings: dict[str, float] | None = None
     created_at: datetime
     updated_at: datetime
 
@@ -210,74 +221,6 @@ class Readiness(BaseModel):
     expected_schema_version: int
     live_workers: int
     problems: list[str] = Field(default_factory=list)
-
-
-class RankedLocation(BaseModel):
-    """One answer: where the photo was taken and which way it looked."""
-
-    rank: int = Field(examples=[1])
-    lat: float = Field(examples=[60.16952])
-    lon: float = Field(examples=[24.94117])
-    heading_deg: float = Field(
-        description="Compass heading of the optical axis, deg clockwise from north", examples=[93.0]
-    )
-    probability: float = Field(description="Probability of this position (summed over headings)", examples=[0.31])
-    pose_probability: float = Field(description="Probability of this exact position and heading", examples=[0.12])
-
-
-class Heatmap(BaseModel):
-    """The probability map on its georeferenced grid (local east-north metres of the map's frame).
-
-    ``values[row][col]`` is the probability of the cell centred at local
-    (origin_local_m.x + col * cell_m, origin_local_m.y + row * cell_m): rows run south to north, columns
-    west to east. ``origin`` is that first cell's centre in WGS84; ``bounds`` the grid's outer edges.
-    """
-
-    origin: LatLon
-    origin_local_m: tuple[float, float] = Field(examples=[[-120.0, 40.0]])
-    cell_m: float = Field(examples=[10.0])
-    shape: tuple[int, int] = Field(description="(rows, cols)", examples=[[17, 21]])
-    bounds: BoundingBox
-    values: list[list[float]]
-
-
-class BuildingInPhoto(BaseModel):
-    """A building identified in the photo, with its horizontal pixel extent."""
-
-    building_id: int = Field(examples=[212])
-    osm_id: str | None = Field(examples=["way/8042381"])
-    name: str | None = Field(examples=["Ateneum"])
-    pixel_share: float = Field(description="Share of the photo's building pixels", examples=[0.46])
-    x_start: int = Field(description="First pixel column (in the uploaded photo)", examples=[120])
-    x_end: int = Field(description="Last pixel column", examples=[597])
-    probability: float = Field(description="Mean identity probability over its columns", examples=[0.71])
-
-
-class ReferenceUsed(BaseModel):
-    """A retrieved reference and how well it matched."""
-
-    reference_id: int = Field(examples=[17])
-    score: float = Field(description="Retrieval (TF-IDF) score", examples=[0.23])
-    matches: int = Field(examples=[85])
-    inliers: int = Field(description="Geometrically verified matches", examples=[41])
-
-
-class QueryResult(BaseModel):
-    """The answer to a query photo."""
-
-    locations: list[RankedLocation]
-    heatmap: Heatmap
-    buildings: list[BuildingInPhoto]
-    references: list[ReferenceUsed]
-    search: dict[str, Any] = Field(
-        description="How the answer was searched: region, grid, whether identities and priors were used",
-        examples=[{"region": "identified_buildings", "positions": 412, "yaws": 120, "identity": True}],
-    )
-    camera: dict[str, Any] = Field(
-        description="The camera model used (field of view and where the focal length came from)",
-        examples=[{"hfov_deg": 63.4, "focal_source": "exif_35mm", "width": 1024, "height": 768}],
-    )
-    timings_ms: dict[str, float]
 
 
 class QueryOut(BaseModel):

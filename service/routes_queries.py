@@ -19,6 +19,7 @@ from db import jobs as job_store
 from db import queries as query_store
 from db import transaction
 from service.auth import require_read, require_write
+from service.bounds import check_bounds, documented
 from service.deps import get_db, get_settings
 from service.errors import ApiError
 from service.images import distance_outside_bbox_m, validate_image
@@ -31,11 +32,6 @@ router = APIRouter(tags=["queries"])
 _ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 413, 415, 422)}
 DEFAULT_PRIOR_RADIUS_M = 50.0
 POLL_S = 0.2
-
-
-def _check(name: str, value: float | None, low: float, high: float) -> None:
-    if value is not None and not (np.isfinite(value) and low <= value <= high):
-        raise ApiError(422, "invalid_request", f"{name} must be between {low} and {high}, got {value}")
 
 
 def query_out(row: dict[str, Any], job: dict[str, Any] | None) -> QueryOut:
@@ -76,15 +72,34 @@ def _load(db: sqlite_utils.Database, query_id: int) -> tuple[dict[str, Any], dic
 def create_query(
     map_id: int,
     image: Annotated[UploadFile, File(description="The photo to geolocate (JPEG, PNG, WEBP or TIFF)")],
-    lat: Annotated[float | None, Form(description="Prior position latitude (WGS84)")] = None,
-    lon: Annotated[float | None, Form(description="Prior position longitude (WGS84)")] = None,
-    radius_m: Annotated[float | None, Form(description="Prior position radius (m, about 2 sigma)")] = None,
-    heading_deg: Annotated[float | None, Form(description="Prior heading, deg clockwise from north")] = None,
+    lat: Annotated[
+        float | None, Form(description="Prior position latitude (WGS84)", json_schema_extra=documented("lat"))
+    ] = None,
+    lon: Annotated[
+        float | None, Form(description="Prior position longitude (WGS84)", json_schema_extra=documented("lon"))
+    ] = None,
+    radius_m: Annotated[
+        float | None,
+        Form(description="Prior position radius (m, about 2 sigma)", json_schema_extra=documented("radius_m")),
+    ] = None,
+    heading_deg: Annotated[
+        float | None,
+        Form(description="Prior heading, deg clockwise from north", json_schema_extra=documented("heading_deg")),
+    ] = None,
     use_exif_gps: Annotated[bool, Form(description="Use the photo's EXIF GPS as the prior position")] = True,
-    focal_length_35mm: Annotated[float | None, Form(description="35 mm-equivalent focal length")] = None,
-    top_n: Annotated[int, Form(description="How many distinct locations to return")] = 10,
-    k: Annotated[int, Form(description="How many references to retrieve for identities")] = 4,
-    wait_s: Annotated[float, Form(description="How long to wait for the answer before 202")] = 60.0,
+    focal_length_35mm: Annotated[
+        float | None,
+        Form(description="35 mm-equivalent focal length", json_schema_extra=documented("focal_length_35mm")),
+    ] = None,
+    top_n: Annotated[
+        int, Form(description="How many distinct locations to return", json_schema_extra=documented("top_n"))
+    ] = 10,
+    k: Annotated[
+        int, Form(description="How many references to retrieve for identities", json_schema_extra=documented("k"))
+    ] = 4,
+    wait_s: Annotated[
+        float, Form(description="How long to wait for the answer before 202", json_schema_extra=documented("wait_s"))
+    ] = 60.0,
     db: sqlite_utils.Database = Depends(get_db),
     settings: Settings = Depends(get_settings),
 ) -> QueryOut | JSONResponse:
@@ -95,17 +110,17 @@ def create_query(
     priors and reported in ``result.search``. 200 with the answer, or 202 if it took longer than ``wait_s``.
     """
     map_row = require_map(db, map_id)
-    for name, value, low, high in (
-        ("lat", lat, -90, 90),
-        ("lon", lon, -180, 180),
-        ("radius_m", radius_m, 1, 5000),
-        ("heading_deg", heading_deg, 0, 360),
-        ("focal_length_35mm", focal_length_35mm, 1, 2000),
-        ("top_n", top_n, 1, 50),
-        ("k", k, 1, 20),
-        ("wait_s", wait_s, 0, 300),
+    for name, value in (
+        ("lat", lat),
+        ("lon", lon),
+        ("radius_m", radius_m),
+        ("heading_deg", heading_deg),
+        ("focal_length_35mm", focal_length_35mm),
+        ("top_n", top_n),
+        ("k", k),
+        ("wait_s", wait_s),
     ):
-        _check(name, value, low, high)
+        check_bounds(name, value)
     if (lat is None) != (lon is None):
         raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
     with received_upload(image, settings.data_dir, settings.max_image_bytes, "the image") as received:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import math
 from typing import Annotated, Any
 
 import sqlite_utils
@@ -14,6 +13,7 @@ from db import jobs as job_store
 from db import references as reference_store
 from db import transaction
 from service.auth import require_read, require_write
+from service.bounds import check_bounds, documented
 from service.deps import get_db, get_settings
 from service.errors import ApiError
 from service.images import distance_outside_bbox_m, validate_image
@@ -27,11 +27,6 @@ router = APIRouter(tags=["references"])
 _ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 413, 415, 422)}
 
 
-def _check_number(name: str, value: float | None, low: float, high: float) -> None:
-    if value is not None and not (math.isfinite(value) and low <= value <= high):
-        raise ApiError(422, "invalid_request", f"{name} must be between {low} and {high}, got {value}")
-
-
 def resolve_position(
     lat: float | None, lon: float | None, exif_lat: float | None, exif_lon: float | None
 ) -> tuple[float, float, str]:
@@ -39,8 +34,8 @@ def resolve_position(
     if (lat is None) != (lon is None):
         raise ApiError(422, "invalid_request", "give both lat and lon, or neither (to use the photo's EXIF GPS)")
     if lat is not None and lon is not None:
-        _check_number("lat", lat, -90.0, 90.0)
-        _check_number("lon", lon, -180.0, 180.0)
+        check_bounds("lat", lat)
+        check_bounds("lon", lon)
         return lat, lon, "request"
     if exif_lat is None or exif_lon is None:
         raise ApiError(
@@ -61,11 +56,22 @@ def resolve_position(
 def upload_reference(
     map_id: int,
     image: Annotated[UploadFile, File(description="The photo (JPEG, PNG, WEBP or TIFF; checked by content)")],
-    lat: Annotated[float | None, Form(description="Latitude (WGS84); overrides EXIF GPS")] = None,
-    lon: Annotated[float | None, Form(description="Longitude (WGS84); overrides EXIF GPS")] = None,
-    heading_deg: Annotated[float | None, Form(description="Prior heading, degrees clockwise from north")] = None,
+    lat: Annotated[
+        float | None, Form(description="Latitude (WGS84); overrides EXIF GPS", json_schema_extra=documented("lat"))
+    ] = None,
+    lon: Annotated[
+        float | None, Form(description="Longitude (WGS84); overrides EXIF GPS", json_schema_extra=documented("lon"))
+    ] = None,
+    heading_deg: Annotated[
+        float | None,
+        Form(description="Prior heading, degrees clockwise from north", json_schema_extra=documented("heading_deg")),
+    ] = None,
     focal_length_35mm: Annotated[
-        float | None, Form(description="35 mm-equivalent focal length; overrides EXIF")
+        float | None,
+        Form(
+            description="35 mm-equivalent focal length; overrides EXIF",
+            json_schema_extra=documented("focal_length_35mm"),
+        ),
     ] = None,
     db: sqlite_utils.Database = Depends(get_db),
     settings: Settings = Depends(get_settings),
@@ -78,8 +84,8 @@ def upload_reference(
     truncated image, no position, or a position outside the map (with the distance).
     """
     map_row = require_map(db, map_id)
-    _check_number("heading_deg", heading_deg, 0.0, 360.0)
-    _check_number("focal_length_35mm", focal_length_35mm, 1.0, 2000.0)
+    check_bounds("heading_deg", heading_deg)
+    check_bounds("focal_length_35mm", focal_length_35mm)
     with received_upload(image, settings.data_dir, settings.max_image_bytes, "the image") as received:
         info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
         ref_lat, ref_lon, source = resolve_position(lat, lon, info.gps_lat, info.gps_lon)

@@ -38,7 +38,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
             workers = len(job_store.live_workers(db, settings.ready_worker_s))
         finally:
             db.close()
-    except Exception as exc:  # noqa: BLE001 - any failure means "not ready"
+    except Exception as exc:  # any failure means "not ready"
         problems.append(f"database unreachable: {exc}")
     if version != LATEST_VERSION and version >= 0:
         problems.append(f"database schema version {version}, expected {LATEST_VERSION}")

@@ -1,34 +1,29 @@
-"""A session-wide cache of built models (ONNX segmentation network, SBoW vocabulary) for tests that run
-the real method in a service; each service data folder links its ``cache/models`` to it."""
+"""Helpers for tests that point ``GEOLOC_DATA_DIR`` at a temporary folder (the fixtures are in ``conftest.py``)."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
-import pytest
+from geoloc.config import reset_settings
 
 
-@pytest.fixture(scope="session")
-def built_models(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``DATA_DIR/cache/models`` with everything `geoloc models build` makes (built once per session)."""
-    data_dir = tmp_path_factory.mktemp("models-data")
+@contextmanager
+def data_dir_environment(data_dir: Path) -> Iterator[Path]:
+    """Set ``GEOLOC_DATA_DIR`` to ``data_dir`` in this process, restore it on exit; settings re-read both times."""
     previous = os.environ.get("GEOLOC_DATA_DIR")
     os.environ["GEOLOC_DATA_DIR"] = str(data_dir)
+    reset_settings()
     try:
-        from geoloc.models import build_segmentation_model
-        from geoloc.retrieval import default_vocabulary
-
-        build_segmentation_model()
-        default_vocabulary.cache_clear()
-        default_vocabulary(progress=False)
-        default_vocabulary.cache_clear()
+        yield data_dir
     finally:
         if previous is None:
             os.environ.pop("GEOLOC_DATA_DIR", None)
         else:
             os.environ["GEOLOC_DATA_DIR"] = previous
-    return data_dir / "cache" / "models"
+        reset_settings()
 
 
 def link_models(data_dir: Path, models: Path) -> None:

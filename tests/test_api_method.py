@@ -6,17 +6,21 @@ from __future__ import annotations
 import os
 import signal
 from pathlib import Path
+from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 
 from geoloc.config import shared_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
-from .model_fixtures import built_models, link_models  # noqa: F401  (fixture)
+from .model_fixtures import link_models
 from .service_fixtures import read_rows, running_service, wait_for
 
 N_REFERENCES = 16
+
+pytestmark = pytest.mark.slow  # the real method end to end: minutes
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +34,7 @@ def world_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _upload_map(client) -> int:  # noqa: ANN001
+def _upload_map(client: httpx.Client) -> int:
     path = shared_path("data", "osm", "helsinki.osm.pbf")
     with path.open("rb") as f:
         response = client.post("/v1/maps", files={"file": (path.name, f)}, data={"name": "helsinki"})
@@ -38,13 +42,13 @@ def _upload_map(client) -> int:  # noqa: ANN001
     return response.json()["id"]
 
 
-def _upload_reference(client, map_id: int, path: Path) -> dict:  # noqa: ANN001
+def _upload_reference(client: httpx.Client, map_id: int, path: Path) -> dict[str, Any]:
     response = client.post(f"/v1/maps/{map_id}/references", files={"image": (path.name, path.read_bytes())})
     assert response.status_code in (200, 202), response.text
     return response.json()
 
 
-def _wait_done(client, reference_ids: list[int], timeout: float = 600.0) -> dict[int, dict]:  # noqa: ANN001
+def _wait_done(client: httpx.Client, reference_ids: list[int], timeout: float = 600.0) -> dict[int, dict[str, Any]]:
     def all_finished() -> dict[int, dict] | None:
         rows = {rid: client.get(f"/v1/references/{rid}").json() for rid in reference_ids}
         return rows if all(r["status"] in ("done", "failed") for r in rows.values()) else None
@@ -56,7 +60,7 @@ def _angle(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
 
 
-def test_ingest_label_and_query_through_the_api(tmp_path: Path, built_models: Path, world_dir: Path) -> None:  # noqa: F811
+def test_ingest_label_and_query_through_the_api(tmp_path: Path, built_models: Path, world_dir: Path) -> None:
     world = load_world(world_dir)
     link_models(tmp_path, built_models)
     with running_service(tmp_path, workers=2) as service, service.client(timeout=300.0) as client:
@@ -108,7 +112,7 @@ def test_ingest_label_and_query_through_the_api(tmp_path: Path, built_models: Pa
 
 def test_killed_worker_and_restarted_service_lose_no_reference(
     tmp_path: Path,
-    built_models: Path,  # noqa: F811
+    built_models: Path,
     world_dir: Path,
 ) -> None:
     world = load_world(world_dir)

@@ -99,7 +99,7 @@ def test_concurrent_first_migrations_apply_once(tmp_path: Path) -> None:
             database = connect(path)
             results.append(migrate(database))
             database.close()
-        except BaseException as exc:  # noqa: BLE001
+        except BaseException as exc:
             errors.append(exc)
 
     threads = [threading.Thread(target=run) for _ in range(4)]

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from geoloc.camera import Intrinsics, orientation_from_vanishing_column, vanishing_column_of_orientation
-from geoloc.facades import analyze_image, facade_image_model, orientation_errors
+from geoloc.facade_metrics import orientation_errors
+from geoloc.facades import analyze_image, facade_image_model
 from geoloc.image_model import image_model_from_columns
 from geoloc.labels import BUILDING, ROAD, SKY
 

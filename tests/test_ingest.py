@@ -20,7 +20,7 @@ import pytest
 from PIL import Image
 from rich.console import Console
 
-from cli.ingest import IngestAbort, ingest_folder
+from cli.ingest import IngestAbortError, ingest_folder
 from geoloc.config import shared_path
 from geoloc.exif import write_jpeg
 
@@ -220,6 +220,6 @@ def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -
     def down(request: httpx.Request) -> httpx.Response:
         raise httpx.ConnectError("connection refused", request=request)
 
-    with pytest.raises(IngestAbort, match="cannot reach the service"):
+    with pytest.raises(IngestAbortError, match="cannot reach the service"):
         ingest_folder(tmp_path, 1, url="http://mock", api_key=None, retries=1, backoff_s=0.0,
                       transport=httpx.MockTransport(down), console=Console(file=io.StringIO()))  # fmt: skip

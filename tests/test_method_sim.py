@@ -14,6 +14,8 @@ from geoloc.retrieval import InvertedIndex, default_vocabulary
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from geoloc.transfer import rerank_by_inliers
 
+pytestmark = pytest.mark.slow  # the real method end to end: minutes
+
 
 @pytest.fixture(scope="module")
 def world_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -4,7 +4,6 @@ and the runtime labels real CamVid pixels correctly."""
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -13,6 +12,8 @@ import numpy as np
 import pytest
 
 from geoloc import config, labels, models, segmentation
+
+from .model_fixtures import data_dir_environment
 
 CAMVID_IMAGE = "Seq05VD_f01110"  # a test image with ~40 % building pixels
 
@@ -32,16 +33,8 @@ def _rgb(path: Path) -> np.ndarray:
 def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """A temporary GEOLOC_DATA_DIR holding the ONNX export for the whole session."""
     _shared_or_skip("models", models.SEG_WEIGHTS)
-    folder = tmp_path_factory.mktemp("geoloc_data")
-    old = os.environ.get("GEOLOC_DATA_DIR")
-    os.environ["GEOLOC_DATA_DIR"] = str(folder)
-    try:
+    with data_dir_environment(tmp_path_factory.mktemp("geoloc_data")) as folder:
         yield folder
-    finally:
-        if old is None:
-            os.environ.pop("GEOLOC_DATA_DIR", None)
-        else:
-            os.environ["GEOLOC_DATA_DIR"] = old
 
 
 @pytest.fixture(scope="session")
@@ -59,6 +52,7 @@ def camvid_pair() -> tuple[np.ndarray, np.ndarray]:
     return image, label
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_state_dicts_load_strictly() -> None:
     torch = pytest.importorskip("torch")
     from geoloc.nets.espnetv2 import load_espnetv2
@@ -73,6 +67,7 @@ def test_state_dicts_load_strictly() -> None:
             assert net(torch.zeros(1, 3, 64, 128)).shape == (1, 20, 64, 128)
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_onnx_matches_torch(onnx_path: Path, camvid_pair: tuple[np.ndarray, np.ndarray]) -> None:
     torch = pytest.importorskip("torch")
     from geoloc.nets.espnetv2 import NormalizedSegmenter, load_espnetv2
@@ -90,6 +85,7 @@ def test_onnx_matches_torch(onnx_path: Path, camvid_pair: tuple[np.ndarray, np.n
     assert same > 0.999
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_build_is_cached_and_tracks_weights(onnx_path: Path) -> None:
     files = models.segmentation_files()
     meta = json.loads(files.meta.read_text())
@@ -100,6 +96,7 @@ def test_build_is_cached_and_tracks_weights(onnx_path: Path) -> None:
     assert not models.is_current(files, "0" * 64)  # other weights -> stale -> rebuilt
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_segment_shape_dtype_on_phone_photo(onnx_path: Path) -> None:
     image = _rgb(_shared_or_skip("data", "lund", "images", "05.jpg"))
     out = segmentation.segment(image)
@@ -112,6 +109,7 @@ def test_segment_shape_dtype_on_phone_photo(onnx_path: Path) -> None:
     np.testing.assert_allclose(probs.sum(axis=2), 1.0, atol=1e-4)
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_segment_camvid_building_pixels(onnx_path: Path, camvid_pair: tuple[np.ndarray, np.ndarray]) -> None:
     from cli.eval import CAMVID_TO_OURS
 
@@ -128,10 +126,12 @@ def test_segment_camvid_building_pixels(onnx_path: Path, camvid_pair: tuple[np.n
 
 def test_missing_model_error_is_clear(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("GEOLOC_DATA_DIR", str(tmp_path))
+    config.reset_settings()
     with pytest.raises(segmentation.ModelNotBuiltError, match="geoloc models build"):
         segmentation.segment(np.zeros((60, 80, 3), dtype=np.uint8))
 
 
+@pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_cli_eval_camvid_writes_json(onnx_path: Path, tmp_path: Path) -> None:
     from typer.testing import CliRunner
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -16,7 +17,7 @@ from geoloc.exif import read_exif
 from geoloc.geo import LocalFrame
 from geoloc.osm import CityMap, load_map
 from geoloc.raycast import cast_panoramas
-from geoloc.sim import Pose, Scene, render
+from geoloc.sim import Pose, Render, Scene, render
 from geoloc.sim.world import WorldOptions, camera_for, generate_world, load_world
 
 INTR = Intrinsics.from_hfov(640, 480, 60.0)
@@ -42,7 +43,7 @@ def _map(tmp_path: Path, boxes: list[tuple[list[tuple[float, float]], float]]) -
     return city, np.array(city.frame.to_local(ORIGIN.origin_lat, ORIGIN.origin_lon), dtype=float)
 
 
-def _clean(scene: Scene, pose: Pose, intr: Intrinsics = INTR, **kw: object):  # noqa: ANN202
+def _clean(scene: Scene, pose: Pose, intr: Intrinsics = INTR, **kw: Any) -> Render:
     return render(scene, pose, intr, photometric=False, occluders=False, **kw)
 
 

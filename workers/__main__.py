@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import sys
 
-from service.settings import load_settings
+from geoloc.config import SettingsError, get_settings
 from workers.handlers import load_builtin_handlers, load_plugins
 from workers.worker import Worker, install_signal_handlers
 
@@ -15,12 +16,17 @@ def main(argv: list[str] | None = None) -> int:
     """Parse options, load handlers and run the worker loop until SIGTERM/SIGINT."""
     parser = argparse.ArgumentParser(prog="python -m workers", description="Run one geoloc worker process.")
     parser.add_argument("--max-jobs", type=int, default=None, help="exit after this many jobs")
-    parser.add_argument("--log-level", default=os.environ.get("GEOLOC_LOG_LEVEL", "INFO"))
+    parser.add_argument("--log-level", default=None, help="default: GEOLOC_LOG_LEVEL")
     args = parser.parse_args(argv)
+    try:
+        settings = get_settings()
+    except SettingsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     logging.basicConfig(
-        level=args.log_level.upper(), format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s"
+        level=(args.log_level or settings.log_level).upper(),
+        format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s",
     )
-    settings = load_settings()
     load_builtin_handlers()
     load_plugins(settings.worker_plugins)
     worker = Worker(settings)

@@ -25,6 +25,7 @@ from geoloc.osm import CityMap, load_map
 from geoloc.pipeline import Photo, geolocate_query, label_reference_photo, load_photo
 from geoloc.retrieval import Vocabulary, default_vocabulary, tfidf_scores
 from geoloc.transfer import ReferenceEvidence, rerank_by_inliers
+from workers.answers import checked_query_answer, checked_reference_labels
 from workers.handlers import LABEL_REFERENCE, PermanentJobError, register
 
 SHORTLIST = 20
@@ -89,6 +90,13 @@ def label_reference(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[
     buildings = _describe_buildings(city, identity.building_extents(), photo.original_size[0] / photo.intrinsics.width)
     timings = {k: round(v, 1) for k, v in labelled.timings_ms.items()}
     timings["total"] = round(1e3 * (time.perf_counter() - t0), 1)
+    labels = checked_reference_labels(
+        {
+            "estimated": {"lat": lat, "lon": lon, "heading_deg": round(heading, 2)},
+            "buildings_seen": buildings,
+            "timings": timings,
+        }
+    )
     with transaction(db):
         if reference_store.get_reference(db, reference_id) is None:
             raise PermanentJobError(f"reference {reference_id} was deleted while it was labelled")
@@ -116,8 +124,8 @@ def label_reference(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[
             estimated_lat=lat,
             estimated_lon=lon,
             estimated_heading_deg=round(heading, 2),
-            buildings_seen=buildings,
-            timings=timings,
+            buildings_seen=labels["buildings_seen"],
+            timings=labels["timings"],
         )
     return {"reference_id": reference_id, "heading_deg": round(heading, 2), "buildings": len(buildings)}
 
@@ -209,6 +217,7 @@ def localize_query(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[s
         "retrieval": round(retrieval_ms, 1),
         "total": round(1e3 * (time.perf_counter() - t0), 1),
     }
+    result = checked_query_answer(result)
     with transaction(db):
         if not query_store.update_query_result(db, query_id, status="done", result=result):
             raise PermanentJobError(f"query {query_id} was deleted while it was answered")

@@ -23,7 +23,7 @@ from typing import Any
 
 from db import connect, migrate
 from db import jobs as job_store
-from service.settings import Settings
+from geoloc.config import Settings
 from workers.handlers import HANDLERS, JobHandler, PermanentJobError
 
 log = logging.getLogger("geoloc.worker")
@@ -122,7 +122,7 @@ class Worker:
         try:
             result = handler(db, job["payload"])
             outcome.result = result if isinstance(result, dict) else {"value": result}
-        except BaseException as exc:  # noqa: BLE001 - every failure is recorded on the job
+        except BaseException as exc:  # every failure is recorded on the job
             outcome.error = exc
         finally:
             db.close()

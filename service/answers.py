@@ -1,0 +1,123 @@
+"""The answers that workers store and the API serves: one pydantic contract for both.
+
+A worker validates what it computed with these models before storing it (see
+:mod:`workers.answers`), so a malformed answer fails its job at once with the offending field named,
+instead of surfacing later as a 500 when the API serves it. The API's response models
+(:mod:`service.models`) embed the same classes. Only pydantic is imported here: workers import this
+module without the FastAPI app.
+
+The models forbid unknown fields and non-finite numbers: a field added to an answer must be added
+here too (the OpenAPI reference then shows it), and a NaN never reaches a client.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class _Answer(BaseModel):
+    """Base of the answer models: unknown fields and NaN/infinity are errors."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class BoundingBox(_Answer):
+    """A WGS84 bounding box (degrees)."""
+
+    min_lat: float = Field(examples=[60.1641551])
+    min_lon: float = Field(examples=[24.9351773])
+    max_lat: float = Field(examples=[60.1791068])
+    max_lon: float = Field(examples=[24.9534066])
+
+
+class LatLon(_Answer):
+    """A WGS84 position (degrees)."""
+
+    lat: float = Field(examples=[60.1699])
+    lon: float = Field(examples=[24.9384])
+
+
+class EstimatedPose(_Answer):
+    """A reference's pose as labelling found it (WGS84 degrees, compass heading)."""
+
+    lat: float | None = None
+    lon: float | None = None
+    heading_deg: float | None = Field(default=None, description="Degrees clockwise from north")
+
+
+class RankedLocation(_Answer):
+    """One answer: where the photo was taken and which way it looked."""
+
+    rank: int = Field(examples=[1])
+    lat: float = Field(examples=[60.16952])
+    lon: float = Field(examples=[24.94117])
+    heading_deg: float = Field(
+        description="Compass heading of the optical axis, deg clockwise from north", examples=[93.0]
+    )
+    probability: float = Field(description="Probability of this position (summed over headings)", examples=[0.31])
+    pose_probability: float = Field(description="Probability of this exact position and heading", examples=[0.12])
+
+
+class Heatmap(_Answer):
+    """The probability map on its georeferenced grid (local east-north metres of the map's frame).
+
+    ``values[row][col]`` is the probability of the cell centred at local
+    (origin_local_m.x + col * cell_m, origin_local_m.y + row * cell_m): rows run south to north, columns
+    west to east. ``origin`` is that first cell's centre in WGS84; ``bounds`` the grid's outer edges.
+    """
+
+    origin: LatLon
+    origin_local_m: tuple[float, float] = Field(examples=[[-120.0, 40.0]])
+    cell_m: float = Field(examples=[10.0])
+    shape: tuple[int, int] = Field(description="(rows, cols)", examples=[[17, 21]])
+    bounds: BoundingBox
+    values: list[list[float]]
+
+
+class BuildingInPhoto(_Answer):
+    """A building identified in the photo, with its horizontal pixel extent."""
+
+    building_id: int = Field(examples=[212])
+    osm_id: str | None = Field(examples=["way/8042381"])
+    name: str | None = Field(examples=["Ateneum"])
+    pixel_share: float = Field(description="Share of the photo's building pixels", examples=[0.46])
+    x_start: int = Field(description="First pixel column (in the uploaded photo)", examples=[120])
+    x_end: int = Field(description="Last pixel column", examples=[597])
+    probability: float = Field(description="Mean identity probability over its columns", examples=[0.71])
+
+
+class ReferenceUsed(_Answer):
+    """A retrieved reference and how well it matched."""
+
+    reference_id: int = Field(examples=[17])
+    score: float = Field(description="Retrieval (TF-IDF) score", examples=[0.23])
+    matches: int = Field(examples=[85])
+    inliers: int = Field(description="Geometrically verified matches", examples=[41])
+
+
+class QueryResult(_Answer):
+    """The answer to a query photo."""
+
+    locations: list[RankedLocation]
+    heatmap: Heatmap
+    buildings: list[BuildingInPhoto]
+    references: list[ReferenceUsed]
+    search: dict[str, Any] = Field(
+        description="How the answer was searched: region, grid, whether identities and priors were used",
+        examples=[{"region": "identified_buildings", "positions": 412, "yaws": 120, "identity": True}],
+    )
+    camera: dict[str, Any] = Field(
+        description="The camera model used (field of view and where the focal length came from)",
+        examples=[{"hfov_deg": 63.4, "focal_source": "exif_35mm", "width": 1024, "height": 768}],
+    )
+    timings_ms: dict[str, float]
+
+
+class ReferenceLabels(_Answer):
+    """What labelling a reference found, as ``GET /v1/references/{id}`` serves it."""
+
+    estimated: EstimatedPose
+    buildings_seen: list[BuildingInPhoto]
+    timings: dict[str, float] = Field(description="Milliseconds per step and in total")

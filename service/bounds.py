@@ -1,0 +1,43 @@
+"""Numeric bounds of the form fields: one table that both checks requests and documents them.
+
+A value outside its bounds (or not finite) is a 422 ``invalid_request`` that names the field, its
+bounds and the value sent; the OpenAPI schema shows the same bounds as ``minimum``/``maximum``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from service.errors import ApiError
+
+BOUNDS: dict[str, tuple[float, float]] = {
+    "lat": (-90.0, 90.0),
+    "lon": (-180.0, 180.0),
+    "radius_m": (1.0, 5000.0),
+    "heading_deg": (0.0, 360.0),
+    "focal_length_35mm": (1.0, 2000.0),
+    "top_n": (1, 50),
+    "k": (1, 20),
+    "wait_s": (0.0, 300.0),
+}
+"""Inclusive (low, high) per form field name."""
+
+
+def documented(name: str) -> dict[str, Any]:
+    """``json_schema_extra`` for a form field: its bounds as OpenAPI ``minimum`` and ``maximum``."""
+    low, high = BOUNDS[name]
+    return {"minimum": low, "maximum": high}
+
+
+def check_bounds(name: str, value: float | None) -> None:
+    """Raise a 422 when ``value`` (None passes) is not finite or outside ``BOUNDS[name]``.
+
+    Raises
+    ------
+    ApiError
+        422 ``invalid_request`` with the field, its bounds and the value in the message.
+    """
+    low, high = BOUNDS[name]
+    if value is not None and not (math.isfinite(value) and low <= value <= high):
+        raise ApiError(422, "invalid_request", f"{name} must be between {low:g} and {high:g}, got {value}")

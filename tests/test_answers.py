@@ -1,0 +1,134 @@
+"""The answer contract: workers check answers with the API's own models before storing them.
+
+A malformed answer fails its job at once with a reason, and a stored answer is always servable.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from service.answers import QueryResult
+from workers.answers import checked_query_answer, checked_reference_labels
+from workers.handlers import PermanentJobError
+
+from .answer_plugin import WELL_FORMED
+from .service_fixtures import WRITE_KEY, RunningProcess, get_job_row, jpeg_bytes, running_service
+
+PLUGIN = Path(__file__).resolve().parent / "answer_plugin.py"
+ONE_BUILDING = {
+    "type": "FeatureCollection",
+    "features": [
+        {
+            "type": "Feature",
+            "id": "way/1",
+            "properties": {"building": "yes", "name": "B0"},
+            "geometry": {
+                "type": "Polygon",
+                "coordinates": [
+                    [[24.94, 60.17], [24.9402, 60.17], [24.9402, 60.1701], [24.94, 60.1701], [24.94, 60.17]]
+                ],
+            },
+        }
+    ],
+}
+
+
+def test_a_well_formed_answer_is_stored_in_the_served_json_form() -> None:
+    stored = checked_query_answer(copy.deepcopy(WELL_FORMED))
+    assert stored == json.loads(QueryResult.model_validate(WELL_FORMED).model_dump_json())
+    assert stored["heatmap"]["origin_local_m"] == [-10.0, -10.0]
+
+
+@pytest.mark.parametrize(
+    ("defect", "field", "reason"),
+    [
+        (lambda a: a["locations"][0].update(lat="north"), "locations.0.lat", "valid number"),
+        (lambda a: a["heatmap"]["values"][0].__setitem__(0, math.inf), "heatmap.values.0.0", "finite number"),
+        (lambda a: a.pop("camera"), "camera", "Field required"),
+        (lambda a: a["buildings"][0].update(colour="red"), "buildings.0.colour", "Extra inputs"),
+    ],
+)
+def test_a_malformed_answer_is_a_permanent_error_naming_the_field(defect: Any, field: str, reason: str) -> None:
+    answer = copy.deepcopy(WELL_FORMED)
+    defect(answer)
+    with pytest.raises(PermanentJobError) as error:
+        checked_query_answer(answer)
+    message = str(error.value)
+    assert message.startswith("malformed query answer, not stored") and f"{field}: " in message and reason in message
+
+
+def test_reference_labels_are_checked_too() -> None:
+    labels = {
+        "estimated": {"lat": 60.17, "lon": 24.94, "heading_deg": 12.5},
+        "buildings_seen": copy.deepcopy(WELL_FORMED["buildings"]),
+        "timings": {"segmentation": 160.2, "total": 900.0},
+    }
+    assert checked_reference_labels(labels) == labels
+    labels["buildings_seen"][0]["x_end"] = "right"
+    with pytest.raises(PermanentJobError, match=r"malformed reference labels.*buildings_seen\.0\.x_end"):
+        checked_reference_labels(labels)
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningProcess]:
+    with running_service(tmp_path_factory.mktemp("answers") / "data", GEOLOC_WORKER_PLUGINS=str(PLUGIN)) as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
+def client(service: RunningProcess) -> Iterator[httpx.Client]:
+    with service.client(WRITE_KEY) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def map_id(client: httpx.Client) -> int:
+    files = {"file": ("one.geojson", json.dumps(ONE_BUILDING).encode())}
+    response = client.post("/v1/maps", files=files, data={"name": "one building"})
+    assert response.status_code == 201, response.text
+    return int(response.json()["id"])
+
+
+def _ask(client: httpx.Client, map_id: int, top_n: int) -> dict[str, Any]:
+    response = client.post(
+        f"/v1/maps/{map_id}/queries",
+        files={"image": ("q.jpg", jpeg_bytes(seed=top_n))},
+        data={"top_n": str(top_n), "wait_s": "30"},
+    )
+    assert response.status_code == 200, response.text
+    return dict(response.json())
+
+
+def test_a_worker_stores_a_well_formed_answer_and_the_api_serves_it(client: httpx.Client, map_id: int) -> None:
+    query = _ask(client, map_id, top_n=1)
+    assert query["status"] == "done" and query["error"] is None
+    assert query["result"] == checked_query_answer(copy.deepcopy(WELL_FORMED))
+    assert client.get(f"/v1/queries/{query['id']}").json()["result"] == query["result"]
+
+
+@pytest.mark.parametrize(
+    ("top_n", "problem"),
+    [
+        (2, "locations.0.lat: Input should be a valid number"),
+        (3, "locations.0.probability: Input should be a finite"),
+        (4, "heatmap: Field required; heat_map: Extra inputs are not permitted"),
+    ],
+)
+def test_a_malformed_answer_fails_the_job_at_once_with_the_reason(
+    client: httpx.Client, service: RunningProcess, map_id: int, top_n: int, problem: str
+) -> None:
+    query = _ask(client, map_id, top_n=top_n)
+    assert query["status"] == "failed" and query["result"] is None
+    assert "malformed query answer, not stored" in query["error"] and problem in query["error"]
+    job = get_job_row(service.db_path, query["job_id"])
+    assert job["status"] == "failed" and job["attempts"] == 1, "a malformed answer is not retried"
+    served = client.get(f"/v1/queries/{query['id']}")
+    assert served.status_code == 200 and served.json()["status"] == "failed"
