@@ -107,6 +107,86 @@ def pose_covariance(
         return np.full((3, 3), np.inf)
 
 
+def _refit(
+    pts: np.ndarray,
+    px: np.ndarray,
+    intrinsics: Intrinsics,
+    rvec: np.ndarray,
+    tvec: np.ndarray,
+    threshold_px: float,
+    min_inliers: int,
+) -> PoseEstimate | None:
+    """LM refinement on the correspondences within ``threshold_px`` of a pose (twice: inliers may grow)."""
+    k = intrinsics.matrix
+    for _ in range(2):
+        projected, _ = cv2.projectPoints(pts, rvec, tvec, k, None)
+        err = np.linalg.norm(projected.reshape(-1, 2) - px, axis=1)
+        mask = err <= threshold_px
+        if mask.sum() < max(4, min_inliers):
+            return None
+        rvec, tvec = cv2.solvePnPRefineLM(pts[mask], px[mask], k, None, rvec, tvec)
+    rotation, _ = cv2.Rodrigues(rvec)
+    pose, pitch, roll = _world_from_cam_to_pose(rotation, tvec)
+    projected, depth = project(pts, pose, intrinsics)
+    err = np.linalg.norm(projected - px, axis=1)
+    mask = (depth > 0) & (err <= threshold_px)
+    if mask.sum() < min_inliers:
+        return None
+    rmse = float(np.sqrt(np.mean(err[mask] ** 2)))
+    cov = pose_covariance(pose, pts[mask], px[mask], intrinsics, max(rmse, 0.5))
+    return PoseEstimate(pose, pitch, roll, mask, rmse, cov)
+
+
+def estimate_pose_from_groups(
+    groups: list[tuple[np.ndarray, np.ndarray]],
+    intrinsics: Intrinsics,
+    *,
+    threshold_px: float = DEFAULT_THRESHOLD_PX,
+    min_inliers: int = DEFAULT_MIN_INLIERS,
+    confidence: float = 0.9999,
+    max_iters: int = 2000,
+) -> tuple[PoseEstimate | None, np.ndarray]:
+    """Pose from several groups of correspondences (one per reference photo): (estimate, group of each point).
+
+    Pooling every group into one RANSAC drowns the few right matches of a good reference among the wrong
+    ones of the others; here each group proposes its own RANSAC pose, every proposal is scored on all the
+    correspondences, and the best is refined on all its inliers. groups: [(points (N_i, 3), pixels (N_i, 2))].
+    """
+    groups = [(np.asarray(a, np.float64).reshape(-1, 3), np.asarray(b, np.float64).reshape(-1, 2)) for a, b in groups]
+    owner = np.concatenate([np.full(len(a), i) for i, (a, _) in enumerate(groups)]) if groups else np.zeros(0, int)
+    if len(owner) < max(4, min_inliers):
+        return None, owner
+    pts = np.concatenate([a for a, _ in groups])
+    px = np.concatenate([b for _, b in groups])
+    k = intrinsics.matrix
+    best: tuple[int, np.ndarray, np.ndarray] | None = None
+    for group_pts, group_px in groups:
+        if len(group_pts) < 6:
+            continue
+        try:
+            ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+                group_pts,
+                group_px,
+                k,
+                None,
+                iterationsCount=max_iters,
+                reprojectionError=threshold_px,
+                confidence=confidence,
+                flags=cv2.USAC_MAGSAC,
+            )
+        except cv2.error:
+            continue
+        if not ok or inliers is None or len(inliers) < 4:
+            continue
+        projected, _ = cv2.projectPoints(pts, rvec, tvec, k, None)
+        support = int((np.linalg.norm(projected.reshape(-1, 2) - px, axis=1) <= threshold_px).sum())
+        if best is None or support > best[0]:
+            best = (support, rvec, tvec)
+    if best is None or best[0] < min_inliers:
+        return None, owner
+    return _refit(pts, px, intrinsics, best[1], best[2], threshold_px, min_inliers), owner
+
+
 def estimate_pose(
     points_xyz: np.ndarray,
     xy_px: np.ndarray,
@@ -142,16 +222,4 @@ def estimate_pose(
         return None
     if not ok or inliers is None or len(inliers) < min_inliers:
         return None
-    mask = np.zeros(n, bool)
-    mask[inliers.ravel()] = True
-    rvec, tvec = cv2.solvePnPRefineLM(pts[mask], px[mask], k, None, rvec, tvec)
-    rotation, _ = cv2.Rodrigues(rvec)
-    pose, pitch, roll = _world_from_cam_to_pose(rotation, tvec)
-    projected, depth = project(pts, pose, intrinsics)
-    err = np.linalg.norm(projected - px, axis=1)
-    mask = (depth > 0) & (err <= threshold_px)
-    if mask.sum() < min_inliers:
-        return None
-    rmse = float(np.sqrt(np.mean(err[mask] ** 2)))
-    cov = pose_covariance(pose, pts[mask], px[mask], intrinsics, max(rmse, 0.5))
-    return PoseEstimate(pose, pitch, roll, mask, rmse, cov)
+    return _refit(pts, px, intrinsics, rvec, tvec, threshold_px, min_inliers)

@@ -1,10 +1,10 @@
 """Query geolocation: a probability map over positions x yaws and the top-N distinct poses.
 
-Candidate positions are a regular grid (paper: 10 m, 120 yaws) over the places that can see the
-identified buildings: cells outside footprints within ``search_radius_m`` of any building the
-photo's identities name. With no identified building the region comes from the position prior,
-and with neither the whole map is searched. A position prior (GPS with a radius) and a heading prior
-multiply the likelihood; the answer says which priors were used.
+Candidate positions are a regular grid (paper: 10 m, 120 yaws) outside footprints. With a position
+prior (e.g. the photo's GPS) the grid covers ``PRIOR_REGION_SIGMAS`` standard deviations around it;
+without one, the places that can see the identified buildings (within ``search_radius_m`` of any building
+the photo's identities name), and with neither the whole map. The position and heading priors multiply
+the likelihood; the answer says which priors were used and how the region was chosen.
 
 Continuous refinement of the best poses is :mod:`geoloc.pose_refinement`'s (used by :mod:`geoloc.query`).
 """
@@ -35,20 +35,41 @@ from geoloc.raycast import cast_panoramas
 
 DEFAULT_QUERY_CELL_M = 10.0
 DEFAULT_SEARCH_RADIUS_M = 80.0
+PRIOR_REGION_SIGMAS = 3.0
+"""A position prior limits the search to this many standard deviations around its centre."""
 MIN_BUILDING_PROBABILITY = 0.05  # identity mass a building needs (max over columns) to define the search region
+
+
+DEFAULT_PRIOR_RADIUS_M = 50.0
+"""Radius of a query's position prior when the request gives none (a phone's GPS in a street canyon)."""
 
 
 @dataclass
 class PositionPrior:
-    """A prior on the camera position: Gaussian around (x_m, y_m) with ``radius_m`` as 2 sigma."""
+    """A Gaussian prior on the camera position: centre (x_m, y_m), standard deviation ``sigma_m`` (m).
+
+    The API speaks of a prior *radius*, about two standard deviations (:meth:`from_radius`); inside, every
+    prior (query GPS here, reference GPS in :mod:`geoloc.labeling`) is a standard deviation.
+    """
 
     x_m: float
     y_m: float
-    radius_m: float
+    sigma_m: float
+
+    @classmethod
+    def from_radius(cls, x_m: float, y_m: float, radius_m: float) -> PositionPrior:
+        """The prior of a position known to within ``radius_m`` (about 2 sigma, ~86 % of the mass)."""
+        return cls(x_m, y_m, radius_m / 2.0)
+
+    @property
+    def radius_m(self) -> float:
+        """Two standard deviations (m)."""
+        return 2.0 * self.sigma_m
 
     def weights(self, positions: np.ndarray) -> np.ndarray:
+        """(P,) prior weight (peak 1) of positions (P, 2)."""
         d2 = np.sum((positions - np.array([self.x_m, self.y_m])) ** 2, axis=1)
-        return np.exp(-0.5 * d2 / (self.radius_m / 2.0) ** 2)
+        return np.exp(-0.5 * d2 / self.sigma_m**2)
 
 
 @dataclass
@@ -88,16 +109,15 @@ def search_grid(
     position_prior: PositionPrior | None,
 ) -> tuple[PoseGrid, str]:
     """Candidate grid and a word on how it was chosen ("identified_buildings", "position_prior", "whole_map")."""
-    if building_ids:
+    if position_prior is not None:
+        # The prior bounds the search; identities still weigh every pose inside it through the likelihood.
+        region = shapely.Point(position_prior.x_m, position_prior.y_m).buffer(
+            PRIOR_REGION_SIGMAS * position_prior.sigma_m
+        )
+        reason = "position_prior"
+    elif building_ids:
         region = unary_union([city_map.buildings[b].polygon for b in building_ids]).buffer(search_radius_m)
         reason = "identified_buildings"
-        if position_prior is not None:
-            circle = shapely.Point(position_prior.x_m, position_prior.y_m).buffer(position_prior.radius_m * 1.5)
-            if region.intersects(circle):
-                region = region.intersection(circle)
-    elif position_prior is not None:
-        region = shapely.Point(position_prior.x_m, position_prior.y_m).buffer(position_prior.radius_m * 1.5)
-        reason = "position_prior"
     else:
         region = shapely.box(*city_map.bounds_m)
         reason = "whole_map"

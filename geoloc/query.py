@@ -35,7 +35,7 @@ from typing import Protocol
 
 import numpy as np
 
-from geoloc.absolute_pose import PoseEstimate, estimate_pose
+from geoloc.absolute_pose import PoseEstimate, estimate_pose_from_groups
 from geoloc.anchors import MapAnchors
 from geoloc.features import Features
 from geoloc.identity import IdentityMap
@@ -47,7 +47,13 @@ from geoloc.pipeline import Photo, PhotoEvidence, image_model_with_identity
 from geoloc.pose_refinement import refine_pose
 from geoloc.raycast import cast_panoramas
 from geoloc.retrieval import InvertedIndex, Vocabulary
-from geoloc.transfer import ReferenceEvidence, ReferenceMatch, rerank_by_inliers, transfer_identities
+from geoloc.transfer import (
+    ReferenceEvidence,
+    ReferenceMatch,
+    match_features,
+    rerank_by_inliers,
+    transfer_identities,
+)
 
 CHI2_2D_90 = 4.605
 """90 % quantile of the chi-square distribution with 2 degrees of freedom (2D position regions)."""
@@ -80,6 +86,8 @@ class QueryConfig:
     refine_poses: int = 3
     pnp_threshold_px: float = 4.0
     pnp_min_inliers: int = 12
+    anchor_ratio: float = 0.9
+    strong_inliers: int = 30
     min_likelihood_ratio: float = 0.5
     max_height_error_m: float = 2.0
     max_pitch_deg: float = 20.0
@@ -281,26 +289,24 @@ def anchored_pose(
     Returns the estimate (None when RANSAC finds fewer than ``config.pnp_min_inliers``) and the references
     that contributed inliers.
     """
-    points, pixels, owner = [], [], []
+    groups: list[tuple[np.ndarray, np.ndarray]] = []
+    group_refs: list[Hashable] = []
     for match in matches:
         ref = stored.get(match.reference_id)
-        pairs = match.putative if match.putative is not None else match.pairs
-        if ref is None or len(pairs) == 0:
+        if ref is None:
             continue
-        valid = ref.anchors.valid[pairs[:, 1]]
-        points.append(ref.anchors.xyz[pairs[valid, 1]])
-        pixels.append(query_features.xy[pairs[valid, 0]])
-        owner.append(np.full(int(valid.sum()), len(owner)))
-    if not points:
-        return None, []
-    xyz, xy, who = np.concatenate(points), np.concatenate(pixels), np.concatenate(owner)
-    estimate = estimate_pose(
-        xyz, xy, photo.intrinsics, threshold_px=config.pnp_threshold_px, min_inliers=config.pnp_min_inliers
+        pairs = match_features(query_features, ref.features, config.anchor_ratio)
+        valid = ref.anchors.valid[pairs[:, 1]] if len(pairs) else np.zeros(0, bool)
+        if valid.sum() < 4:
+            continue
+        groups.append((ref.anchors.xyz[pairs[valid, 1]], query_features.xy[pairs[valid, 0]]))
+        group_refs.append(match.reference_id)
+    estimate, owner = estimate_pose_from_groups(
+        groups, photo.intrinsics, threshold_px=config.pnp_threshold_px, min_inliers=config.pnp_min_inliers
     )
     if estimate is None:
         return None, []
-    used = [matches[i].reference_id for i in np.unique(who[estimate.inliers])]
-    return estimate, used
+    return estimate, [group_refs[i] for i in np.unique(owner[estimate.inliers])]
 
 
 def _reference_evidence(ref: StoredReference, match: ReferenceMatch) -> ReferenceEvidence:
@@ -342,18 +348,17 @@ def _trust_anchored(
     ok = anchored.n_inliers >= config.pnp_min_inliers
     ok &= abs(pose.height_m - 1.6) <= config.max_height_error_m
     ok &= abs(anchored.pitch_deg) <= config.max_pitch_deg
-    inside = bool(city_map.inside_buildings(np.array([[pose.x_m, pose.y_m]]))[0])
-    checks["inside_building"] = inside
-    ok &= not inside
     if position_prior is not None:
         distance = math.hypot(pose.x_m - position_prior.x_m, pose.y_m - position_prior.y_m)
         checks["prior_distance_m"] = round(distance, 1)
-        ok &= distance <= config.prior_sigmas * position_prior.radius_m / 2.0
+        ok &= distance <= config.prior_sigmas * position_prior.sigma_m
     lik = _likelihood_at(city_map, model, pose.x_m, pose.y_m, pose.yaw_deg, use_identity)
     best = float(localization.likelihood.max(initial=0.0))
     checks["likelihood"] = round(lik, 4)
     checks["likelihood_best"] = round(best, 4)
-    ok &= lik >= config.min_likelihood_ratio * best
+    if anchored.n_inliers < config.strong_inliers:
+        # Repeated facade elements let a wrong reference pass RANSAC with a few inliers: the map must agree.
+        ok &= lik >= config.min_likelihood_ratio * best
     return bool(ok), checks
 
 
@@ -422,7 +427,7 @@ def _likelihood_answers(
                 y,
                 yaw,
                 prior_xy=None if position_prior is None else (position_prior.x_m, position_prior.y_m),
-                prior_sigma_m=None if position_prior is None else position_prior.radius_m / 2.0,
+                prior_sigma_m=None if position_prior is None else position_prior.sigma_m,
                 half_size_m=config.cell_m / 2.0 + 1.0,
                 use_identity=use_identity,
             )

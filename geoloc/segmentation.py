@@ -95,6 +95,7 @@ CITYSCAPES_TO_OURS = np.array(
     dtype=np.uint8,
 )
 
+
 class ModelNotBuiltError(FileNotFoundError):
     """The ONNX export is missing; the message says how to build it."""
 
