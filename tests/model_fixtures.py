@@ -11,8 +11,16 @@ import pytest
 
 @pytest.fixture(scope="session")
 def built_models(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``DATA_DIR/cache/models`` with everything `geoloc models build` makes (built once per session)."""
-    data_dir = tmp_path_factory.mktemp("models-data")
+    """``DATA_DIR/cache/models`` with everything `geoloc models build` makes (built once per session).
+
+    Each test module that imports this fixture gets its own session-scoped instance, so the build
+    lives at a fixed place in the session's temporary folder and later instances reuse it.
+    """
+    data_dir = tmp_path_factory.getbasetemp() / "models-data"
+    built_marker = data_dir / "built"
+    if built_marker.exists():
+        return data_dir / "cache" / "models"
+    data_dir.mkdir(exist_ok=True)
     previous = os.environ.get("GEOLOC_DATA_DIR")
     os.environ["GEOLOC_DATA_DIR"] = str(data_dir)
     try:
@@ -28,6 +36,7 @@ def built_models(tmp_path_factory: pytest.TempPathFactory) -> Path:
             os.environ.pop("GEOLOC_DATA_DIR", None)
         else:
             os.environ["GEOLOC_DATA_DIR"] = previous
+    built_marker.touch()
     return data_dir / "cache" / "models"
 
 
