@@ -125,7 +125,7 @@ function hoverBuilding(id, on) {
 
 async function start() {
   view.on("referenceSelect", (id) => openReference(id));
-  view.on("locationSelect", (rank) => selectLocation(rank, { focusRow: false }));
+  view.on("locationSelect", (rank) => selectLocation(rank));
   view.on("mapClick", (lat, lon) => pickPrior(lat, lon));
   installForms();
   try {
@@ -606,7 +606,7 @@ function showQuery(query, { fit = true } = {}) {
     });
     body.appendChild(row);
   }
-  selectLocation(1, { focusRow: false });
+  selectLocation(1);
 
   const s = result.search || {};
   const searchBits = [
@@ -672,13 +672,12 @@ function showAnswerHighlights() {
   view.setHighlights(new Map(buildings.map((b) => [b.building_id, buildingColor(b.building_id)])));
 }
 
-function selectLocation(rank, { center = false, focusRow = true } = {}) {
+/** Emphasise one ranked location on the map and in the table (and centre the map on it if asked). */
+function selectLocation(rank, { center = false } = {}) {
   state.selectedRank = rank;
   view.selectLocation(rank);
   for (const row of $("answer-locations").tBodies[0].rows) {
-    const on = Number(row.dataset.rank) === rank;
-    row.setAttribute("aria-selected", String(on));
-    if (on && focusRow && document.activeElement?.closest?.("#layer-overlay")) row.focus();
+    row.setAttribute("aria-selected", String(Number(row.dataset.rank) === rank));
   }
   const loc = state.query?.result?.locations.find((l) => l.rank === rank);
   if (loc && center) view.centerOn(loc.lat, loc.lon);
@@ -696,7 +695,9 @@ async function openApiLink(event) {
   if (!hasApiKey()) return;
   event.preventDefault();
   try {
-    window.open(await objectUrl(link.dataset.path), "_blank", "noopener");
+    const url = await objectUrl(link.dataset.path);
+    window.open(url, "_blank", "noopener");
+    setTimeout(() => URL.revokeObjectURL(url), 60_000); // the new tab has read it by then
   } catch (err) {
     reportError(err, link.textContent);
   }
