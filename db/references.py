@@ -103,6 +103,33 @@ def list_references(db: sqlite_utils.Database, map_id: int, *, status: str | Non
     return [_decode(row) for row in rows]
 
 
+def list_references_after(
+    db: sqlite_utils.Database, map_id: int, *, after_id: int = 0, limit: int = 100
+) -> list[dict[str, Any]]:
+    """One page of a map's references: up to ``limit`` with ids above ``after_id``, by id (keyset paging)."""
+    rows = db.query(
+        "SELECT * FROM reference_images WHERE map_id = ? AND id > ? ORDER BY id LIMIT ?", (map_id, after_id, limit)
+    )
+    return [_decode(row) for row in rows]
+
+
+def effective_status_counts(db: sqlite_utils.Database, map_id: int) -> dict[str, int]:
+    """Number of a map's references per reported status (:func:`effective_status`, from row and job)."""
+    rows = db.query(
+        "SELECT r.status AS status, r.error AS error, j.status AS job_status, j.attempts AS attempts,"
+        " j.error AS job_error FROM reference_images r LEFT JOIN jobs j ON j.id = r.job_id WHERE r.map_id = ?",
+        (map_id,),
+    )
+    counts = {"queued": 0, "processing": 0, "done": 0, "failed": 0}
+    for row in rows:
+        job = None
+        if row["job_status"] is not None:
+            job = {"status": row["job_status"], "attempts": row["attempts"], "error": row["job_error"]}
+        state, _ = effective_status(row, job)
+        counts[state] = counts.get(state, 0) + 1
+    return counts
+
+
 def update_reference_result(
     db: sqlite_utils.Database,
     reference_id: int,

@@ -142,9 +142,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodySizeLimit, limit_for_path=limit_for_path)
 
     from service import routes_maps, routes_queries, routes_references, routes_system
+    from service.routes_viewer import install_viewer
 
     app.include_router(routes_system.router)
     app.include_router(routes_maps.router)
     app.include_router(routes_references.router)
     app.include_router(routes_queries.router)
+    install_viewer(app)
     return app

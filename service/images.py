@@ -1,4 +1,4 @@
-"""Checking an uploaded photo by its content (Pillow) and reading its EXIF (``geoloc.exif``)."""
+"""Checking an uploaded photo by its content (Pillow) and reading its EXIF (``geoloc.exif``); serving a stored one."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from fastapi.responses import FileResponse
 from PIL import Image, UnidentifiedImageError
 
 from geoloc.exif import read_exif
@@ -90,3 +91,15 @@ def distance_outside_bbox_m(lat: float, lon: float, bbox: tuple[float, float, fl
     metres_per_deg_lat = 111_132.0
     metres_per_deg_lon = 111_320.0 * math.cos(math.radians(min(max(lat, min_lat), max_lat)))
     return math.hypot(d_lat * metres_per_deg_lat, d_lon * metres_per_deg_lon)
+
+
+STORED_MEDIA_TYPES = {".jpg": "image/jpeg", ".png": "image/png", ".webp": "image/webp", ".tif": "image/tiff"}
+"""Media type of a stored photo by the extension :data:`ACCEPTED_FORMATS` gave its file."""
+
+
+def stored_photo_response(path: Path) -> FileResponse:
+    """A stored photo as it was uploaded (EXIF included), or 404 when its file is gone."""
+    if not path.is_file():
+        raise ApiError(404, "not_found", "the stored photo file is missing")
+    media_type = STORED_MEDIA_TYPES.get(path.suffix.lower(), "application/octet-stream")
+    return FileResponse(path, media_type=media_type, headers={"Cache-Control": "private, max-age=3600"})

@@ -235,3 +235,29 @@ class QueryOut(BaseModel):
     result: QueryResult | None = None
     created_at: datetime | None = None
     updated_at: datetime | None = None
+
+
+class ReferenceList(BaseModel):
+    """One page of a map's references, oldest first, with the map's totals per status."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "map_id": 1,
+                    "references": [],
+                    "total": 60,
+                    "counts": {"queued": 12, "processing": 2, "done": 45, "failed": 1},
+                    "next_after_id": 100,
+                }
+            ]
+        }
+    )
+
+    map_id: int
+    references: list[ReferenceOut] = Field(description="Up to `limit` references with ids above `after_id`, by id")
+    total: int = Field(description="All references of the map")
+    counts: dict[str, int] = Field(description="All references of the map per status: queued, processing, done, failed")
+    next_after_id: int | None = Field(
+        description="Pass as `after_id` for the next page; null on the last page", examples=[100]
+    )

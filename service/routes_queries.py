@@ -13,7 +13,7 @@ from typing import Annotated, Any
 import numpy as np
 import sqlite_utils
 from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
-from fastapi.responses import JSONResponse
+from fastapi.responses import FileResponse, JSONResponse
 
 from db import jobs as job_store
 from db import queries as query_store
@@ -22,9 +22,10 @@ from service.auth import require_read, require_write
 from service.bounds import check_bounds, documented
 from service.deps import get_db, get_settings
 from service.errors import ApiError
-from service.images import distance_outside_bbox_m, validate_image
+from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
 from service.models import ErrorResponse, QueryOut, timestamp
 from service.routes_maps import require_map
+from service.routes_references import READ_ERRORS
 from service.settings import Settings
 from service.uploads import received_upload, remove_quietly
 
@@ -248,3 +249,19 @@ def delete_query(
     if deleted.get("image_path"):
         remove_quietly(settings.data_dir / deleted["image_path"])
     return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+@router.get(
+    "/v1/queries/{query_id}/image",
+    responses={200: {"content": {t: {} for t in STORED_MEDIA_TYPES.values()}}, **READ_ERRORS},
+    response_class=FileResponse,
+    dependencies=[Depends(require_read)],
+)
+def get_query_image(
+    query_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+) -> FileResponse:
+    """The query photo as uploaded (its stored bytes, with the media type of its format)."""
+    row, _ = _load(db, query_id)
+    if not row.get("image_path"):
+        raise ApiError(404, "not_found", f"query {query_id} has no stored photo")
+    return stored_photo_response(settings.data_dir / row["image_path"])

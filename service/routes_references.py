@@ -6,8 +6,8 @@ import logging
 from typing import Annotated, Any
 
 import sqlite_utils
-from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
-from fastapi.responses import JSONResponse
+from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile, status
+from fastapi.responses import FileResponse, JSONResponse
 
 from db import jobs as job_store
 from db import references as reference_store
@@ -16,8 +16,16 @@ from service.auth import require_read, require_write
 from service.bounds import check_bounds, documented
 from service.deps import get_db, get_settings
 from service.errors import ApiError
-from service.images import distance_outside_bbox_m, validate_image
-from service.models import ErrorResponse, EstimatedPose, Position, ReferenceAccepted, ReferenceOut, timestamp
+from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
+from service.models import (
+    ErrorResponse,
+    EstimatedPose,
+    Position,
+    ReferenceAccepted,
+    ReferenceList,
+    ReferenceOut,
+    timestamp,
+)
 from service.routes_maps import require_map
 from service.settings import Settings
 from service.uploads import received_upload, remove_quietly
@@ -25,6 +33,8 @@ from service.uploads import received_upload, remove_quietly
 log = logging.getLogger("geoloc.api")
 router = APIRouter(tags=["references"])
 _ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 413, 415, 422)}
+READ_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 422)}
+"""Errors of a read (no body to reject)."""
 
 
 def resolve_position(
@@ -232,3 +242,49 @@ def get_labels_png(
         raise ApiError(409, "not_ready", f"reference {reference_id} is not labelled yet (status {row['status']})")
     png = identity_overlay_png(settings.data_dir / row["image_path"], arrays)
     return Response(png, media_type="image/png")
+
+
+@router.get(
+    "/v1/maps/{map_id}/references",
+    response_model=ReferenceList,
+    responses=READ_ERRORS,
+    dependencies=[Depends(require_read)],
+)
+def list_map_references(
+    map_id: int,
+    after_id: Annotated[int, Query(ge=0, description="Return references with ids above this (paging cursor)")] = 0,
+    limit: Annotated[int, Query(ge=1, le=500, description="Most references in this page")] = 100,
+    db: sqlite_utils.Database = Depends(get_db),
+) -> ReferenceList:
+    """A map's references, oldest first, a page at a time (follow ``next_after_id``), each with its status and,
+    once labelled, its estimated pose; ``counts`` and ``total`` cover the whole map (ingestion progress)."""
+    require_map(db, map_id)
+    rows = reference_store.list_references_after(db, map_id, after_id=after_id, limit=limit + 1)
+    page = rows[:limit]
+    counts = reference_store.effective_status_counts(db, map_id)
+    return ReferenceList(
+        map_id=map_id,
+        references=[
+            reference_out(row, job_store.get_job(db, row["job_id"]) if row["job_id"] is not None else None)
+            for row in page
+        ],
+        total=sum(counts.values()),
+        counts=counts,
+        next_after_id=page[-1]["id"] if len(rows) > limit else None,
+    )
+
+
+@router.get(
+    "/v1/references/{reference_id}/image",
+    responses={200: {"content": {t: {} for t in STORED_MEDIA_TYPES.values()}}, **READ_ERRORS},
+    response_class=FileResponse,
+    dependencies=[Depends(require_read)],
+)
+def get_reference_image(
+    reference_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+) -> FileResponse:
+    """The reference photo as uploaded (its stored bytes, with the media type of its format)."""
+    row = reference_store.get_reference(db, reference_id)
+    if row is None:
+        raise ApiError(404, "not_found", f"reference {reference_id} not found")
+    return stored_photo_response(settings.data_dir / row["image_path"])
