@@ -149,56 +149,119 @@ def camvid(
 @app.command("world")
 def world(
     world_dir: Path = typer.Argument(..., help="A world folder written by `geoloc sim world`."),
-    json_out: Path | None = typer.Option(None, "--json", help="Write the full results here."),
-    segmentation: str = typer.Option("model", help="'model' (the network) or 'gt' (ground-truth labels)."),
-    localize_k: int = typer.Option(4, "--k", help="References whose identities drive localisation."),
-    max_queries: int | None = typer.Option(None, "--max-queries", help="Only the first N queries."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the full results (with per-query rows) here."),
+    runs: str | None = typer.Option(
+        None,
+        "--runs",
+        help="Comma-separated runs to do (default all): ours/gps, ours/none, gt_identities/gps, "
+        "gt_segmentation/gps, paper_identity/none, paper_geometry/none.",
+    ),
+    max_queries: int | None = typer.Option(None, "--max-queries", min=1, help="Only the first N queries."),
     quiet: bool = typer.Option(False, help="No per-image progress."),
 ) -> None:
-    """Ingest a simulated world's references (via EXIF), localise its queries, compare with the ground truth.
+    """Label a simulated world's references (via EXIF), answer its queries with the service's query stage.
 
-    Prints the paper's tables (reference and query identity accuracy, localisation error of the best of
-    the top N, with and without identities) and writes every figure to --json.
+    Prints reference labelling, the paper's Tables I/II, the raw-GPS baseline, and per run (prior, ablation)
+    the error at N = 1 for all queries, for those whose buildings some reference shows and per query kind,
+    the heading error, how often the uncertainty radius holds the truth, and Fig. 7 (best of top N).
     """
-    from geoloc.evaluation import evaluate_world
+    from geoloc.evaluation import default_runs, evaluate_world
+    from geoloc.query import QueryConfig
 
-    if segmentation not in ("model", "gt"):
-        raise typer.BadParameter("segmentation must be 'model' or 'gt'")
+    config = QueryConfig()
+    chosen = default_runs(config)
+    if runs:
+        names = [name.strip() for name in runs.split(",") if name.strip()]
+        unknown = sorted(set(names) - {run.name for run in chosen})
+        if unknown:
+            raise typer.BadParameter(f"unknown runs {unknown}", param_hint="--runs")
+        chosen = [run for run in chosen if run.name in names]
     started = time.perf_counter()
     result = evaluate_world(
         world_dir,
-        segmentation=segmentation,
-        localize_k=localize_k,
+        config=config,
+        runs=chosen,
         max_queries=max_queries,
         progress=None if quiet else (lambda msg: typer.echo(msg, err=True)),
     )
-    result["command"] = " ".join(sys.argv)
-    ref = result["reference_identity_accuracy"]
+    result["command"] = " ".join(["geoloc", *sys.argv[1:]])
+    print_world_summary(result, time.perf_counter() - started)
+    if json_out:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(result, indent=2, default=str) + "\n")
+        typer.echo(f"wrote {json_out}")
+
+
+def print_world_summary(result: dict[str, Any], seconds: float) -> None:
+    """The tables of ``geoloc eval world`` from its result dict."""
     typer.echo(
-        f"world {world_dir}: {result['references']} references, {result['queries']} queries, "
-        f"segmentation={segmentation}, {time.perf_counter() - started:.0f} s"
+        f"world {result['world']}: {result['references']} references, {result['queries']} queries "
+        f"{result['query_kinds']}, {result['shown_by_references']} shown by some reference; {seconds:.0f} s"
     )
-    typer.echo(
-        f"reference identity accuracy   greedy {ref['greedy']}   marginalized {ref['marginalized']}"
-        "   (paper: 0.7466 / 0.7627)"
-    )
+    for seg, labelling in result["reference_labelling"].items():
+        acc, heading, position = (
+            labelling["identity_accuracy"],
+            labelling["heading_error_deg"],
+            labelling["position_error_m"],
+        )
+        typer.echo(
+            f"references [{seg}]: identity accuracy greedy {acc['greedy']} / marginalised {acc['marginalized']} "
+            f"(paper 0.7466 / 0.7627); heading median {heading['median']} deg, within 5 deg "
+            f"{heading['within_5deg']}; position median {position['median_m']} m, within 5 m {position['within_5m']}"
+        )
     for source, paper in (("ours", "0.7363 / 0.7915 / 0.8177"), ("gt_reference_labels", "0.7543 / 0.8113 / 0.8254")):
         acc = result["query_identity_accuracy"][source]
         typer.echo(
-            f"query identity accuracy k=1/4/8 ({source}): {acc['1']} / {acc['4']} / {acc['8']}   (paper {paper})"
+            f"transfer identity accuracy k=1/4/8 ({source}): {acc['1']} / {acc['4']} / {acc['8']} (paper {paper})"
         )
-    heading = result["reference_heading_error_deg"]
-    typer.echo(f"reference heading error: median {heading['median']} deg, within 5 deg {heading['within_5deg']}")
-    for mode, block in result["localization"].items():
-        errors = " ".join(f"{block['top_n_error_m'][str(n)]['mean']:.1f}" for n in range(1, 11))
-        q = result["query_heading_error_deg"][mode]
-        typer.echo(f"{mode:14s} best-of-top-N error (m), N=1..10: {errors}")
+    gps = result["gps_baseline"]
+    typer.echo(
+        f"raw EXIF GPS of the queries: median {gps['median_m']} m, "
+        f"within 5 / 10 m {gps['within_5m']} / {gps['within_10m']}"
+    )
+    columns = ("w1m", "w5m", "w10m", "med m", "shown w5/10", "hd med", "hd<5", "r90 ok", "anch")
+    widths = (5, 5, 5, 6, 12, 6, 5, 6, 5)
+    header = f"{'run':22s} " + " ".join(f"{c:>{w}s}" for c, w in zip(columns, widths, strict=True))
+    typer.echo(header)
+    for name, run in result["runs"].items():
+        a, s = run["all"], run["shown"]
         typer.echo(
-            f"{'':14s} median {block['median_error_m_at_1']} m at N=1, recall 5 m {block['recall_5m_at_1']}, "
-            f"10 m {block['recall_10m_at_1']}; heading median {q['median']} deg"
+            f"{name:22s} {a['within_1m']:5.2f} {a['within_5m']:5.2f} {a['within_10m']:5.2f} {a['median_error_m']:6.1f} "
+            f"{s.get('within_5m', 0):5.2f}/{s.get('within_10m', 0):5.2f} {a['heading_median_deg']:6.1f} "
+            f"{a['heading_within_5deg']:5.2f} {run['uncertainty_radius_holds_truth']:6.2f} {run['anchored_share']:5.2f}"
+        )
+    for name, run in result["runs"].items():
+        errors = " ".join(f"{run['top_n_error_m'][str(n)]['mean']:.1f}" for n in range(1, 11))
+        typer.echo(f"{name:22s} best of top N = 1..10, mean error (m): {errors}")
+
+
+@app.command("photos")
+def photos(
+    photos_dir: Path = typer.Argument(..., help="Folder of geo-tagged photos (EXIF GPS)."),
+    map_path: Path = typer.Option(..., "--map", help="The map of the area (any format the service accepts)."),
+    truth_csv: Path | None = typer.Option(
+        None, "--truth", help="CSV with columns name, true_heading_deg (and heading_accuracy_deg) to compare with."
+    ),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the results here."),
+) -> None:
+    """Label real photos with their EXIF GPS on a map (as the service labels references); compare headings.
+
+    For each photo: the estimated compass heading and position, the buildings named, and with --truth the
+    heading error against the recorded compass heading.
+    """
+    from geoloc.evaluation import evaluate_photos
+
+    result = evaluate_photos(photos_dir, map_path, truth_csv)
+    result["command"] = " ".join(["geoloc", *sys.argv[1:]])
+    for row in result["photos"]:
+        error = "" if row.get("heading_error_deg") is None else f", error {row['heading_error_deg']:.1f} deg"
+        typer.echo(
+            f"{row['name']}: heading {row['heading_deg']:.1f} deg (compass {row.get('compass_heading_deg')}){error}; "
+            f"moved {row['moved_m']:.1f} m from GPS; buildings: {', '.join(row['buildings']) or '-'}"
         )
     if json_out:
-        json_out.write_text(json.dumps(result, indent=2))
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(result, indent=2) + "\n")
         typer.echo(f"wrote {json_out}")
 
 

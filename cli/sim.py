@@ -33,8 +33,13 @@ def world(
         20.0, "--query-gps-noise-m", help="Std (m, per axis) of query GPS noise; negative: no GPS in queries."
     ),
     size: str = typer.Option("640x480", "--size", help="Image size WIDTHxHEIGHT."),
-    hfov: float = typer.Option(60.0, "--hfov", min=10.0, max=120.0, help="Horizontal field of view (deg), "
-                               "rounded to an integer 35 mm-equivalent focal length."),
+    hfov: float = typer.Option(
+        60.0,
+        "--hfov",
+        min=10.0,
+        max=120.0,
+        help="Horizontal field of view (deg), rounded to an integer 35 mm-equivalent focal length.",
+    ),
     radius_m: float = typer.Option(220.0, "--radius-m", min=0.0, help="World disk radius (m); 0: whole map."),
     pitch_std_deg: float = typer.Option(1.0, "--pitch-std-deg", min=0.0, help="Camera pitch std (deg)."),
     roll_std_deg: float = typer.Option(0.3, "--roll-std-deg", min=0.0, help="Camera roll std (deg)."),
@@ -46,9 +51,17 @@ def world(
 
     width, height = _parse_size(size)
     opts = WorldOptions(
-        n_references=references, n_queries=queries, seed=seed, gps_noise_m=gps_noise_m,
-        query_gps_noise_m=query_gps_noise_m, width=width, height=height, hfov_deg=hfov, radius_m=radius_m,
-        pitch_std_deg=pitch_std_deg, roll_std_deg=roll_std_deg,
+        n_references=references,
+        n_queries=queries,
+        seed=seed,
+        gps_noise_m=gps_noise_m,
+        query_gps_noise_m=query_gps_noise_m,
+        width=width,
+        height=height,
+        hfov_deg=hfov,
+        radius_m=radius_m,
+        pitch_std_deg=pitch_std_deg,
+        roll_std_deg=roll_std_deg,
     )
     try:
         manifest = generate_world(map_path, out, opts, progress=lambda msg: typer.echo(msg, err=True))

@@ -75,7 +75,7 @@ def project(points_xyz: np.ndarray, pose: CameraPose, intrinsics: Intrinsics) ->
 
 def _residuals(
     params: np.ndarray,
-    rotation_tail: np.ndarray,
+    rotation_tail: np.ndarray | None,
     points: np.ndarray,
     pixels: np.ndarray,
     intrinsics: Intrinsics,
@@ -83,7 +83,8 @@ def _residuals(
 ) -> np.ndarray:
     pose = CameraPose(params[0], params[1], params[2], height_m, rotation_tail)
     projected, _ = project(points, pose, intrinsics)
-    return (projected - pixels).ravel()
+    residuals: np.ndarray = (projected - pixels).ravel()
+    return residuals
 
 
 def pose_covariance(

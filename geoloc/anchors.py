@@ -57,7 +57,8 @@ class CameraPose:
         forward = [np.sin(yaw), np.cos(yaw), 0.0]
         world_from_upright = np.column_stack([right, down, forward])
         upright = np.eye(3) if self.rotation_upright_from_cam is None else self.rotation_upright_from_cam
-        return world_from_upright @ upright
+        rotation: np.ndarray = world_from_upright @ upright
+        return rotation
 
 
 @dataclass
@@ -106,7 +107,8 @@ def pixel_rays(xy_px: np.ndarray, intrinsics: Intrinsics, pose: CameraPose) -> n
     )
     cam = np.column_stack([cam, np.ones(len(cam))])
     rays = cam @ pose.world_from_cam().T
-    return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    unit: np.ndarray = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    return unit
 
 
 def anchor_keypoints(

@@ -108,7 +108,8 @@ def evaluate_world(
     shown = {q.name: shown_by_references(world, q.name, reference_names) for q in queries}
 
     worlds: dict[str, _Labelled] = {}
-    for segmentation in sorted({run.segmentation for run in runs} | {"model"}):
+    segmentations = sorted({run.segmentation for run in runs}) or ["model"]
+    for segmentation in segmentations:
         worlds[segmentation] = _label_references(world, city, vocabulary, segmentation, say)
         worlds[segmentation].queries = {
             q.name: _analyze(q.path, world.gt(q.name)["labels"] if segmentation == "gt" else None) for q in queries
@@ -125,7 +126,10 @@ def evaluate_world(
         "reference_labelling": {seg: labelled.summary for seg, labelled in worlds.items()},
         "gps_baseline": _gps_baseline(world, city, queries),
     }
-    result.update(_transfer_tables(world, worlds["model"], vocabulary, config, queries, shown))
+    # Tables I/II with the network's labels when a run uses them (the service's case).
+    table_segmentation = "model" if "model" in worlds else segmentations[0]
+    result["tables_segmentation"] = table_segmentation
+    result.update(_transfer_tables(world, worlds[table_segmentation], vocabulary, config, queries, shown))
     result["runs"] = {}
     for run in runs:
         say(f"run {run.name}")
@@ -237,7 +241,7 @@ def _transfer_tables(
     for image in queries:
         photo, evidence = labelled.queries[image.name]
         truth = world.gt(image.name)["building_id"]
-        stored, matches = retrieve(evidence.features, labelled.store, vocabulary, config)
+        stored, matches = retrieve(evidence.features, labelled.store, vocabulary, config)  # the paper's: no prior
         gt_stored = labelled.gt_store.load(list(stored))
         best = shown[image.name]["references"]
         for k in KS:
@@ -462,4 +466,62 @@ def _distance_summary(errors: list[float]) -> dict[str, Any]:
         "median_m": round(float(np.median(arr)), 2),
         "within_5m": round(float(np.mean(arr <= 5.0)), 4),
         "within_10m": round(float(np.mean(arr <= 10.0)), 4),
+    }
+
+
+def evaluate_photos(
+    photos_dir: str | Path, map_path: str | Path, truth_csv: str | Path | None = None
+) -> dict[str, Any]:
+    """Label real geo-tagged photos on a map with their EXIF GPS (the service's reference labelling).
+
+    truth_csv: optional CSV with ``name`` and ``true_heading_deg`` columns (e.g. the phone's compass). Returns
+    per photo the estimated compass heading and position, how far labelling moved it from the GPS tag,
+    the buildings named, and the heading error against the truth.
+    """
+    import csv
+
+    from geoloc.osm import load_map
+
+    city = load_map(map_path)
+    truth: dict[str, dict[str, str]] = {}
+    if truth_csv is not None:
+        with open(truth_csv, newline="") as handle:
+            truth = {row["name"]: row for row in csv.DictReader(handle)}
+    rows = []
+    for path in sorted(Path(photos_dir).iterdir()):
+        if path.suffix.lower() not in (".jpg", ".jpeg", ".png"):
+            continue
+        photo = load_photo(path)
+        if photo.gps is None:
+            continue
+        gps_x, gps_y = (float(v) for v in city.frame.to_local(*photo.gps))
+        labelled = label_reference_photo(city, photo, (gps_x, gps_y))
+        label = labelled.label
+        heading = float(city.frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m)) % 360.0
+        lat, lon = (float(v) for v in city.frame.to_wgs84(label.x_m, label.y_m))
+        names = []
+        for entry in labelled.identity.building_extents():
+            building = city.buildings[entry["building_id"]]
+            names.append(building.name or building.osm_id)
+        row: dict[str, Any] = {
+            "name": path.name,
+            "heading_deg": round(heading, 2),
+            "lat": round(lat, 7),
+            "lon": round(lon, 7),
+            "moved_m": round(math.hypot(label.x_m - gps_x, label.y_m - gps_y), 2),
+            "buildings": names,
+            "vanishing_point_bins": label.vp_bins,
+        }
+        if path.name in truth:
+            compass = float(truth[path.name]["true_heading_deg"])
+            row["compass_heading_deg"] = compass
+            row["heading_error_deg"] = round(angle_error_deg(heading, compass), 2)
+        rows.append(row)
+    errors = [r["heading_error_deg"] for r in rows if "heading_error_deg" in r]
+    return {
+        "map": str(map_path),
+        "photos_dir": str(photos_dir),
+        "photos": rows,
+        "heading_within_10deg": _mean([float(e <= 10.0) for e in errors]),
+        "heading_error_median_deg": round(float(np.median(errors)), 2) if errors else None,
     }

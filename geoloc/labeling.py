@@ -172,7 +172,7 @@ def label_reference(
         )
         if score > best_score:
             best, best_score = refined, score
-    assert best is not None
+    assert best is not None  # distinct_modes always yields the strongest pose
 
     # Identities: greedy from the refined pose; marginalised over the grid poses of the chosen mode.
     column_ids = column_building_ids(panoramas, yaws, intrinsics, image_model.offsets_deg, image_model.bin_deg)
@@ -218,7 +218,8 @@ def distinct_modes(
     while len(modes) < n_modes:
         p_index, y_index = np.unravel_index(int(np.argmax(remaining)), remaining.shape)
         value = remaining[p_index, y_index]
-        if value <= 0 or (modes and value < MODE_MIN_RELATIVE_WEIGHT * top):
+        # The strongest pose is always a mode (even when nothing fits: the photo must get a pose).
+        if modes and (value <= 0 or value < MODE_MIN_RELATIVE_WEIGHT * top):
             break
         modes.append((int(p_index), int(y_index)))
         remaining[

@@ -232,6 +232,7 @@ def stored_reference(reference_id: Hashable, labelled: LabelledReference) -> Sto
         labelled.identity.building_ids,
         labelled.anchors,
         labelled.label.position_covariance,
+        np.array([labelled.label.x_m, labelled.label.y_m]),
     )
 
 

@@ -135,7 +135,9 @@ def refine_pose(
     best_yaw = float(yaws[best_y])
     if use_vanishing_points:
         # The facades seen from the refined position fix the yaw to a fraction of a degree.
-        vp_yaw, support = vanishing_point_yaw(city_map, image_model, *positions[best_p], best_yaw)
+        vp_yaw, support = vanishing_point_yaw(
+            city_map, image_model, float(positions[best_p, 0]), float(positions[best_p, 1]), best_yaw
+        )
         if support:
             best_yaw, vp_bins = vp_yaw, support
     by_position = weight.sum(axis=1)

@@ -31,7 +31,7 @@ import math
 import time
 from collections.abc import Hashable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -39,12 +39,14 @@ from geoloc.absolute_pose import PoseEstimate, estimate_pose_from_groups
 from geoloc.anchors import MapAnchors
 from geoloc.features import Features
 from geoloc.identity import IdentityMap
+from geoloc.image_model import ImageModel
 from geoloc.labeling import column_building_ids, identity_from_poses
 from geoloc.likelihood import known_building_heights, pose_likelihood
 from geoloc.localize import Localization, PositionPrior, localize
 from geoloc.osm import CityMap
 from geoloc.pipeline import Photo, PhotoEvidence, image_model_with_identity
 from geoloc.pose_refinement import refine_pose
+from geoloc.posterior import DEFAULT_SHARPNESS
 from geoloc.raycast import cast_panoramas
 from geoloc.retrieval import InvertedIndex, Vocabulary
 from geoloc.transfer import (
@@ -55,6 +57,8 @@ from geoloc.transfer import (
     transfer_identities,
 )
 
+PRIOR_SHORTLIST_FACTOR = 3
+"""With a position prior, this many times the shortlist is ranked before far references are left out."""
 CHI2_2D_90 = 4.605
 """90 % quantile of the chi-square distribution with 2 degrees of freedom (2D position regions)."""
 
@@ -63,16 +67,23 @@ CHI2_2D_90 = 4.605
 class QueryConfig:
     """Every knob of the query stage, recorded with each answer (``search.config``) and evaluation.
 
-    shortlist: SBoW candidates re-ranked by verified inliers. k: references whose identities are
-    transferred (the paper's k). anchor_references: references whose anchors feed the PnP.
-    use_identity: identity-aware likelihood (False: the paper's geometry-only baseline).
-    use_anchors: map-anchored PnP poses (False: the paper's likelihood alone).
-    cell_m, search_radius_m, n_yaws: the likelihood grid. refine_poses: likelihood poses refined
-    continuously. pnp_threshold_px, pnp_min_inliers: PnP RANSAC. min_likelihood_ratio: an anchored pose
-    is trusted only when the likelihood at it reaches this share of the grid's best. max_height_error_m,
-    max_pitch_deg: plausibility of an anchored pose. prior_sigmas: how far (in prior sigmas) an anchored
-    pose may lie from the position prior. anchor_sigma_floor_m: the least position uncertainty credited
-    to an anchoring reference.
+    Retrieval and transfer: ``shortlist`` SBoW candidates are re-ranked by verified inliers; the top ``k``
+    transfer their identities (the paper's k).
+    Likelihood: ``use_identity`` (False: the paper's geometry-only baseline), the grid ``cell_m`` x
+    ``n_yaws`` (over the prior's region, else within ``search_radius_m`` of the identified buildings), the
+    posterior ``likelihood ** sharpness x priors``, and ``refine_poses`` best poses refined continuously.
+    Anchors: ``use_anchors`` (False: the paper's likelihood alone); the query is matched (Lowe ratio
+    ``anchor_ratio``, looser than retrieval's: the PnP's RANSAC rejects outliers) to the
+    ``anchor_references`` best references; PnP inlier threshold ``pnp_threshold_px``.
+    With a position prior, references farther than ``prior_sigmas`` prior sigmas plus ``view_range_m``
+    from it are not retrieved.
+    Trust: at least ``pnp_min_inliers`` inliers; a camera ``max_height_error_m`` from hand height and
+    within ``max_pitch_deg`` of level; within ``prior_sigmas`` of the position prior; below
+    ``strong_inliers``, the likelihood at the pose must reach ``min_likelihood_ratio`` of the grid's best
+    (repeated facade elements let wrong references pass RANSAC with a few inliers).
+    Uncertainty: a likelihood pose's radius holds 90 % of the posterior tempered to
+    ``likelihood ** uncertainty_sharpness``; each anchoring reference is credited at least
+    ``anchor_sigma_floor_m``; a trusted pose is refined on the map when ``refine_anchored``.
     """
 
     shortlist: int = 20
@@ -84,15 +95,19 @@ class QueryConfig:
     search_radius_m: float = 80.0
     n_yaws: int = 120
     refine_poses: int = 3
+    sharpness: float = DEFAULT_SHARPNESS
+    uncertainty_sharpness: float = 1.0
     pnp_threshold_px: float = 4.0
-    pnp_min_inliers: int = 12
+    pnp_min_inliers: int = 20
     anchor_ratio: float = 0.9
     strong_inliers: int = 30
-    min_likelihood_ratio: float = 0.5
+    min_likelihood_ratio: float = 0.8
     max_height_error_m: float = 2.0
     max_pitch_deg: float = 20.0
     prior_sigmas: float = 3.0
+    view_range_m: float = 100.0
     anchor_sigma_floor_m: float = 1.0
+    refine_anchored: bool = True
 
     def as_dict(self) -> dict[str, float | int | bool]:
         """The configuration as a JSON-ready dict."""
@@ -105,7 +120,8 @@ class StoredReference:
 
     features: its local features; keypoint_prob: (N, M) identity probabilities over ``building_ids``;
     anchors: its keypoints' 3D points on the map (:mod:`geoloc.anchors`); position_covariance: (2, 2) m^2
-    uncertainty of its estimated position (the anchors inherit it).
+    uncertainty of its estimated position (the anchors inherit it); position_xy: (2,) its estimated
+    position (local metres; NaN when unknown).
     """
 
     reference_id: Hashable
@@ -114,6 +130,7 @@ class StoredReference:
     building_ids: np.ndarray
     anchors: MapAnchors
     position_covariance: np.ndarray
+    position_xy: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
 
 
 class ReferenceStore(Protocol):
@@ -160,10 +177,10 @@ class QueryAnswer:
     localization: Localization
     identity: IdentityMap
     transferred: IdentityMap
-    buildings: list[dict]
-    references: list[dict]
+    buildings: list[dict[str, Any]]
+    references: list[dict[str, Any]]
     anchored: PoseEstimate | None
-    search: dict
+    search: dict[str, Any]
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -188,7 +205,7 @@ def geolocate(
     """
     timings: dict[str, float] = dict(evidence.timings_ms)
     t0 = time.perf_counter()
-    stored, matches = retrieve(evidence.features, store, vocabulary, config)
+    stored, matches = retrieve(evidence.features, store, vocabulary, config, position_prior)
     timings["retrieval"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
@@ -198,7 +215,8 @@ def geolocate(
     timings["transfer"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
-    anchored, anchor_refs = None, []
+    anchored: PoseEstimate | None = None
+    anchor_refs: list[Hashable] = []
     if config.use_anchors:
         anchored, anchor_refs = anchored_pose(
             evidence.features, matches[: config.anchor_references], stored, photo, config
@@ -215,6 +233,7 @@ def geolocate(
         cell_m=config.cell_m,
         search_radius_m=config.search_radius_m,
         n_yaws=config.n_yaws,
+        sharpness=config.sharpness,
         top_n=top_n,
     )
     timings["localize"] = 1e3 * (time.perf_counter() - t0)
@@ -260,12 +279,33 @@ def geolocate(
 
 
 def retrieve(
-    features: Features, store: ReferenceStore, vocabulary: Vocabulary, config: QueryConfig
+    features: Features,
+    store: ReferenceStore,
+    vocabulary: Vocabulary,
+    config: QueryConfig,
+    position_prior: PositionPrior | None = None,
 ) -> tuple[dict[Hashable, StoredReference], list[ReferenceMatch]]:
-    """SBoW shortlist of ``config.shortlist`` references re-ranked by verified inliers (best first)."""
-    shortlist = store.shortlist(vocabulary.words(features.descriptors), config.shortlist)
-    stored = store.load([ref_id for ref_id, _ in shortlist])
-    candidates = [(ref_id, score, stored[ref_id].features) for ref_id, score in shortlist if ref_id in stored]
+    """SBoW shortlist of ``config.shortlist`` references re-ranked by verified inliers (best first).
+
+    With a position prior, references that stand too far from it to see what the query sees (beyond
+    ``prior_sigmas`` prior sigmas plus ``view_range_m``) are left out before the shortlist is cut: repeated
+    facade elements elsewhere in the city otherwise pass as matches.
+    """
+    words = vocabulary.words(features.descriptors)
+    wanted = config.shortlist * (PRIOR_SHORTLIST_FACTOR if position_prior is not None else 1)
+    ranked = store.shortlist(words, wanted)
+    stored = store.load([ref_id for ref_id, _ in ranked])
+    if position_prior is not None:
+        reach = config.prior_sigmas * position_prior.sigma_m + config.view_range_m
+        centre = np.array([position_prior.x_m, position_prior.y_m])
+        stored = {
+            ref_id: ref
+            for ref_id, ref in stored.items()
+            if not np.all(np.isfinite(ref.position_xy)) or np.hypot(*(ref.position_xy - centre)) <= reach
+        }
+    shortlist = [(ref_id, score) for ref_id, score in ranked if ref_id in stored][: config.shortlist]
+    stored = {ref_id: stored[ref_id] for ref_id, _ in shortlist}
+    candidates = [(ref_id, score, stored[ref_id].features) for ref_id, score in shortlist]
     return stored, rerank_by_inliers(features, candidates, len(candidates))
 
 
@@ -314,12 +354,12 @@ def _reference_evidence(ref: StoredReference, match: ReferenceMatch) -> Referenc
 
 
 def _likelihood_at(
-    city_map: CityMap, model: object, x_m: float, y_m: float, yaw_deg: float, use_identity: bool
+    city_map: CityMap, model: ImageModel, x_m: float, y_m: float, yaw_deg: float, use_identity: bool
 ) -> float:
-    panorama = cast_panoramas(city_map, np.array([[x_m, y_m]]), bearing_step_deg=model.bin_deg)  # type: ignore[attr-defined]
+    panorama = cast_panoramas(city_map, np.array([[x_m, y_m]]), bearing_step_deg=model.bin_deg)
     lik = pose_likelihood(
         panorama,
-        model,  # type: ignore[arg-type]
+        model,
         np.array([yaw_deg]),
         use_identity=use_identity,
         building_height_m=known_building_heights(city_map),
@@ -329,7 +369,7 @@ def _likelihood_at(
 
 def _trust_anchored(
     city_map: CityMap,
-    model: object,
+    model: ImageModel,
     anchored: PoseEstimate | None,
     localization: Localization,
     position_prior: PositionPrior | None,
@@ -364,7 +404,7 @@ def _trust_anchored(
 
 def _anchored_answer(
     city_map: CityMap,
-    model: object,
+    model: ImageModel,
     anchored: PoseEstimate,
     anchor_refs: list[Hashable],
     stored: dict[Hashable, StoredReference],
@@ -378,9 +418,13 @@ def _anchored_answer(
     total = anchor_cov + (pnp_cov if np.all(np.isfinite(pnp_cov)) else 0.0)
     sigma = math.sqrt(float(np.linalg.eigvalsh(total).max()))
     pose = anchored.pose
+    if not config.refine_anchored:
+        radius = math.sqrt(CHI2_2D_90) * sigma
+        lik = _likelihood_at(city_map, model, pose.x_m, pose.y_m, pose.yaw_deg, use_identity)
+        return AnswerPose(1, pose.x_m, pose.y_m, pose.yaw_deg % 360.0, 1.0, radius, "anchors", lik, anchored.n_inliers)
     refined = refine_pose(
         city_map,
-        model,  # type: ignore[arg-type]
+        model,
         pose.x_m,
         pose.y_m,
         pose.yaw_deg,
@@ -388,9 +432,9 @@ def _anchored_answer(
         prior_sigma_m=sigma,
         half_size_m=min(6.0, 2.0 * sigma),
         use_identity=use_identity,
+        sharpness=config.sharpness,
     )
-    covariance = np.linalg.inv(np.linalg.inv(total) + np.linalg.inv(refined.position_covariance))
-    radius = math.sqrt(CHI2_2D_90 * float(np.linalg.eigvalsh(covariance).max()))
+    radius = math.sqrt(CHI2_2D_90 * float(np.linalg.eigvalsh(refined.position_covariance).max()))
     return AnswerPose(
         1,
         refined.x_m,
@@ -406,23 +450,30 @@ def _anchored_answer(
 
 def _likelihood_answers(
     city_map: CityMap,
-    model: object,
+    model: ImageModel,
     localization: Localization,
     use_identity: bool,
     position_prior: PositionPrior | None,
     config: QueryConfig,
     already: list[AnswerPose],
 ) -> list[AnswerPose]:
-    """The likelihood's poses, the best ``refine_poses`` refined continuously, with 90 % radii."""
-    heat = localization.posterior.sum(axis=1)
+    """The likelihood's poses, the best ``refine_poses`` refined continuously, with 90 % radii.
+
+    The radius holds 90 % of a tempered posterior (likelihood ** ``uncertainty_sharpness`` x prior): the
+    sharpened posterior that ranks the poses is too sure of itself to say how far the truth may be.
+    """
     positions = localization.positions
-    answers = []
+    tempered = np.power(np.clip(localization.likelihood.astype(float), 0.0, None), config.uncertainty_sharpness)
+    heat = tempered.sum(axis=1)
+    if position_prior is not None:
+        heat = heat * position_prior.weights(positions)
+    answers: list[AnswerPose] = []
     for i, pose in enumerate(localization.poses):
         x, y, yaw, lik = pose.x_m, pose.y_m, pose.yaw_deg, float(pose.likelihood)
         if i < config.refine_poses:
             refined = refine_pose(
                 city_map,
-                model,  # type: ignore[arg-type]
+                model,
                 x,
                 y,
                 yaw,
@@ -430,6 +481,7 @@ def _likelihood_answers(
                 prior_sigma_m=None if position_prior is None else position_prior.sigma_m,
                 half_size_m=config.cell_m / 2.0 + 1.0,
                 use_identity=use_identity,
+                sharpness=config.sharpness,
             )
             x, y, yaw, lik = refined.x_m, refined.y_m, refined.yaw_deg, refined.likelihood
         radius = _mass_radius(positions, heat, np.array([x, y]), 0.9, config.cell_m)

@@ -56,8 +56,18 @@ class RankedLocation(_Answer):
     heading_deg: float = Field(
         description="Compass heading of the optical axis, deg clockwise from north", examples=[93.0]
     )
-    probability: float = Field(description="Probability of this position (summed over headings)", examples=[0.31])
-    pose_probability: float = Field(description="Probability of this exact position and heading", examples=[0.12])
+    probability: float = Field(description="Probability that this answer is the right one", examples=[0.8])
+    uncertainty_radius_m: float = Field(
+        description="Radius (m) of the region around this position that holds the true position with 90 % "
+        "probability (anchored answers: PnP and reference uncertainty; likelihood answers: the posterior's mass)",
+        examples=[4.2],
+    )
+    source: str = Field(
+        description="'anchors': PnP on reference keypoints anchored on the map's facades, refined on the map; "
+        "'likelihood': the map likelihood's probability map",
+        examples=["anchors"],
+    )
+    inliers: int = Field(description="PnP inliers of an anchored answer (0 for likelihood answers)", examples=[46])
 
 
 class Heatmap(_Answer):

@@ -224,7 +224,7 @@ def get_answer_geojson(query_id: int, db: sqlite_utils.Database = Depends(get_db
         {
             "type": "Feature",
             "geometry": {"type": "Point", "coordinates": [loc["lon"], loc["lat"]]},
-            "properties": {k: loc[k] for k in ("rank", "heading_deg", "probability", "pose_probability")},
+            "properties": {k: loc[k] for k in ("rank", "heading_deg", "probability", "uncertainty_radius_m", "source")},
         }
         for loc in result["locations"]
     ]

@@ -28,7 +28,9 @@ WELL_FORMED: dict[str, Any] = {
             "lon": 24.94,
             "heading_deg": 93.0,
             "probability": 0.5,
-            "pose_probability": 0.2,
+            "uncertainty_radius_m": 12.0,
+            "source": "likelihood",
+            "inliers": 0,
         }
     ],
     "heatmap": {

@@ -22,8 +22,18 @@ def _rgb(h: int = 48, w: int = 64) -> np.ndarray:
 
 @pytest.mark.parametrize(("lat", "lon"), [(60.1699123, 24.9384456), (-33.8688197, -151.2092955), (0.5, -0.25)])
 def test_round_trip(tmp_path: Path, lat: float, lon: float) -> None:
-    path = write_jpeg(tmp_path / "a.jpg", _rgb(), lat=lat, lon=lon, focal_35mm=31, focal_mm=4.43, altitude=-3.5,
-                      heading_deg=123.45, make="Acme", model="Phone 9")
+    path = write_jpeg(
+        tmp_path / "a.jpg",
+        _rgb(),
+        lat=lat,
+        lon=lon,
+        focal_35mm=31,
+        focal_mm=4.43,
+        altitude=-3.5,
+        heading_deg=123.45,
+        make="Acme",
+        model="Phone 9",
+    )
     info = read_exif(path)
     assert info.lat == pytest.approx(lat, abs=1e-9)
     assert info.lon == pytest.approx(lon, abs=1e-9)

@@ -6,6 +6,7 @@ from geoloc.image_model import ImageModel, bin_offsets_deg
 from geoloc.labeling import column_building_ids, label_reference
 from geoloc.likelihood import image_model_from_map
 from geoloc.localize import PositionPrior, localize
+from geoloc.pose_refinement import refine_pose, vanishing_point_yaw
 from geoloc.raycast import cast_panoramas
 
 from .scenes import street_canyon, twin_buildings
@@ -14,9 +15,9 @@ INTRINSICS = Intrinsics.from_hfov(640, 480, 60.0)
 OFFSETS = bin_offsets_deg(INTRINSICS)
 
 
-def _clean_model(city, xy, yaw, with_identity=False) -> tuple[ImageModel, np.ndarray]:
+def _clean_model(city, xy, yaw, with_identity=False, with_distance=False) -> tuple[ImageModel, np.ndarray]:
     pano = cast_panoramas(city, np.array([xy], dtype=float))
-    model = image_model_from_map(pano, 0, yaw, OFFSETS, with_identity=with_identity)
+    model = image_model_from_map(pano, 0, yaw, OFFSETS, with_identity=with_identity, with_distance=with_distance)
     truth = column_building_ids(pano, np.array([yaw]), INTRINSICS, OFFSETS, 0.5)[0, 0]
     return model, truth
 
@@ -70,12 +71,36 @@ def test_localize_with_identity_finds_the_right_twin() -> None:
     assert sorted(p.x_m for p in both.poses) == [-70.0, 130.0]
 
 
-def test_localize_uses_position_prior_and_refines() -> None:
+def test_localize_uses_position_prior_and_refinement_reaches_the_true_pose() -> None:
     city = twin_buildings()
-    model, _ = _clean_model(city, (130.0, 20.0), 240.0)
-    prior = PositionPrior(125.0, 15.0, 30.0)
-    found = localize(city, model, use_identity=False, position_prior=prior, refine_cell_m=2.5)
+    true_xy, true_yaw = (131.3, 21.7), 241.4  # off the 10 m grid and off the 3 deg yaws
+    model, _ = _clean_model(city, true_xy, true_yaw, with_distance=True)
+    prior = PositionPrior.from_radius(125.0, 15.0, 30.0)
+    found = localize(city, model, use_identity=False, position_prior=prior)
     assert found.search["region"] == "position_prior" and found.search["position_prior"]
-    assert found.search["refine_cell_m"] == 2.5
     best = found.poses[0]
-    assert np.hypot(best.x_m - 130.0, best.y_m - 20.0) < 7.5 and abs(best.yaw_deg - 240.0) <= 3.0
+    assert np.hypot(best.x_m - true_xy[0], best.y_m - true_xy[1]) < 7.5 and abs(best.yaw_deg - true_yaw) <= 3.0
+    refined = refine_pose(city, model, best.x_m, best.y_m, best.yaw_deg, half_size_m=6.0, cell_m=0.5)
+    # The perfect model's facade orientations fix the yaw, its distances and extents the position.
+    assert abs((refined.yaw_deg - true_yaw + 180) % 360 - 180) < 0.3
+    assert np.hypot(refined.x_m - true_xy[0], refined.y_m - true_xy[1]) < 1.0
+    assert refined.vp_bins > 20 and refined.likelihood > 0.9
+
+
+def test_vanishing_point_yaw_is_exact_given_the_facade_seen() -> None:
+    city = street_canyon()
+    true_yaw = 77.3  # looking at the east wall 12.7 deg from head-on
+    model, _ = _clean_model(city, (0.0, -2.5), true_yaw)
+    for start in (70.0, 84.0):  # a grid yaw off by up to 7 deg
+        yaw, support = vanishing_point_yaw(city, model, 0.0, -2.5, start)
+        assert support > 20 and abs(yaw - true_yaw) < 0.3
+    # Nothing in view that agrees: the yaw is left alone and no support is reported.
+    empty = ImageModel(OFFSETS, np.zeros(len(OFFSETS)), np.zeros(len(OFFSETS)))
+    assert vanishing_point_yaw(city, empty, 0.0, -2.5, 70.0) == (70.0, 0)
+
+
+def test_position_prior_radius_is_two_sigma() -> None:
+    prior = PositionPrior.from_radius(0.0, 0.0, 50.0)
+    assert prior.sigma_m == 25.0 and prior.radius_m == 50.0
+    weights = prior.weights(np.array([[0.0, 0.0], [25.0, 0.0]]))
+    assert weights[0] == 1.0 and weights[1] == pytest.approx(np.exp(-0.5))

@@ -6,6 +6,7 @@ from hypothesis import strategies as st
 from geoloc.camera import Intrinsics
 from geoloc.image_model import ImageModel, bin_offsets_deg
 from geoloc.likelihood import default_yaws_deg, image_model_from_map, pose_likelihood
+from geoloc.osm import city_map_from_footprints
 from geoloc.posterior import grid_around, pose_posterior, position_heatmap, top_poses
 from geoloc.raycast import cast_panoramas
 
@@ -129,3 +130,26 @@ def test_likelihood_in_unit_interval(seed: int, identity: bool, normalization: s
 
 
 _CANYON_PANO = cast_panoramas(street_canyon(), grid_around(street_canyon(), (0.0, 0.0), 40.0, 10.0).positions)
+
+
+def test_skyline_term_tells_distances_apart_where_the_base_is_hidden() -> None:
+    from geoloc.likelihood import known_building_heights
+
+    city = square_building()  # 15 m tall, height tagged
+    true_xy, near_xy = (0.0, -30.0), (0.0, -22.0)
+    pano = cast_panoramas(city, np.array([true_xy, near_xy]))
+    model = image_model_from_map(pano, 0, 0.0, OFFSETS, with_identity=False, with_distance=True)
+    # The image sees the roof line against the sky but not the base: tan(elevation) = rise / distance.
+    top = (15.0 - 1.6) / model.distance_m
+    seen = ImageModel(model.offsets_deg, model.facade_present, model.orientation_deg, top_tan_elevation=top)
+    heights = known_building_heights(city)
+    assert heights.tolist() == [15.0]
+    with_sky = pose_likelihood(pano, seen, np.array([0.0]), building_height_m=heights)[:, 0]
+    without = pose_likelihood(pano, seen, np.array([0.0]))[:, 0]
+    assert with_sky[0] == pytest.approx(1.0, abs=1e-5)
+    # 8 m nearer, the roof line would stand much higher than seen. (Seen higher than the map says is
+    # penalised less: a taller building behind may show above the one in front.)
+    assert with_sky[1] < 0.1 * without[1]
+    # A map with only default heights gives no height evidence, so the term stays silent.
+    untagged = city_map_from_footprints([np.array([[-10, -10], [10, -10], [10, 10], [-10, 10]], float)])
+    assert np.isnan(known_building_heights(untagged)).all()

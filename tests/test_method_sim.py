@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from geoloc.config import shared_path
-from geoloc.evaluation import KS, evaluate_world
+from geoloc.evaluation import KS, EvalRun, default_runs, evaluate_world
 from geoloc.pipeline import analyze_photo, label_reference_photo, load_photo
+from geoloc.query import QueryConfig
 from geoloc.retrieval import InvertedIndex, default_vocabulary
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from geoloc.transfer import rerank_by_inliers
@@ -84,15 +86,36 @@ def test_retrieval_finds_the_reference_sharing_most_building_area(world_dir: Pat
 
 
 def test_evaluation_writes_every_key(world_dir: Path) -> None:
-    result = evaluate_world(world_dir, segmentation="gt", max_queries=3)
-    assert set(result["reference_identity_accuracy"]) == {"greedy", "marginalized"}
-    for source in ("ours", "gt_reference_labels"):
+    config = QueryConfig()
+    runs = [run for run in default_runs(config) if run.name == "gt_segmentation/gps"]
+    runs.append(
+        EvalRun(
+            "paper_geometry/gps", "gps", "gt", "transferred", replace(config, use_anchors=False, use_identity=False)
+        )
+    )
+    result = evaluate_world(world_dir, config=config, runs=runs, max_queries=3)
+    assert result["tables_segmentation"] == "gt" and result["config"] == config.as_dict()
+    labelling = result["reference_labelling"]["gt"]
+    assert set(labelling["identity_accuracy"]) == {"greedy", "marginalized"}
+    assert labelling["heading_error_deg"]["n"] == 20 and labelling["timing_ms"]["labeling"] > 0
+    for source in ("ours", "gt_reference_labels", "ours_shown_queries"):
         assert set(result["query_identity_accuracy"][source]) == {str(k) for k in KS}
-    assert result["reference_heading_error_deg"]["n"] == 20
-    for mode in ("with_identity", "geometry_only"):
-        block = result["localization"][mode]
-        assert set(block["top_n_error_m"]) == {str(n) for n in range(1, 11)}
-        errors = [block["top_n_error_m"][str(n)]["mean"] for n in range(1, 11)]
+    assert result["gps_baseline"]["n"] == 3
+    assert set(result["runs"]) == {"gt_segmentation/gps", "paper_geometry/gps"}
+    for run in result["runs"].values():
+        assert run["all"]["n"] == 3 and len(run["per_query"]) == 3
+        errors = [run["top_n_error_m"][str(n)]["mean"] for n in range(1, 11)]
         assert errors == sorted(errors, reverse=True)  # best of more answers is never worse
-        assert 0.0 <= block["recall_5m_at_1"] <= block["recall_10m_at_1"] <= 1.0
-    assert result["timing_ms"]["reference_labeling"] > 0
+        assert 0.0 <= run["all"]["within_5m"] <= run["all"]["within_10m"] <= 1.0
+        row = run["per_query"][0]
+        assert {
+            "error_m",
+            "heading_error_deg",
+            "kind",
+            "shown",
+            "source",
+            "uncertainty_radius_m",
+            "identity_accuracy",
+        } <= set(row)
+    assert result["runs"]["paper_geometry/gps"]["anchored_share"] == 0.0  # the paper's method has no anchors
+    assert result["runs"]["paper_geometry/gps"]["config"]["use_identity"] is False

@@ -34,9 +34,14 @@ def _map(tmp_path: Path, boxes: list[tuple[list[tuple[float, float]], float]]) -
     for i, (ring, height) in enumerate(boxes):
         xy = np.array(ring)
         lat, lon = ORIGIN.to_wgs84(xy[:, 0], xy[:, 1])
-        features.append({"type": "Feature", "id": f"way/{i + 1}",
-                         "properties": {"building": "yes", "height": height, "name": f"B{i}"},
-                         "geometry": {"type": "Polygon", "coordinates": [np.column_stack([lon, lat]).tolist()]}})
+        features.append(
+            {
+                "type": "Feature",
+                "id": f"way/{i + 1}",
+                "properties": {"building": "yes", "height": height, "name": f"B{i}"},
+                "geometry": {"type": "Polygon", "coordinates": [np.column_stack([lon, lat]).tolist()]},
+            }
+        )
     path = tmp_path / "boxes.geojson"
     path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
     city = load_map(path)
@@ -70,18 +75,23 @@ def test_box_building_columns_and_heights(tmp_path: Path) -> None:
     assert np.all(r.labels[got >= 0] == labels.BUILDING)
     # Per-column ground truth: the front wall faces the camera head-on (theta 0) at 30 m.
     assert np.all(r.column_building_id[front] == 0)
-    np.testing.assert_allclose(r.column_distance_m[front] * np.cos(np.radians(INTR.column_angle_deg(xc[front]))),
-                               30.0, atol=1e-3)
+    np.testing.assert_allclose(
+        r.column_distance_m[front] * np.cos(np.radians(INTR.column_angle_deg(xc[front]))), 30.0, atol=1e-3
+    )
     np.testing.assert_allclose(r.column_theta_deg[front], 0.0, atol=1e-6)
     assert np.all(np.isnan(r.column_theta_deg[np.abs(xc - cx) > f * 20 / 50 + 1]))
     # Sky above the tall building, ground below the walls.
     assert np.all(r.labels[: int(top1) - 1, INTR.width // 2] == labels.SKY)
-    assert np.all(r.labels[int(bot0) + 2:, INTR.width // 2] == labels.ROAD)
+    assert np.all(r.labels[int(bot0) + 2 :, INTR.width // 2] == labels.ROAD)
 
 
 def test_building_ids_agree_with_cast_panoramas(tmp_path: Path) -> None:
-    boxes = [(_box(-30, 20, -5, 35), 10.0), (_box(0, 25, 20, 50), 18.0), (_box(25, 10, 45, 30), 14.0),
-             (_box(-15, 60, 40, 75), 30.0)]
+    boxes = [
+        (_box(-30, 20, -5, 35), 10.0),
+        (_box(0, 25, 20, 50), 18.0),
+        (_box(25, 10, 45, 30), 14.0),
+        (_box(-15, 60, 40, 75), 30.0),
+    ]
     city, o = _map(tmp_path, boxes)
     scene = Scene(city, seed=1)
     pos = o + np.array([3.0, -4.0])
@@ -165,10 +175,18 @@ def test_pitch_and_roll_are_a_rotation_homography(tmp_path: Path) -> None:
     k = INTR.matrix
     hmat = k @ rotation_matrix(3.0, 2.0) @ np.linalg.inv(k)
     shift = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1.0]])
-    warped = cv2.warpPerspective(upright.labels, shift @ hmat @ np.linalg.inv(shift), (INTR.width, INTR.height),
-                                 flags=cv2.INTER_NEAREST)
-    valid = cv2.warpPerspective(np.ones_like(upright.labels), shift @ hmat @ np.linalg.inv(shift),
-                                (INTR.width, INTR.height), flags=cv2.INTER_NEAREST) > 0
+    warped = cv2.warpPerspective(
+        upright.labels, shift @ hmat @ np.linalg.inv(shift), (INTR.width, INTR.height), flags=cv2.INTER_NEAREST
+    )
+    valid = (
+        cv2.warpPerspective(
+            np.ones_like(upright.labels),
+            shift @ hmat @ np.linalg.inv(shift),
+            (INTR.width, INTR.height),
+            flags=cv2.INTER_NEAREST,
+        )
+        > 0
+    )
     assert (warped[valid] == tilted.labels[valid]).mean() > 0.99
     # Horizon straight ahead: the upright centre maps below the centre row when looking up.
     p = hmat @ np.array([INTR.cx, INTR.cy, 1.0])

@@ -20,22 +20,24 @@ from db import references as reference_store
 from db import sbow, transaction
 from db.jobs import LOCALIZE_QUERY
 from geoloc.config import data_dir
-from geoloc.features import Features
+from geoloc.localize import PositionPrior
 from geoloc.osm import CityMap, load_map
-from geoloc.pipeline import Photo, geolocate_query, label_reference_photo, load_photo
-from geoloc.retrieval import Vocabulary, default_vocabulary, tfidf_scores
-from geoloc.transfer import ReferenceEvidence, rerank_by_inliers
+from geoloc.pipeline import Photo, analyze_photo, label_reference_photo, load_photo
+from geoloc.query import QueryAnswer, QueryConfig, geolocate
+from geoloc.retrieval import Vocabulary, default_vocabulary
 from workers.answers import checked_query_answer, checked_reference_labels
 from workers.handlers import LABEL_REFERENCE, PermanentJobError, register
-
-SHORTLIST = 20
-"""SBoW candidates re-ranked by geometrically verified inliers before the top k are used."""
+from workers.reference_store import DatabaseReferenceStore
 
 
 @lru_cache(maxsize=4)
 def _city_map(source_path: str, sha256: str) -> CityMap:
     """The map's CityMap, loaded once per worker process (keyed by file and checksum)."""
     return load_map(data_dir() / source_path)
+
+
+MAX_REPORTED_RADIUS_M = 100_000.0
+"""Uncertainty radii are capped here (an answer with no evidence at all has an infinite one)."""
 
 
 def city_map_for(db: sqlite_utils.Database, map_id: int) -> CityMap:
@@ -114,7 +116,14 @@ def label_reference(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[
         reference_store.save_keypoints(
             db,
             reference_id,
-            {**features.to_arrays(), "identity": labelled.keypoint_identity, "building_ids": identity.building_ids},
+            {
+                **features.to_arrays(),
+                "identity": labelled.keypoint_identity,
+                "building_ids": identity.building_ids,
+                **labelled.anchors.to_arrays(),
+                "position_covariance": label.position_covariance,
+                "position_xy": np.array([label.x_m, label.y_m]),
+            },
         )
         sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
         reference_store.update_reference_result(
@@ -149,22 +158,9 @@ def _describe_buildings(city: CityMap, extents: list[dict], column_scale: float)
     return out
 
 
-def retrieve_references(db: sqlite_utils.Database, map_id: int, words: np.ndarray, k: int) -> list[tuple[int, float]]:
-    """Top-k labelled references of a map for a query's visual words: [(reference_id, score)]."""
-    postings = sbow.postings_for_words(db, map_id, words)
-    if postings.n_docs == 0 or len(postings.reference_ids) == 0:
-        return []
-    scores = tfidf_scores(words, postings.word, postings.doc, postings.count, postings.doc_lengths, postings.n_docs)
-    order = np.argsort(-scores, kind="stable")[:k]
-    return [(int(postings.reference_ids[i]), float(scores[i])) for i in order if scores[i] > 0]
-
-
 @register(LOCALIZE_QUERY)
 def localize_query(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[str, Any]:
-    """Answer a query: retrieval, identity transfer, localisation; store the JSON answer."""
-    from geoloc.localize import PositionPrior
-    from geoloc.pipeline import analyze_photo
-
+    """Answer a query with the query stage (:func:`geoloc.query.geolocate`); store the JSON answer."""
     query_id, map_id = int(payload["query_id"]), int(payload["map_id"])
     query = query_store.get_query(db, query_id)
     if query is None:
@@ -175,38 +171,20 @@ def localize_query(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[s
     t0 = time.perf_counter()
     photo = _stored_photo(query["image_path"], params.get("focal_length_35mm"))
     evidence = analyze_photo(photo)
-    vocabulary = vocabulary_for(db, map_id)
-    t_retrieval = time.perf_counter()
-    shortlist = retrieve_references(db, map_id, vocabulary.words(evidence.features.descriptors), SHORTLIST)
-    stored = {ref_id: reference_store.load_keypoints(db, ref_id) for ref_id, _ in shortlist}
-    stored = {ref_id: arrays for ref_id, arrays in stored.items() if arrays is not None}
-    features = {ref_id: Features.from_arrays(arrays) for ref_id, arrays in stored.items()}
-    candidates = [(ref_id, score, features[ref_id]) for ref_id, score in shortlist if ref_id in features]
-    references = [
-        ReferenceEvidence(
-            reference_id=match.reference_id,
-            features=features[match.reference_id],
-            keypoint_prob=stored[match.reference_id]["identity"],
-            building_ids=stored[match.reference_id]["building_ids"],
-            score=match.score,
-            match=match,
-        )
-        for match in rerank_by_inliers(evidence.features, candidates, int(params["k"]))
-    ]
-    retrieval_ms = 1e3 * (time.perf_counter() - t_retrieval)
-
     position_prior = prior_yaw = None
     prior = params.get("prior")
     if prior:
         x, y = (float(v) for v in frame.to_local(prior["lat"], prior["lon"]))
-        position_prior = PositionPrior(x, y, float(prior["radius_m"]))
+        position_prior = PositionPrior.from_radius(x, y, float(prior["radius_m"]))
     if params.get("prior_heading_deg") is not None:
         prior_yaw = float(frame.heading_to_bearing(params["prior_heading_deg"]))
-    answer = geolocate_query(
+    answer = geolocate(
         city,
         photo,
-        references,
-        evidence=evidence,
+        evidence,
+        DatabaseReferenceStore(db, map_id),
+        vocabulary_for(db, map_id),
+        QueryConfig(k=int(params["k"])),
         position_prior=position_prior,
         prior_yaw_deg=prior_yaw,
         top_n=int(params["top_n"]),
@@ -214,7 +192,6 @@ def localize_query(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[s
     result = _query_result(city, photo, answer)
     result["timings_ms"] = {
         **{k: round(v, 1) for k, v in answer.timings_ms.items()},
-        "retrieval": round(retrieval_ms, 1),
         "total": round(1e3 * (time.perf_counter() - t0), 1),
     }
     result = checked_query_answer(result)
@@ -224,14 +201,14 @@ def localize_query(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[s
     return {"query_id": query_id, "locations": len(result["locations"])}
 
 
-def _query_result(city: CityMap, photo: Any, answer: Any) -> dict[str, Any]:
-    """The JSON answer (WGS84 and compass headings) of a :class:`geoloc.pipeline.QueryAnswer`."""
+def _query_result(city: CityMap, photo: Photo, answer: QueryAnswer) -> dict[str, Any]:
+    """The JSON answer (WGS84 and compass headings) of a :class:`geoloc.query.QueryAnswer`."""
     frame = city.frame
     loc = answer.localization
     locations = []
-    for pose in loc.poses:
+    for pose in answer.poses:
         lat, lon = (float(v) for v in frame.to_wgs84(pose.x_m, pose.y_m))
-        heading = float(frame.bearing_to_heading(pose.yaw_deg, pose.x_m, pose.y_m))
+        heading = float(frame.bearing_to_heading(pose.yaw_deg, pose.x_m, pose.y_m)) % 360.0
         locations.append(
             {
                 "rank": pose.rank,
@@ -239,7 +216,9 @@ def _query_result(city: CityMap, photo: Any, answer: Any) -> dict[str, Any]:
                 "lon": round(lon, 7),
                 "heading_deg": round(heading, 2),
                 "probability": round(pose.probability, 6),
-                "pose_probability": round(pose.pose_probability, 6),
+                "uncertainty_radius_m": round(min(pose.uncertainty_radius_m, MAX_REPORTED_RADIUS_M), 1),
+                "source": pose.source,
+                "inliers": int(pose.inliers),
             }
         )
     grid = loc.grid
@@ -265,7 +244,7 @@ def _query_result(city: CityMap, photo: Any, answer: Any) -> dict[str, Any]:
         "heatmap": heatmap,
         "buildings": _describe_buildings(city, answer.buildings, scale),
         "references": [{k: r[k] for k in ("reference_id", "score", "matches", "inliers")} for r in answer.references],
-        "search": loc.search,
+        "search": answer.search,
         "camera": {
             "hfov_deg": round(photo.intrinsics.hfov_deg, 2),
             "focal_source": photo.intrinsics.source,

@@ -1,0 +1,70 @@
+"""The query stage sees the same references whether they come from the database or from memory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from db import connect, migrate, sbow, transaction
+from db import references as reference_store
+from geoloc.anchors import MapAnchors
+from geoloc.features import Features
+from geoloc.query import InMemoryReferenceStore, StoredReference
+from geoloc.retrieval import Vocabulary
+from workers.reference_store import DatabaseReferenceStore
+
+from .test_db import add_map, add_reference
+
+
+def _reference(rng: np.random.Generator, reference_id: int, n: int = 50) -> StoredReference:
+    descriptors = rng.random((n, 128)).astype(np.float32)
+    descriptors /= np.linalg.norm(descriptors, axis=1, keepdims=True)
+    features = Features(rng.random((n, 2)) * 600, descriptors, np.ones(n), np.zeros(n), np.ones(n), (480, 640))
+    anchors = MapAnchors(rng.random((n, 3)) * 20, rng.integers(-1, 30, n), rng.integers(-1, 5, n), rng.random(n) * 30)
+    identity = rng.random((n, 2)).astype(np.float32)
+    position = rng.random(2) * 100
+    return StoredReference(reference_id, features, identity, np.array([3, 4]), anchors, np.diag([4.0, 9.0]), position)
+
+
+def test_database_and_memory_stores_rank_and_load_alike(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    db = connect(tmp_path / "geoloc.sqlite3")
+    migrate(db)
+    map_id = add_map(db)
+    # A small vocabulary, so that references share words and ranks depend on counts and idf.
+    vocabulary = Vocabulary(rng.random((40, 128)).astype(np.float32))
+    memory = InMemoryReferenceStore(vocabulary)
+    for i in range(25):
+        reference_id = add_reference(db, map_id, f"{i:064d}")
+        ref = _reference(rng, reference_id, n=int(rng.integers(20, 80)))
+        words = vocabulary.words(ref.features.descriptors)
+        with transaction(db):
+            reference_store.save_keypoints(
+                db,
+                reference_id,
+                {
+                    **ref.features.to_arrays(),
+                    "identity": ref.keypoint_prob,
+                    "building_ids": ref.building_ids,
+                    **ref.anchors.to_arrays(),
+                    "position_covariance": ref.position_covariance,
+                    "position_xy": ref.position_xy,
+                },
+            )
+            sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
+        memory.add(ref)
+    database = DatabaseReferenceStore(db, map_id)
+    for _ in range(10):
+        query_words = vocabulary.words(_reference(rng, 0, n=60).features.descriptors)
+        from_db, from_memory = database.shortlist(query_words, 8), memory.shortlist(query_words, 8)
+        assert [r for r, _ in from_db] == [r for r, _ in from_memory]
+        assert np.allclose([s for _, s in from_db], [s for _, s in from_memory])
+    loaded = database.load([from_db[0][0], 999_999])
+    assert list(loaded) == [from_db[0][0]]  # an unknown id is left out
+    stored, kept = loaded[from_db[0][0]], memory.references[from_db[0][0]]
+    assert np.allclose(stored.features.descriptors, kept.features.descriptors, atol=1e-3)  # float16 on disk
+    assert np.array_equal(stored.anchors.valid, kept.anchors.valid)
+    assert np.allclose(stored.anchors.xyz[kept.anchors.valid], kept.anchors.xyz[kept.anchors.valid], atol=1e-4)
+    assert np.array_equal(stored.position_covariance, kept.position_covariance)
+    assert np.array_equal(stored.position_xy, kept.position_xy)
