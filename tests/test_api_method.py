@@ -92,6 +92,10 @@ def test_ingest_label_and_query_through_the_api(tmp_path: Path, built_models: Pa
             assert answer["status"] == "done", answer
             result = answer["result"]
             assert result["search"]["position_prior"] and len(result["locations"]) == 10
+            # Continuous poses with an honest-looking 90 % radius, and the stage's configuration recorded.
+            assert all(loc["source"] in ("anchors", "likelihood") for loc in result["locations"])
+            assert all(0.0 < loc["uncertainty_radius_m"] < 1000.0 for loc in result["locations"])
+            assert result["search"]["config"]["k"] == 4 and "anchors" in result["search"]
             heat = np.array(result["heatmap"]["values"])
             assert list(heat.shape) == result["heatmap"]["shape"] and heat.sum() == pytest.approx(1.0, abs=1e-3)
             # Identities come from references: judge the buildings (over 5 % of the photo) that one shows.
