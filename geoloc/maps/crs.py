@@ -27,6 +27,7 @@ from geoloc.maps.model import MapLoadError
 MAX_MAP_EXTENT_KM = 300.0
 """Widest accepted map (bounding box diagonal of its buildings)."""
 WGS84 = CRS.from_epsg(4326)
+NO_CRS = "none declared (read as WGS84 lon/lat)"
 _WEB_MERCATOR_LIMIT_M = 20_037_508.35
 _FIX = (
     "Fix: reproject the file to WGS84 (e.g. `ogr2ogr -t_srs EPSG:4326 out.gpkg in.gpkg`), make the file "
@@ -61,7 +62,7 @@ def to_lonlat(xy: np.ndarray, owner: np.ndarray, crs: CRS | None, what: str) -> 
     the source CRS). Raises :class:`MapLoadError` when the result cannot be lon/lat of one place.
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-    label = crs_label(crs) if crs is not None else "none declared, read as WGS84 lon/lat (RFC 7946)"
+    label = crs_label(crs) if crs is not None else NO_CRS
     geographic = crs is None or crs.is_geographic
     if not np.isfinite(xy).all():
         raise MapLoadError(f"{what}: coordinates include NaN or infinite values", code="invalid_coordinates")
@@ -138,8 +139,9 @@ def _not_lonlat_error(xy: np.ndarray, owner: np.ndarray, bad: np.ndarray, label:
     if len(np.setdiff1d(np.unique(owner), owner[bad])):  # some features are fine: a mix, not a wrong CRS
         return _mixed_error(owner, ~bad, label, what)
     phrase, details = guess_crs(xy)
+    why = "the file declares no CRS" if label == NO_CRS else f"the CRS is {label}"
     return MapLoadError(
-        f"{what}: coordinates are read as WGS84 longitude/latitude (CRS: {label}) but x spans "
+        f"{what}: coordinates are read as WGS84 longitude/latitude ({why}) but x spans "
         f"{_span(xy[:, 0])} and y {_span(xy[:, 1])}, which cannot be degrees: they look like {phrase}. {_FIX}",
         code="crs_not_lonlat",
         details={"crs": label, **_ranges(xy), **details},

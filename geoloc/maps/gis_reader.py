@@ -13,6 +13,7 @@ lon/lat by :func:`geoloc.maps.crs.to_lonlat`.
 
 from __future__ import annotations
 
+import gzip
 import math
 import warnings
 from dataclasses import dataclass
@@ -33,6 +34,7 @@ from geoloc.maps.sniff import FORMAT_NAMES, check_compressed_stream, zip_member_
 
 _ID_ATTRIBUTES = ("@id", "osm_id", "id")
 _EXTRA_ATTRIBUTES = ("building", "addr:street", "addr:housenumber", "amenity")
+_CRS_LOOKAHEAD_BYTES = 1 << 16
 _SINGLE_LAYER_FORMATS = ("geojson", "geojson.gz", "fgb")
 _POLYGON_TYPES = (shapely.GeometryType.POLYGON, shapely.GeometryType.MULTIPOLYGON)
 
@@ -91,7 +93,7 @@ def list_layers(path: Path, kind: str) -> list[Layer]:
     gdal_path = f"/vsigzip/{path.resolve()}" if kind.endswith(".gz") else str(path)
     layers = [Layer(str(name), kind_, gdal_path, str(name)) for name, kind_ in pyogrio.list_layers(gdal_path)]
     for layer in layers:
-        if kind in _SINGLE_LAYER_FORMATS and layer.name == path.stem:
+        if kind in _SINGLE_LAYER_FORMATS and layer.name in (path.stem, path.name.split(".")[0]):
             layer.name = ""  # GDAL named it after the file: the file itself names no layer
     return layers
 
@@ -166,7 +168,8 @@ def _read_layer(path: Path, kind: str, layer: Layer, options: MapReadOptions) ->
         )
     geoms = geoms[index]
 
-    crs = _layer_crs(meta.get("crs"), options, what)
+    declared = meta.get("crs") if not kind.startswith("geojson") or _geojson_declares_crs(path, kind) else None
+    crs = _layer_crs(declared, options, what)
     coords, owner = shapely.get_coordinates(geoms, return_index=True)
     lonlat, report.crs = to_lonlat(coords, owner, crs, what)
     raw = RawMap(kind, report)
@@ -237,6 +240,14 @@ def _layer_crs(declared: str | None, options: MapReadOptions, what: str) -> CRS 
             f"{what}: the file declares a CRS that cannot be read ({exc}); name it with the form field crs",
             code="invalid_crs",
         ) from exc
+
+
+def _geojson_declares_crs(path: Path, kind: str) -> bool:
+    """Whether a GeoJSON file has a (legacy) ``crs`` member near its start, where writers put it.
+    GDAL reports EPSG:4326 either way; this tells "declared" from "RFC 7946 default" for messages."""
+    opener = gzip.open if kind.endswith(".gz") else open
+    with opener(path, "rb") as f:
+        return b'"crs"' in f.read(_CRS_LOOKAHEAD_BYTES)
 
 
 def _text(value: Any) -> str | None:
