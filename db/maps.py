@@ -5,7 +5,7 @@ reload the full :class:`geoloc.osm.CityMap`), checksum, the options it was read 
 (``read_options``, JSON of :meth:`geoloc.maps.MapReadOptions.as_dict`; a file read with other
 options is another map), WGS84 bounding box, the local frame's origin, counts and the loader's
 repair report. Buildings are rows (footprint as WGS84 GeoJSON text for the API and local-frame WKB
-for the method). Facades are one compressed npz blob per map with the arrays of
+for the method). Facades are one (uncompressed) npz blob per map with the arrays of
 :class:`geoloc.osm.Facades` (start, end, normal, normal_bearing_deg, length_m, building_id).
 """
 
@@ -156,7 +156,7 @@ def insert_map(
     )
     db.execute(
         "INSERT INTO facades (map_id, facade_count, arrays_npz) VALUES (?, ?, ?)",
-        (map_id, facade_count, pack_arrays(content.facade_arrays)),
+        (map_id, facade_count, pack_arrays(content.facade_arrays, compress=False)),
     )
     return map_id
 

@@ -7,7 +7,7 @@ so concurrent starters (API and workers) cannot apply the same migration twice.
 Storage decisions (see also the module docstrings of the access modules):
 
 - ``reference_images`` is the table for references (``references`` is an SQL keyword).
-- Facades are stored as one compressed ``numpy.savez_compressed`` blob per map (``facades``),
+- Facades are stored as one ``.npz`` blob per map (``facades``, uncompressed: floats hardly compress),
   not as rows: the method always needs all facades of a map at once, as arrays.
 - Labels, keypoints and the vocabulary are blobs (``.npz``); the inverted index is a real table
   ``sbow_postings(map_id, word_id, reference_id, weight)`` whose rows cascade from the

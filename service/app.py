@@ -118,8 +118,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version="1",
         summary="Map-based visual geolocation: where was this photo taken, and which way did it look?",
         description=(
-            "Upload a map (OpenStreetMap or GeoJSON buildings), ingest geo-tagged reference photos, "
-            "then query photos for their position, heading and the buildings they show. "
+            "Upload a map (OpenStreetMap, GeoJSON, GeoPackage, FlatGeobuf or Shapefile buildings), "
+            "ingest geo-tagged reference photos, then query photos for their position, heading and the buildings "
+            "they show. "
             'Errors always have the body `{"error": {"code", "message", "details"}}`.'
         ),
         lifespan=lifespan,

@@ -31,8 +31,8 @@ NO_CRS = "none declared (read as WGS84 lon/lat)"
 _WEB_MERCATOR_LIMIT_M = 20_037_508.35
 _FIX = (
     "Fix: reproject the file to WGS84 (e.g. `ogr2ogr -t_srs EPSG:4326 out.gpkg in.gpkg`), make the file "
-    "declare its CRS, or upload it again with the form field crs naming the CRS of its coordinates "
-    "(e.g. crs=EPSG:3857)."
+    "declare its CRS, or name the CRS of its coordinates with the crs option (form field crs=EPSG:3857, "
+    "geoloc map info --crs EPSG:3857)."
 )
 
 

@@ -130,8 +130,8 @@ def choose_layer(layers: list[Layer], wanted: str | None, file_name: str) -> Lay
     if len(candidates) > 1:
         names = ", ".join(repr(layer.name) for layer in candidates)
         raise MapLoadError(
-            f"{file_name}: {len(candidates)} polygon layers ({names}); choose one with the form field layer "
-            "(the layer option)",
+            f"{file_name}: {len(candidates)} polygon layers ({names}); choose one with the layer option "
+            "(form field layer, geoloc map info --layer)",
             code="layer_required",
             details=details,
         )
