@@ -60,6 +60,7 @@ def write_tiled_osm(source: Path, target: Path, tiles_per_side: int, gap_m: floa
     """Write ``tiles_per_side``^2 copies of every object of ``source`` to ``target`` (.osm.pbf); the
     original tile keeps its coordinates and ids. Returns the number of tiles."""
     nodes, ways, relations = [], [], []
+    obj: Any  # pyosmium's objects (typed as a union of all kinds)
     for obj in osmium.FileProcessor(str(source)):
         if obj.is_node():
             nodes.append((obj.id, obj.location.lon, obj.location.lat, dict(obj.tags)))
@@ -109,7 +110,8 @@ def load_in_fresh_process(path: Path, function: str = "load_map") -> dict[str, A
         "resource.RUSAGE_SELF).ru_maxrss / 1024, 1), 'buildings': len(m.buildings), 'facades': len(m.facades)}))\n"
     )
     out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    figures: dict[str, Any] = json.loads(out.stdout.strip().splitlines()[-1])
+    return figures
 
 
 # --- the service --------------------------------------------------------------------------------

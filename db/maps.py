@@ -137,6 +137,7 @@ def insert_map(
             time.time(),
         ),
     )
+    assert cursor.lastrowid is not None
     map_id = int(cursor.lastrowid)
     db.conn.executemany(
         "INSERT INTO buildings (map_id, building_id, osm_id, name, height_m, footprint_geojson,"

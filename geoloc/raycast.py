@@ -114,10 +114,10 @@ def cast_panoramas(
         if len(near):
             _cast_tile(positions, members, facades, near, n_bearings, max_range_m, best)
 
-    best = best.reshape(n_pos, n_bearings)
-    hit = best != np.iinfo(np.int64).max
-    facade_id = np.where(hit, best & ((1 << _FACADE_BITS) - 1), -1).astype(np.int32)
-    distance = np.where(hit, (best >> _FACADE_BITS) / _DIST_SCALE, np.inf).astype(np.float32)
+    nearest = best.reshape(n_pos, n_bearings)
+    hit = nearest != np.iinfo(np.int64).max
+    facade_id = np.where(hit, nearest & ((1 << _FACADE_BITS) - 1), -1).astype(np.int32)
+    distance = np.where(hit, (nearest >> _FACADE_BITS) / _DIST_SCALE, np.inf).astype(np.float32)
     safe = np.maximum(facade_id, 0)
     building_id = np.where(hit, facades.building_id[safe], -1).astype(np.int32)
     # Wrap after the cast: 359.99999999 would otherwise become 360.0 in float32.
@@ -241,4 +241,4 @@ def cast_all_hits(
 
 def _cross(r: np.ndarray, p: np.ndarray) -> np.ndarray:
     """z of the 2D cross product of vector ``r`` (2,) with each row of ``p`` (N, 2)."""
-    return r[0] * p[:, 1] - r[1] * p[:, 0]
+    return np.asarray(r[0] * p[:, 1] - r[1] * p[:, 0])

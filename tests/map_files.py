@@ -64,13 +64,13 @@ def helsinki_wgs84(city: CityMap) -> np.ndarray:
         lat, lon = city.frame.to_wgs84(xy[:, 0], xy[:, 1])
         return np.column_stack([lon, lat])
 
-    return shapely.transform(city.footprints, to_lonlat)
+    return np.asarray(shapely.transform(city.footprints, to_lonlat))
 
 
 def reproject(geoms: np.ndarray, crs: str) -> np.ndarray:
     """Lon/lat geometries to ``crs`` (x = easting)."""
     transformer = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
-    return shapely.transform(geoms, lambda xy: np.column_stack(transformer.transform(xy[:, 0], xy[:, 1])))
+    return np.asarray(shapely.transform(geoms, lambda xy: np.column_stack(transformer.transform(xy[:, 0], xy[:, 1]))))
 
 
 def _attributes(city: CityMap, levels: str = "building:levels") -> dict[str, np.ndarray]:

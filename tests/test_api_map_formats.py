@@ -164,7 +164,8 @@ def _wait_labelled(client: httpx.Client, reference_ids: list[int]) -> list[dict[
         rows = [client.get(f"/v1/references/{rid}").json() for rid in reference_ids]
         return rows if all(r["status"] in ("done", "failed") for r in rows) else None
 
-    return wait_for(finished, timeout=600, interval=1.0, what="references to be labelled")
+    rows: list[dict[str, Any]] = wait_for(finished, timeout=600, interval=1.0, what="references to be labelled")
+    return rows
 
 
 def test_worker_labels_a_reference_on_a_geopackage_map(

@@ -63,10 +63,9 @@ def to_lonlat(xy: np.ndarray, owner: np.ndarray, crs: CRS | None, what: str) -> 
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     label = crs_label(crs) if crs is not None else NO_CRS
-    geographic = crs is None or crs.is_geographic
     if not np.isfinite(xy).all():
         raise MapLoadError(f"{what}: coordinates include NaN or infinite values", code="invalid_coordinates")
-    if geographic:
+    if crs is None or crs.is_geographic:
         bad = _not_lonlat(xy)
         if bad.any():
             raise _not_lonlat_error(xy, owner, bad, label, what)
@@ -89,7 +88,7 @@ def _is_crs84(crs: CRS) -> bool:
 
 
 def _not_lonlat(xy: np.ndarray) -> np.ndarray:
-    return (np.abs(xy[:, 0]) > 180.0) | (np.abs(xy[:, 1]) > 90.0)
+    return np.asarray((np.abs(xy[:, 0]) > 180.0) | (np.abs(xy[:, 1]) > 90.0))
 
 
 def _transform(xy: np.ndarray, crs: CRS, what: str, label: str) -> np.ndarray:

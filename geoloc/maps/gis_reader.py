@@ -198,7 +198,7 @@ def _attribute_columns(fields: list[str], options: MapReadOptions, what: str) ->
         matches = lower.get(attribute.lower(), [])
         return matches[0] if len(matches) == 1 else None
 
-    columns = {}
+    columns: dict[str, str] = {}
     for option, attribute in options.explicit_attributes().items():
         if resolve(attribute) is None:
             raise MapLoadError(
@@ -225,7 +225,7 @@ def _polygons(wkb: np.ndarray, report: LoadReport) -> np.ndarray:
         geoms[broken] = fixed
     polygonal = np.isin(shapely.get_type_id(geoms), _POLYGON_TYPES) & ~shapely.is_empty(geoms)
     geoms[~polygonal] = None
-    return geoms
+    return np.asarray(geoms)
 
 
 def _layer_crs(declared: str | None, options: MapReadOptions, what: str) -> CRS | None:

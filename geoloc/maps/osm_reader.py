@@ -46,6 +46,7 @@ def _read(path: Path, kind: str) -> RawMap:
     osm_file = osmium.io.File(str(path), _OSMIUM_FORMATS[kind])
 
     relations: list[tuple[int, dict[str, str], list[tuple[int, str]]]] = []
+    relation: Any  # pyosmium's objects (typed as a union of all kinds)
     for relation in osmium.FileProcessor(osm_file, osmium.osm.RELATION):
         tags = relation.tags
         if tags.get("type") == "multipolygon" and _is_building(tags):
@@ -61,26 +62,25 @@ def _read(path: Path, kind: str) -> RawMap:
     member_geoms: dict[int, Any] = {}
     # Only tagged nodes reach Python (node locations are cached in C++ for all). Ways all do: a relation's
     # member ways are often untagged, and a filter by id costs memory in the id range on large extracts.
-    processor = (
-        osmium.FileProcessor(osm_file, osmium.osm.NODE | osmium.osm.WAY)
-        .with_locations()
-        .with_filter(osmium.filter.KeyFilter("natural").enable_for(osmium.osm.NODE))
-    )
-    for obj in processor:
+    natural_nodes = osmium.filter.KeyFilter("natural")
+    natural_nodes.enable_for(osmium.osm.NODE)  # ways all pass
+    processor = osmium.FileProcessor(osm_file, osmium.osm.NODE | osmium.osm.WAY).with_locations()
+    obj: Any
+    for obj in processor.with_filter(natural_nodes):
         if obj.is_node():
             if obj.tags.get("natural") == "tree" and obj.location.valid():
                 trees.append((obj.location.lon, obj.location.lat))
             continue
-        tags = obj.tags
-        building = tags.get("building")
+        way_tags = obj.tags
+        building = way_tags.get("building")
         geometry = None
         if building is not None and building != "no":
             geometry = _way_geometry(factory, obj, report)
-            building_ways.append((obj.id, dict(tags)))
+            building_ways.append((obj.id, dict(way_tags)))
             building_geoms.append(geometry)
-        elif building is None and "building:part" in tags:
+        elif building is None and "building:part" in way_tags:
             report.building_parts_ignored += 1
-        elif "highway" in tags:
+        elif "highway" in way_tags:
             geometry = _way_geometry(factory, obj, report)
             street_geoms.append(geometry)
         if obj.id in member_ids:

@@ -12,7 +12,9 @@ import bz2
 import gzip
 import zipfile
 import zlib
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from geoloc.maps.model import MapLoadError
 
@@ -80,9 +82,9 @@ def _text_format(head: bytes) -> str | None:
     return None
 
 
-def _decompressed_head(path: Path, opener: object) -> bytes:
+def _decompressed_head(path: Path, opener: Callable[..., Any]) -> bytes:
     try:
-        with opener(path, "rb") as f:  # type: ignore[operator]
+        with opener(path, "rb") as f:
             return bytes(f.read(_HEAD_BYTES))
     except (OSError, EOFError, ValueError, zlib.error) as exc:
         raise MapLoadError(f"{path.name}: a compressed file that cannot be decompressed ({exc})") from exc
@@ -119,9 +121,10 @@ def zip_member_names(path: Path) -> list[str]:
 def check_compressed_stream(path: Path, kind: str) -> None:
     """Raise :class:`MapLoadError` if the gzip/bz2 stream of a ``*.gz``/``*.bz2`` file is truncated or
     corrupt (read to the end, nothing kept). Called when a reader fails, to say what went wrong."""
-    opener = {"gz": gzip.open, "bz2": bz2.open}.get(kind.rsplit(".", 1)[-1])
-    if opener is None:
+    compression = kind.rsplit(".", 1)[-1]
+    if compression not in ("gz", "bz2"):
         return
+    opener: Callable[..., Any] = gzip.open if compression == "gz" else bz2.open
     try:
         with opener(path, "rb") as f:
             while f.read(_CHUNK_BYTES):

@@ -114,7 +114,7 @@ def read_city_map(path: Path) -> CityMap:
         arrays["trees"],
         arrays["street_lonlat"],
         arrays["street_offsets"],
-        tuple(meta["bbox_wgs84"]),  # type: ignore[arg-type]
+        tuple(meta["bbox_wgs84"]),
         LoadReport(**meta["report"]),
         meta["source"],
     )
