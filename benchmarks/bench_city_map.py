@@ -1,6 +1,6 @@
 """Benchmark: a city-sized map (>= 100,000 buildings) next to the Helsinki map, through the real service.
 
-    .venv/bin/python benchmarks/bench_city_map.py [--tiles-per-side 15] [--rounds 3] [--world DIR]
+    .venv/bin/python benchmarks/bench_city_map.py [--tiles-per-side 15] [--rounds 5] [--world DIR]
                                                   [--workdir DIR] [--json city_map.json]
 
 1. Writes a city extract by tiling ``helsinki.osm.pbf`` (every node, way and relation; 464 buildings)
@@ -18,7 +18,9 @@
 5. Posts every query photo to both maps, ``rounds`` rounds, alternating which map goes first, after
    one warm-up query per map (reported apart: it includes the worker's first load of the map from its
    cached copy). Latency: the client's wall time of ``POST /v1/maps/{id}/queries`` (which waits for
-   the answer) and the worker's ``timings_ms``.
+   the answer) and the worker's ``timings_ms``. Each photo goes to both maps back to back, so the
+   figure compared with the target is the median over queries of (tiled latency / Helsinki latency)
+   of the same query, which cancels the drift of a shared machine's load between rounds.
 
 Prints a table and writes JSON. Targets (issue 15): the city map loads in <= 60 s and <= 4 GB, and
 its median query latency is within 20 % of Helsinki's.
@@ -309,7 +311,7 @@ def _median(values: list[float]) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tiles-per-side", type=int, default=15)
-    parser.add_argument("--rounds", type=int, default=3, help="rounds over the query photos per map")
+    parser.add_argument("--rounds", type=int, default=5, help="rounds over the query photos per map")
     parser.add_argument("--world", type=Path, help="a simulated Helsinki world (default: made here)")
     parser.add_argument("--workdir", type=Path, help="folder for the tiled map, world and service (default: temp)")
     parser.add_argument("--json", type=Path, default=Path("city_map.json"))
@@ -401,8 +403,13 @@ def main() -> None:
     finally:
         service.stop()
 
-    ratio = latency["tiled"]["wall_ms_median"] / latency["helsinki"]["wall_ms_median"]
-    worker_ratio = latency["tiled"]["worker_total_ms_median"] / latency["helsinki"]["worker_total_ms_median"]
+    # The same query on both maps, back to back: the median of these paired ratios is the figure (the
+    # machine's load drifts between rounds; pairing cancels it). The ratio of medians is reported beside it.
+    pairs = list(zip(runs["helsinki"], runs["tiled"], strict=True))
+    ratio = float(np.median([t["wall_ms"] / h["wall_ms"] for h, t in pairs]))
+    worker_ratio = float(np.median([t["timings_ms"]["total"] / h["timings_ms"]["total"] for h, t in pairs]))
+    localize_ratio = float(np.median([t["timings_ms"]["localize"] / h["timings_ms"]["localize"] for h, t in pairs]))
+    median_ratio = latency["tiled"]["wall_ms_median"] / latency["helsinki"]["wall_ms_median"]
     tiled_upload_s = figures["upload"]["tiled"]["upload_s"]
     peak_gb = max(figures["load_in_process"]["tiled"]["peak_rss_mb"], figures["api_peak_rss_mb_after_uploads"]) / 1024
     figures["targets"] = {
@@ -410,7 +417,9 @@ def main() -> None:
         "peak_memory_gb": {"value": round(peak_gb, 2), "target": TARGET_PEAK_GB, "met": peak_gb <= TARGET_PEAK_GB},
         "query_latency_ratio": {
             "value": round(ratio, 3),
-            "worker_only": round(worker_ratio, 3),
+            "worker_total": round(worker_ratio, 3),
+            "localize_stage": round(localize_ratio, 3),
+            "ratio_of_medians": round(median_ratio, 3),
             "target": TARGET_LATENCY_RATIO,
             "met": ratio <= TARGET_LATENCY_RATIO,
         },
@@ -432,7 +441,7 @@ def main() -> None:
          figures["upload"]["tiled"]["cached_copy_load_s"], "{:.1f}"),
         ("spatial indexes (s)", figures["upload"]["helsinki"]["index_build_s"],
          figures["upload"]["tiled"]["index_build_s"], "{:.2f}"),
-        ("first query (ms)", latency["helsinki"]["first_query_wall_ms"], latency["tiled"]["first_query_wall_ms"],
+        ("warm-up query (ms)", latency["helsinki"]["first_query_wall_ms"], latency["tiled"]["first_query_wall_ms"],
          "{:.0f}"),
         ("query median (ms)", latency["helsinki"]["wall_ms_median"], latency["tiled"]["wall_ms_median"], "{:.0f}"),
         ("query p90 (ms)", latency["helsinki"]["wall_ms_p90"], latency["tiled"]["wall_ms_p90"], "{:.0f}"),

@@ -74,7 +74,13 @@ def read_gis(path: Path, kind: str, options: MapReadOptions) -> RawMap:
         check_compressed_stream(path, kind)
         what = "not valid GeoJSON" if kind.startswith("geojson") else f"cannot read the {FORMAT_NAMES[kind]}"
         raise MapLoadError(f"{path.name}: {what}: {_gdal_message(exc)}") from exc
-    except (pyogrio.errors.DataLayerError, pyogrio.errors.FieldError, pyogrio.errors.GeometryError) as exc:
+    except (
+        pyogrio.errors.DataLayerError,
+        pyogrio.errors.FieldError,
+        pyogrio.errors.GeometryError,
+        pyogrio.errors.FeatureError,
+        pyogrio.errors.CRSError,
+    ) as exc:
         check_compressed_stream(path, kind)
         raise MapLoadError(f"{path.name}: cannot read the {FORMAT_NAMES[kind]}: {_gdal_message(exc)}") from exc
 
