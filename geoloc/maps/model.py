@@ -1,5 +1,5 @@
-"""What a loaded map is: :class:`CityMap` with its :class:`Building` list, :class:`Facades` arrays,
-:class:`LoadReport` and the error :class:`MapLoadError`.
+"""What a loaded map is: :class:`CityMap` with its :class:`Building` list, :class:`Facades` arrays and
+:class:`LoadReport`; how a file is read (:class:`MapReadOptions`); the error :class:`MapLoadError`.
 
 Everything geometric is in the map's local East-North frame (metres, :class:`geoloc.geo.LocalFrame`).
 Spatial lookups that grow with the map go through lazily built, cached indexes (an STRtree of the
