@@ -7,12 +7,14 @@ so concurrent starters (API and workers) cannot apply the same migration twice.
 Storage decisions (see also the module docstrings of the access modules):
 
 - ``reference_images`` is the table for references (``references`` is an SQL keyword).
-- Facades are stored as one compressed ``numpy.savez_compressed`` blob per map (``facades``),
+- Facades are stored as one ``.npz`` blob per map (``facades``, uncompressed: floats hardly compress),
   not as rows: the method always needs all facades of a map at once, as arrays.
 - Labels, keypoints and the vocabulary are blobs (``.npz``); the inverted index is a real table
   ``sbow_postings(map_id, word_id, reference_id, weight)`` whose rows cascade from the
   reference, so adding or deleting a reference keeps the index consistent in one transaction.
 - Times are Unix seconds (REAL, UTC).
+- ``maps.read_options`` (migration 2) holds how the map file was read (GIS layer, attribute names,
+  CRS; ``{}`` for the defaults): one file read with other options is another map.
 """
 
 from __future__ import annotations
@@ -179,6 +181,13 @@ MIGRATIONS: list[tuple[int, str, str]] = [
             updated_at REAL NOT NULL
         );
         CREATE INDEX queries_map ON queries(map_id);
+        """,
+    ),
+    (
+        2,
+        "map read options",
+        """
+        ALTER TABLE maps ADD COLUMN read_options TEXT NOT NULL DEFAULT '{}';
         """,
     ),
 ]

@@ -136,7 +136,7 @@ def anchor_keypoints(
     distance_out = np.full(n, np.nan)
     facades = city_map.facades
     origin = np.array([pose.x_m, pose.y_m])
-    index = index or FacadeIndex(facades)
+    index = index or city_map.facade_index
     near = index.facades_near(origin[None, :], max_range_m)
     if n == 0 or len(near) == 0:
         return MapAnchors(xyz, facade_out, building_out, distance_out)

@@ -91,7 +91,7 @@ class Settings(BaseSettings):
     data_dir: Path = Field(
         default=Path.home() / ".local" / "share" / "geoloc",
         description="the database (`geoloc.sqlite3`), stored maps and photos, temporary uploads (`tmp/`), "
-        "and caches (`cache/models`: ONNX, vocabulary)",
+        "and caches (`cache/models`: ONNX, vocabulary; `cache/maps`: loaded maps for the workers)",
         json_schema_extra=_shown("`~/.local/share/geoloc`"),
     )
     api_keys: Annotated[dict[str, frozenset[str]], NoDecode] = Field(

@@ -5,7 +5,8 @@ hit per bearing (farther facades are occluded): facade id, building id, distance
 bearing of the facade's outward normal. A camera yaw and field of view select a window of the
 panorama (see :func:`panorama_window`), so nothing is re-cast per yaw.
 
-Method (vectorised numpy): facades are binned into square cells; for a chunk of positions the
+Method (vectorised numpy): facades are binned into square cells (the map's cached
+:class:`~geoloc.maps.spatial.FacadeIndex`, built once per map); for a chunk of positions the
 facades within ``max_range_m`` are found through the cells, each (position, facade) pair is
 turned into the range of bearings the facade spans seen from that position, the pairs are
 expanded into (position, bearing, facade) samples, the ray/segment distance is computed for all
@@ -24,7 +25,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geoloc.maps.spatial import FacadeIndex
 from geoloc.osm import CityMap, Facades
+
+__all__ = [
+    "DEFAULT_BEARING_STEP_DEG",
+    "DEFAULT_MAX_RANGE_M",
+    "FacadeIndex",
+    "Panoramas",
+    "cast_all_hits",
+    "cast_panoramas",
+    "panorama_window",
+]
 
 DEFAULT_BEARING_STEP_DEG = 0.5
 DEFAULT_MAX_RANGE_M = 250.0
@@ -70,46 +82,6 @@ class Panoramas:
         )
 
 
-class FacadeIndex:
-    """Facades binned into square cells for range queries."""
-
-    def __init__(self, facades: Facades, cell_m: float = 25.0) -> None:
-        self.facades = facades
-        self.cell_m = cell_m
-        lo = np.minimum(facades.start, facades.end)
-        hi = np.maximum(facades.start, facades.end)
-        self.origin = lo.min(axis=0) - cell_m
-        c0 = np.floor((lo - self.origin) / cell_m).astype(np.int64)
-        c1 = np.floor((hi - self.origin) / cell_m).astype(np.int64)
-        self.shape = tuple(c1.max(axis=0) + 2)
-        # Every facade is entered in each cell its bounding box touches.
-        span = c1 - c0 + 1
-        counts = span[:, 0] * span[:, 1]
-        owner = np.repeat(np.arange(len(facades)), counts)
-        local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        cx = c0[owner, 0] + local % span[owner, 0]
-        cy = c0[owner, 1] + local // span[owner, 0]
-        cell = cx * self.shape[1] + cy
-        order = np.argsort(cell, kind="stable")
-        self.cell_facades = owner[order]
-        self.cell_start = np.searchsorted(cell[order], np.arange(self.shape[0] * self.shape[1] + 1))
-
-    def facades_near(self, center: np.ndarray, radius_m: float) -> np.ndarray:
-        """Ids of facades whose bounding box may lie within ``radius_m`` of any of the (P, 2) ``center``s."""
-        lo = np.floor((center.min(axis=0) - radius_m - self.origin) / self.cell_m).astype(int)
-        hi = np.floor((center.max(axis=0) + radius_m - self.origin) / self.cell_m).astype(int)
-        lo = np.clip(lo, 0, np.array(self.shape) - 1)
-        hi = np.clip(hi, 0, np.array(self.shape) - 1)
-        if np.any(hi < lo):
-            return np.zeros(0, dtype=np.int64)
-        xs, ys = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
-        cells = (xs * self.shape[1] + ys).ravel()
-        starts, ends = self.cell_start[cells], self.cell_start[cells + 1]
-        lengths = ends - starts
-        index = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
-        return np.unique(self.cell_facades[index])
-
-
 def cast_panoramas(
     city_map: CityMap,
     positions: np.ndarray,
@@ -121,7 +93,8 @@ def cast_panoramas(
     """Ray-cast panoramas at local ``positions`` (P, 2) metres.
 
     ``bearing_step_deg`` must divide 360. Positions are processed in spatial tiles of ``chunk_m``
-    so that each tile only considers the facades within ``max_range_m`` of it.
+    so that each tile only considers the facades within ``max_range_m`` of it, found through the
+    map's cached facade index (``index`` overrides it).
     """
     n_bearings = int(round(360.0 / bearing_step_deg))
     if not np.isclose(n_bearings * bearing_step_deg, 360.0):
@@ -129,7 +102,7 @@ def cast_panoramas(
     positions = np.asarray(positions, dtype=float).reshape(-1, 2)
     n_pos = len(positions)
     facades = city_map.facades
-    index = index or FacadeIndex(facades)
+    index = index or city_map.facade_index
     best = np.full(n_pos * n_bearings, np.iinfo(np.int64).max, dtype=np.int64)
 
     tile = np.floor(positions / chunk_m).astype(np.int64)
@@ -141,10 +114,10 @@ def cast_panoramas(
         if len(near):
             _cast_tile(positions, members, facades, near, n_bearings, max_range_m, best)
 
-    best = best.reshape(n_pos, n_bearings)
-    hit = best != np.iinfo(np.int64).max
-    facade_id = np.where(hit, best & ((1 << _FACADE_BITS) - 1), -1).astype(np.int32)
-    distance = np.where(hit, (best >> _FACADE_BITS) / _DIST_SCALE, np.inf).astype(np.float32)
+    nearest = best.reshape(n_pos, n_bearings)
+    hit = nearest != np.iinfo(np.int64).max
+    facade_id = np.where(hit, nearest & ((1 << _FACADE_BITS) - 1), -1).astype(np.int32)
+    distance = np.where(hit, (nearest >> _FACADE_BITS) / _DIST_SCALE, np.inf).astype(np.float32)
     safe = np.maximum(facade_id, 0)
     building_id = np.where(hit, facades.building_id[safe], -1).astype(np.int32)
     # Wrap after the cast: 359.99999999 would otherwise become 360.0 in float32.
@@ -237,7 +210,7 @@ def cast_all_hits(
     distance from the facade's start point along the wall.
     """
     facades = city_map.facades
-    index = index or FacadeIndex(facades)
+    index = index or city_map.facade_index
     origin = np.asarray(position, dtype=float).reshape(1, 2)
     near = index.facades_near(origin, max_range_m)
     bearings = np.radians(np.asarray(bearings_deg, dtype=float))
@@ -268,4 +241,4 @@ def cast_all_hits(
 
 def _cross(r: np.ndarray, p: np.ndarray) -> np.ndarray:
     """z of the 2D cross product of vector ``r`` (2,) with each row of ``p`` (N, 2)."""
-    return r[0] * p[:, 1] - r[1] * p[:, 0]
+    return np.asarray(r[0] * p[:, 1] - r[1] * p[:, 0])

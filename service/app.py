@@ -118,9 +118,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version="1",
         summary="Map-based visual geolocation: where was this photo taken, and which way did it look?",
         description=(
-            "Upload a map (OpenStreetMap or GeoJSON buildings), ingest geo-tagged reference photos, "
-            "then query photos for their position, heading and the buildings they show. "
-            'Errors always have the body `{"error": {"code", "message", "details"}}`.\n\n'
+            "Upload a map (OpenStreetMap, GeoJSON, GeoPackage, FlatGeobuf or Shapefile buildings), ingest "
+            "geo-tagged reference photos, then query photos for their position, heading and the buildings they "
+            'show. Errors always have the body `{"error": {"code", "message", "details"}}`.\n\n'
             "Positions are WGS84 latitude/longitude in degrees; headings are degrees clockwise from north; "
             "times are ISO 8601 in UTC. Uploads are `multipart/form-data`; files are checked by their content, "
             "not their name. Request validation errors (a missing field, a value of the wrong type) are `422` "

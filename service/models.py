@@ -66,16 +66,27 @@ class MapOut(BaseModel):
     id: int
     name: str
     source_filename: str
-    source_format: str = Field(description="Detected from the content: osm, osm.bz2, pbf or geojson")
+    source_format: str = Field(
+        description="Detected from the content: osm, osm.bz2, osm.gz, pbf, geojson, geojson.gz, gpkg, fgb or "
+        "shapefile.zip"
+    )
     sha256: str
     bbox: BoundingBox
     origin: LatLon = Field(description="Origin of the map's local metric frame")
     building_count: int
     facade_count: int
     reference_count: int = 0
-    repair_report: dict[str, Any] = Field(description="What the loader repaired or skipped, by kind")
+    repair_report: dict[str, Any] = Field(
+        description="What the loader read (format, GIS layer, source CRS) and repaired or skipped, by kind"
+    )
+    read_options: dict[str, str] = Field(
+        default_factory=dict,
+        description="The upload's read options that differ from the defaults (layer, *_attribute, crs)",
+    )
     created_at: datetime
-    duplicate: bool = Field(default=False, description="True when this file was already uploaded (same sha256)")
+    duplicate: bool = Field(
+        default=False, description="True when this file was already uploaded with the same read options (same sha256)"
+    )
 
 
 class MapList(BaseModel):

@@ -1,8 +1,14 @@
-"""Maps: upload (loaded with ``geoloc.osm.load_map``), list, get, buildings as GeoJSON, delete."""
+"""Maps: upload (loaded with ``geoloc.maps.load_map``), list, get, buildings as GeoJSON, delete.
+
+An upload is read once, in the API process; its buildings become rows and the loaded map is also
+written to ``DATA_DIR/cache/maps`` (:mod:`geoloc.maps.store`) so that workers start from that copy
+instead of parsing the source again (they rebuild it from the source if it is missing).
+"""
 
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 from typing import Annotated, Any
 
@@ -22,7 +28,22 @@ from service.uploads import received_upload, remove_quietly
 log = logging.getLogger("geoloc.api")
 router = APIRouter(prefix="/v1/maps", tags=["maps"])
 
-SOURCE_EXTENSIONS = {"osm": ".osm", "osm.bz2": ".osm.bz2", "pbf": ".osm.pbf", "geojson": ".geojson"}
+SOURCE_EXTENSIONS = {
+    "osm": ".osm",
+    "osm.bz2": ".osm.bz2",
+    "osm.gz": ".osm.gz",
+    "pbf": ".osm.pbf",
+    "geojson": ".geojson",
+    "geojson.gz": ".geojson.gz",
+    "gpkg": ".gpkg",
+    "fgb": ".fgb",
+    "shapefile.zip": ".zip",
+}
+FILE_DESCRIPTION = (
+    "The map, told by content: OSM XML (.osm, .osm.bz2, .osm.gz), .osm.pbf, GeoJSON (.geojson, .geojson.gz), "
+    "GeoPackage (.gpkg), FlatGeobuf (.fgb) or a zipped Shapefile (.zip). GIS files in any CRS they declare "
+    "(GeoJSON without one: WGS84 lon/lat); polygon features are the buildings."
+)
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (400, 401, 403, 404, 413, 415, 422)
 }
@@ -44,6 +65,7 @@ def map_out(row: dict[str, Any], *, reference_count: int = 0, duplicate: bool = 
         facade_count=row["facade_count"],
         reference_count=reference_count,
         repair_report=row["repair_report"],
+        read_options=row["read_options"],
         created_at=timestamp(row["created_at"]),
         duplicate=duplicate,
     )
@@ -65,37 +87,78 @@ def require_map(db: sqlite_utils.Database, map_id: int) -> dict[str, Any]:
     dependencies=[Depends(require_write)],
 )
 def upload_map(
-    file: Annotated[UploadFile, File(description="OSM XML (.osm), .osm.bz2, .osm.pbf or GeoJSON; checked by content")],
+    file: Annotated[UploadFile, File(description=FILE_DESCRIPTION)],
     name: Annotated[str, Form(min_length=1, max_length=200, description="A name for the map")],
+    layer: Annotated[
+        str | None,
+        Form(
+            max_length=200,
+            description="GIS files: the layer to read (a GeoPackage table, a shapefile's name in the zip); "
+            "needed only when the file has several polygon layers",
+        ),
+    ] = None,
+    name_attribute: Annotated[
+        str | None, Form(max_length=200, description="Attribute (GIS field or OSM tag) with the building's name")
+    ] = None,
+    height_attribute: Annotated[
+        str | None, Form(max_length=200, description="Attribute with the building's height in metres")
+    ] = None,
+    levels_attribute: Annotated[
+        str | None,
+        Form(max_length=200, description="Attribute with the building's number of storeys (x 3 m)"),
+    ] = None,
+    crs: Annotated[
+        str | None,
+        Form(
+            max_length=2000,
+            description="GIS files: the CRS of the coordinates (e.g. EPSG:3857), overriding what the file "
+            "declares; for files that declare none and are not WGS84 lon/lat",
+        ),
+    ] = None,
     db: sqlite_utils.Database = Depends(get_db),
     settings: Settings = Depends(get_settings),
 ) -> MapOut | JSONResponse:
     """Upload a map: buildings and facades are extracted and stored.
 
-    201 with the new map; 200 with the existing map when a file with the same sha256 was already
-    uploaded (``duplicate: true``); 413 over the size limit; 422 when the file is not map data or
-    holds no usable buildings.
+    Attribute defaults: ``name``, ``height``, ``building:levels``. 201 with the new map; 200 with the
+    existing map when the same file (sha256) was already uploaded with the same options
+    (``duplicate: true``); 413 over the size limit; 422 when the file is not map data, holds no usable
+    buildings, names a layer or attribute it does not have, or has coordinates that cannot be placed
+    (the message says which CRS they look like and how to fix it).
     """
-    from geoloc.osm import MapLoadError, load_map
+    from geoloc.maps import MapLoadError, load_map, map_cache_dir, map_cache_path, save_city_map
+    from geoloc.maps.crs import parse_crs
 
     if not name.strip():
         raise ApiError(422, "invalid_request", "name must not be blank")
+    options = _read_options(layer, name_attribute, height_attribute, levels_attribute, crs)
+    if options.crs is not None:
+        try:
+            parse_crs(options.crs)
+        except MapLoadError as exc:
+            raise ApiError(422, "invalid_request", f"crs: {exc}") from exc
+    read_options = options.as_dict()
     with received_upload(file, settings.data_dir, settings.max_map_bytes, "the map file") as received:
-        existing = map_store.find_map_by_sha256(db, received.sha256)
+        existing = map_store.find_map_by_sha256(db, received.sha256, read_options)
         if existing is not None:
             out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
             return JSONResponse(out.model_dump(mode="json"), status_code=200)
+        shown_name = received.filename or "the file"
         try:
-            city_map = load_map(received.path)
+            city_map = load_map(received.path, options)
+            content = map_store.map_content_from_city_map(city_map)
         except MapLoadError as exc:
-            message = str(exc).replace(received.path.name, received.filename or "the file")
-            raise ApiError(422, "invalid_map", message) from exc
-        content = map_store.map_content_from_city_map(city_map)
+            raise ApiError(422, exc.code, str(exc).replace(received.path.name, shown_name), exc.details) from exc
+        except Exception as exc:  # the file made a library fail in a way not foreseen: still the file's fault
+            log.exception("map upload %s could not be read", shown_name)
+            raise ApiError(
+                422, "invalid_map", f"{shown_name}: cannot read the map ({type(exc).__name__}: {exc})"
+            ) from exc
         source_format = city_map.report.format
         relative = f"maps/{received.sha256}{SOURCE_EXTENSIONS.get(source_format, '.map')}"
         final_path = settings.data_dir / relative
         with transaction(db):  # BEGIN IMMEDIATE: the duplicate check and the insert are atomic
-            existing = map_store.find_map_by_sha256(db, received.sha256)
+            existing = map_store.find_map_by_sha256(db, received.sha256, read_options)
             if existing is None:
                 received.move_to(final_path)
                 map_id = map_store.insert_map(
@@ -107,14 +170,39 @@ def upload_map(
                     sha256=received.sha256,
                     size_bytes=received.size_bytes,
                     content=content,
+                    read_options=read_options,
                 )
         if existing is not None:
             out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
             return JSONResponse(out.model_dump(mode="json"), status_code=200)
+    try:  # a cache: the workers rebuild it from the source if this fails
+        save_city_map(city_map, map_cache_path(map_cache_dir(settings.data_dir), received.sha256, options))
+    except OSError:
+        log.warning("map %d: could not write its cached copy", map_id, exc_info=True)
     log.info("map %d stored: %d buildings, %d facades", map_id, len(content.buildings), len(city_map.facades))
     row = map_store.get_map(db, map_id)
     assert row is not None
     return map_out(row)
+
+
+def _read_options(
+    layer: str | None,
+    name_attribute: str | None,
+    height_attribute: str | None,
+    levels_attribute: str | None,
+    crs: str | None,
+) -> Any:
+    """The form fields as ``MapReadOptions`` (blank fields mean the default)."""
+    from geoloc.maps import MapReadOptions
+
+    given = {
+        "layer": layer,
+        "name_attribute": name_attribute,
+        "height_attribute": height_attribute,
+        "levels_attribute": levels_attribute,
+        "crs": crs,
+    }
+    return MapReadOptions(**{k: v.strip() for k, v in given.items() if v is not None and v.strip()})
 
 
 def _reference_total(db: sqlite_utils.Database, map_id: int) -> int:
@@ -140,25 +228,18 @@ def get_map(map_id: int, db: sqlite_utils.Database = Depends(get_db)) -> MapOut:
     responses={200: {"content": {"application/geo+json": {}}, "description": "GeoJSON FeatureCollection"}, **_ERRORS},
     dependencies=[Depends(require_read)],
 )
-def get_buildings(map_id: int, db: sqlite_utils.Database = Depends(get_db)) -> JSONResponse:
+def get_buildings(map_id: int, db: sqlite_utils.Database = Depends(get_db)) -> Response:
     """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat) with building id, OSM id,
     name and height."""
     require_map(db, map_id)
-    features = [
-        {
-            "type": "Feature",
-            "id": b["building_id"],
-            "geometry": b["footprint_geojson"],
-            "properties": {
-                "building_id": b["building_id"],
-                "osm_id": b["osm_id"],
-                "name": b["name"],
-                "height_m": b["height_m"],
-            },
-        }
-        for b in map_store.list_buildings(db, map_id)
-    ]
-    return JSONResponse({"type": "FeatureCollection", "features": features}, media_type="application/geo+json")
+    # The stored geometry text goes out as it is: no decoding and re-encoding of a city's footprints.
+    features = ",".join(
+        f'{{"type":"Feature","id":{b["building_id"]},"geometry":{b["footprint_geojson"]},"properties":'
+        + json.dumps({k: b[k] for k in ("building_id", "osm_id", "name", "height_m")})
+        + "}"
+        for b in map_store.list_buildings(db, map_id, decode=False)
+    )
+    return Response('{"type":"FeatureCollection","features":[' + features + "]}", media_type="application/geo+json")
 
 
 @router.delete(
@@ -172,7 +253,14 @@ def delete_map(
         deleted = map_store.delete_map(db, map_id)
     if deleted is None:
         raise ApiError(404, "not_found", f"map {map_id} not found")
-    remove_quietly(*(settings.data_dir / p for p in deleted["image_paths"]), settings.data_dir / deleted["source_path"])
+    from geoloc.maps import MapReadOptions, map_cache_dir, remove_cached_map
+
+    remove_quietly(*(settings.data_dir / p for p in deleted["image_paths"]))
+    if not deleted["source_shared"]:  # the same file read with other options is another map
+        remove_quietly(settings.data_dir / deleted["source_path"])
+    remove_cached_map(
+        map_cache_dir(settings.data_dir), deleted["sha256"], MapReadOptions.from_dict(deleted["read_options"])
+    )
     for folder in (settings.data_dir / "images" / str(map_id), settings.data_dir / "queries" / str(map_id)):
         with contextlib.suppress(OSError):
             folder.rmdir()

@@ -7,6 +7,7 @@ per worker process.
 
 from __future__ import annotations
 
+import json
 import time
 from functools import lru_cache
 from typing import Any
@@ -21,7 +22,8 @@ from db import sbow, transaction
 from db.jobs import LOCALIZE_QUERY
 from geoloc.config import data_dir
 from geoloc.localize import PositionPrior
-from geoloc.osm import CityMap, load_map
+from geoloc.maps import MapReadOptions, load_map_cached, map_cache_dir
+from geoloc.osm import CityMap
 from geoloc.pipeline import Photo, analyze_photo, label_reference_photo, load_photo
 from geoloc.query import QueryAnswer, QueryConfig, geolocate
 from geoloc.retrieval import Vocabulary, default_vocabulary
@@ -31,9 +33,11 @@ from workers.reference_store import DatabaseReferenceStore
 
 
 @lru_cache(maxsize=4)
-def _city_map(source_path: str, sha256: str) -> CityMap:
-    """The map's CityMap, loaded once per worker process (keyed by file and checksum)."""
-    return load_map(data_dir() / source_path)
+def _city_map(source_path: str, sha256: str, read_options: str) -> CityMap:
+    """The map's CityMap, loaded once per worker process (keyed by file, checksum and read options) from
+    the copy the API cached at upload; parsed from the source only when that copy is missing."""
+    options = MapReadOptions.from_dict(json.loads(read_options))
+    return load_map_cached(data_dir() / source_path, map_cache_dir(data_dir()), options, sha256=sha256)
 
 
 MAX_REPORTED_RADIUS_M = 100_000.0
@@ -44,7 +48,7 @@ def city_map_for(db: sqlite_utils.Database, map_id: int) -> CityMap:
     row = map_store.get_map(db, map_id)
     if row is None:
         raise PermanentJobError(f"map {map_id} no longer exists")
-    return _city_map(row["source_path"], row["sha256"])
+    return _city_map(row["source_path"], row["sha256"], json.dumps(row["read_options"], sort_keys=True))
 
 
 def _stored_photo(relative_path: str, focal_35mm: float | None) -> Photo:

@@ -1,0 +1,470 @@
+"""Benchmark: a city-sized map (>= 100,000 buildings) next to the Helsinki map, through the real service.
+
+    .venv/bin/python benchmarks/bench_city_map.py [--tiles-per-side 15] [--rounds 5] [--world DIR]
+                                                  [--workdir DIR] [--json city_map.json]
+
+1. Writes a city extract by tiling ``helsinki.osm.pbf`` (every node, way and relation; 464 buildings)
+   ``tiles-per-side``^2 times (15 -> 225 tiles, 104,400 buildings): tiles sit side by side 30 m
+   apart in the map's local frame, the original tile at its own coordinates, so that photos of a
+   simulated Helsinki world are valid on both maps. Ids are offset by 10^10 per tile. Converted data
+   is written to a temporary folder only.
+2. Loads both files in a fresh process: time and peak memory (``ru_maxrss``).
+3. Starts ``geoloc serve --workers 1`` on a fresh data folder (the built models linked in) and uploads
+   both maps: time through the API, peak memory of the API process, database bytes per map, the size
+   of the cached map copy the workers read and the time a fresh process takes to read it and build
+   the map's spatial indexes (what a worker does before its first job on the map).
+4. Ingests the references of the world (``geoloc sim world --map helsinki.osm.pbf --references 20
+   --queries 5 --seed 1``, made here unless ``--world`` names one) into both maps, alternating, and
+   waits for them (median labelling time per reference on each map).
+5. Posts every query photo to both maps, ``rounds`` rounds, alternating which map goes first, after
+   one warm-up query per map (reported apart: it includes the worker's first load of the map from its
+   cached copy). Latency: the client's wall time of ``POST /v1/maps/{id}/queries`` (which waits for
+   the answer) and the worker's ``timings_ms``. Each photo goes to both maps back to back, so the
+   figure compared with the target is the median over queries of (tiled latency / Helsinki latency)
+   of the same query, which cancels the drift of a shared machine's load between rounds.
+
+Prints a table and writes JSON. Targets (issue 15): the city map loads in <= 60 s and <= 4 GB, and
+its median query latency is within 20 % of Helsinki's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import signal
+import socket
+import sqlite3
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import osmium
+
+from geoloc.config import REPO_ROOT, cache_dir, shared_path
+from geoloc.geo import frame_for_bbox
+
+TILE_GAP_M = 30.0
+ID_STRIDE = 10**10
+TARGET_LOAD_S = 60.0
+TARGET_PEAK_GB = 4.0
+TARGET_LATENCY_RATIO = 1.2
+
+
+def write_tiled_osm(source: Path, target: Path, tiles_per_side: int, gap_m: float = TILE_GAP_M) -> int:
+    """Write ``tiles_per_side``^2 copies of every object of ``source`` to ``target`` (.osm.pbf); the
+    original tile keeps its coordinates and ids. Returns the number of tiles."""
+    nodes, ways, relations = [], [], []
+    obj: Any  # pyosmium's objects (typed as a union of all kinds)
+    for obj in osmium.FileProcessor(str(source)):
+        if obj.is_node():
+            nodes.append((obj.id, obj.location.lon, obj.location.lat, dict(obj.tags)))
+        elif obj.is_way():
+            ways.append((obj.id, [n.ref for n in obj.nodes], dict(obj.tags)))
+        elif obj.is_relation():
+            relations.append((obj.id, [(m.type, m.ref, m.role) for m in obj.members], dict(obj.tags)))
+    lon = np.array([n[1] for n in nodes])
+    lat = np.array([n[2] for n in nodes])
+    frame = frame_for_bbox(lat.min(), lon.min(), lat.max(), lon.max())
+    x, y = frame.to_local(lat, lon)
+    step_x, step_y = x.max() - x.min() + gap_m, y.max() - y.min() + gap_m
+    half = tiles_per_side // 2
+    tiles = sorted(
+        ((i, j) for i in range(-half, tiles_per_side - half) for j in range(-half, tiles_per_side - half)),
+        key=lambda t: (t != (0, 0), t),  # the original first: it keeps its ids
+    )
+    writer = osmium.SimpleWriter(str(target), overwrite=True)
+    try:  # all nodes, then all ways, then all relations, each sorted by id (as extracts are)
+        for k, (i, j) in enumerate(tiles):
+            tile_lat, tile_lon = (lat, lon) if (i, j) == (0, 0) else frame.to_wgs84(x + i * step_x, y + j * step_y)
+            for (node_id, _, _, tags), a, b in zip(nodes, tile_lon.tolist(), tile_lat.tolist(), strict=True):
+                writer.add_node(osmium.osm.mutable.Node(id=node_id + k * ID_STRIDE, location=(a, b), tags=tags))
+        for k in range(len(tiles)):
+            offset = k * ID_STRIDE
+            for way_id, refs, tags in ways:
+                writer.add_way(osmium.osm.mutable.Way(id=way_id + offset, nodes=[r + offset for r in refs], tags=tags))
+        for k in range(len(tiles)):
+            offset = k * ID_STRIDE
+            for rel_id, members, tags in relations:
+                moved = [(kind, ref + offset, role) for kind, ref, role in members]
+                writer.add_relation(osmium.osm.mutable.Relation(id=rel_id + offset, members=moved, tags=tags))
+    finally:
+        writer.close()
+    return len(tiles)
+
+
+def load_in_fresh_process(path: Path, function: str = "load_map") -> dict[str, Any]:
+    """``geoloc.maps.<function>(path)`` in a new interpreter (then its spatial indexes built, as the first
+    query does): seconds for each, peak memory, counts."""
+    code = (
+        "import json, resource, sys, time\n"
+        f"from geoloc.maps import {function} as load\n"
+        "t = time.perf_counter(); m = load(sys.argv[1]); s = time.perf_counter() - t\n"
+        "t = time.perf_counter(); m.footprint_tree; m.facade_index; i = time.perf_counter() - t\n"
+        "print(json.dumps({'load_s': round(s, 2), 'index_s': round(i, 2), 'peak_rss_mb': round(resource.getrusage("
+        "resource.RUSAGE_SELF).ru_maxrss / 1024, 1), 'buildings': len(m.buildings), 'facades': len(m.facades)}))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True)
+    figures: dict[str, Any] = json.loads(out.stdout.strip().splitlines()[-1])
+    return figures
+
+
+# --- the service --------------------------------------------------------------------------------
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _descendants(pid: int) -> list[int]:
+    parents: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            parents.setdefault(ppid, []).append(int(entry.name))
+    out, todo = [], [pid]
+    while todo:
+        children = parents.get(todo.pop(), [])
+        out += children
+        todo += children
+    return out
+
+
+def _peak_rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+class Service:
+    """``geoloc serve --workers 1`` on a fresh data folder."""
+
+    def __init__(self, data_dir: Path) -> None:
+        shutil.rmtree(data_dir, ignore_errors=True)  # a fresh service each run
+        data_dir.mkdir(parents=True)
+        models = cache_dir() / "models"
+        if not (models / "sbow_vocabulary_4096.npz").exists():
+            raise SystemExit(f"no built models in {models}: run `geoloc models build` first")
+        (data_dir / "cache").mkdir(exist_ok=True)
+        (data_dir / "cache" / "models").symlink_to(models, target_is_directory=True)
+        self.data_dir = data_dir
+        self.port = _free_port()
+        env = {
+            **os.environ,
+            "GEOLOC_DATA_DIR": str(data_dir),
+            "GEOLOC_WORKER_POLL_MAX_S": "0.05",  # an idle worker picks a query up at once: no polling noise
+        }
+        env.pop("GEOLOC_API_KEYS", None)
+        self.log = (data_dir.parent / "service.log").open("wb")
+        serve = f"serve --host 127.0.0.1 --port {self.port} --workers 1 --log-level warning".split()
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", "from cli.main import app; app()", *serve],
+            cwd=REPO_ROOT,
+            env=env,
+            stdout=self.log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        self.client = httpx.Client(base_url=f"http://127.0.0.1:{self.port}", timeout=600.0)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            try:
+                if self.client.get("/readyz").status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            if self.process.poll() is not None:
+                raise SystemExit(f"geoloc serve exited; see {self.log.name}")
+            time.sleep(0.5)
+        raise SystemExit("the service did not become ready in 120 s")
+
+    def processes(self) -> dict[str, int]:
+        """{"api": pid, "worker": pid} among the supervisor's children."""
+        found = {}
+        for pid in _descendants(self.process.pid):
+            try:
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if b"service" in cmdline:
+                found["api"] = pid
+            elif b"workers" in cmdline:
+                found["worker"] = pid
+        return found
+
+    def peak_rss_mb(self) -> dict[str, float]:
+        return {name: round(_peak_rss_mb(pid), 1) for name, pid in self.processes().items()}
+
+    def stop(self) -> None:
+        self.client.close()
+        if self.process.poll() is None:
+            os.killpg(self.process.pid, signal.SIGTERM)
+            try:
+                self.process.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait()
+        self.log.close()
+
+
+def map_bytes(db_path: Path, map_id: int) -> int:
+    """Bytes of a map's rows: buildings (ids, names, GeoJSON, WKB) and the facade blob."""
+    with sqlite3.connect(db_path) as conn:
+        buildings = conn.execute(
+            "SELECT COALESCE(SUM(LENGTH(footprint_geojson) + COALESCE(LENGTH(footprint_local_wkb), 0)"
+            " + COALESCE(LENGTH(osm_id), 0) + COALESCE(LENGTH(name), 0) + 16), 0) FROM buildings WHERE map_id = ?",
+            (map_id,),
+        ).fetchone()[0]
+        facades = conn.execute("SELECT COALESCE(LENGTH(arrays_npz), 0) FROM facades WHERE map_id = ?", (map_id,))
+        return int(buildings) + int((facades.fetchone() or [0])[0])
+
+
+def db_file_bytes(db_path: Path) -> int:
+    return sum(p.stat().st_size for p in db_path.parent.glob(db_path.name + "*"))
+
+
+def upload_map(service: Service, path: Path, name: str) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    with path.open("rb") as f:
+        response = service.client.post("/v1/maps", files={"file": (path.name, f)}, data={"name": name})
+    seconds = time.perf_counter() - t0
+    if response.status_code != 201:
+        raise SystemExit(f"upload of {path.name} failed: {response.status_code} {response.text[:500]}")
+    body = response.json()
+    cache = next((service.data_dir / "cache" / "maps").glob(f"{body['sha256']}-*.citymap.npz"))
+    worker_load = load_in_fresh_process(cache, "read_city_map")
+    return {
+        "map_id": body["id"],
+        "upload_s": round(seconds, 2),
+        "buildings": body["building_count"],
+        "facades": body["facade_count"],
+        "file_mb": round(path.stat().st_size / 2**20, 1),
+        "database_mb": round(map_bytes(service.data_dir / "geoloc.sqlite3", body["id"]) / 2**20, 1),
+        "cached_copy_mb": round(cache.stat().st_size / 2**20, 1),
+        "cached_copy_load_s": worker_load["load_s"],
+        "index_build_s": worker_load["index_s"],
+    }
+
+
+def ingest(service: Service, map_ids: dict[str, int], photos: list[Path]) -> dict[str, dict[str, Any]]:
+    """Post every photo as a reference of each map, alternating maps (the worker labels them in that order,
+    so a drift of the machine's load touches both alike), and wait until all are labelled."""
+    ids: dict[str, list[int]] = {name: [] for name in map_ids}
+    for photo in photos:
+        for name, map_id in map_ids.items():
+            response = service.client.post(
+                f"/v1/maps/{map_id}/references", files={"image": (photo.name, photo.read_bytes())}
+            )
+            if response.status_code not in (200, 202):
+                raise SystemExit(f"reference {photo.name} refused: {response.text[:300]}")
+            ids[name].append(response.json()["id"])
+    while True:
+        get = service.client.get
+        rows = {name: [get(f"/v1/references/{rid}").json() for rid in refs] for name, refs in ids.items()}
+        if all(r["status"] in ("done", "failed") for found in rows.values() for r in found):
+            break
+        time.sleep(1.0)
+    out = {}
+    for name, found in rows.items():
+        totals = [r["timings"]["total"] for r in found if r.get("timings")]
+        out[name] = {
+            "references": len(found),
+            "done": sum(r["status"] == "done" for r in found),
+            "label_ms_median": round(statistics.median(totals), 1) if totals else None,
+        }
+    return out
+
+
+def query(service: Service, map_id: int, photo: Path) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    response = service.client.post(
+        f"/v1/maps/{map_id}/queries", files={"image": (photo.name, photo.read_bytes())}, data={"wait_s": "300"}
+    )
+    wall_ms = 1e3 * (time.perf_counter() - t0)
+    body = response.json()
+    if response.status_code != 200 or body.get("status") != "done":
+        raise SystemExit(f"query {photo.name} on map {map_id}: {response.status_code} {json.dumps(body)[:500]}")
+    result = body["result"]
+    best = result["locations"][0]
+    return {"wall_ms": wall_ms, "timings_ms": result["timings_ms"], "best": (best["lat"], best["lon"])}
+
+
+def _distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Metres between two (lat, lon) points (equirectangular, fine at these distances)."""
+    dy = (a[0] - b[0]) * 111_195.0
+    dx = (a[1] - b[1]) * 111_195.0 * np.cos(np.radians((a[0] + b[0]) / 2))
+    return float(np.hypot(dx, dy))
+
+
+def _median(values: list[float]) -> float:
+    return round(float(statistics.median(values)), 1)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--tiles-per-side", type=int, default=15)
+    parser.add_argument("--rounds", type=int, default=5, help="rounds over the query photos per map")
+    parser.add_argument("--world", type=Path, help="a simulated Helsinki world (default: made here)")
+    parser.add_argument("--workdir", type=Path, help="folder for the tiled map, world and service (default: temp)")
+    parser.add_argument("--json", type=Path, default=Path("city_map.json"))
+    args = parser.parse_args()
+
+    workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench-city-map-"))
+    workdir.mkdir(parents=True, exist_ok=True)
+    helsinki = shared_path("data", "osm", "helsinki.osm.pbf")
+    figures: dict[str, Any] = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at start",
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        "workdir": str(workdir),
+    }
+    print(f"machine: {figures['machine']}; work folder {workdir}")
+
+    world_dir = args.world
+    if world_dir is None:
+        from geoloc.sim.world import WorldOptions, generate_world
+
+        world_dir = workdir / "world"
+        if not (world_dir / "manifest.json").exists():
+            t0 = time.perf_counter()
+            generate_world(helsinki, world_dir, WorldOptions(n_references=20, n_queries=5, seed=1))
+            print(f"world: 20 references, 5 queries rendered in {time.perf_counter() - t0:.0f} s")
+    from geoloc.sim.world import load_world
+
+    world = load_world(world_dir)
+    figures["world"] = {"path": str(world_dir), "references": len(world.references), "queries": len(world.queries)}
+
+    tiled = workdir / f"helsinki_tiled_{args.tiles_per_side}x{args.tiles_per_side}.osm.pbf"
+    if not tiled.exists():
+        t0 = time.perf_counter()
+        tiles = write_tiled_osm(helsinki, tiled, args.tiles_per_side)
+        size_mb = tiled.stat().st_size / 2**20
+        print(f"tiled map: {tiles} tiles written in {time.perf_counter() - t0:.0f} s ({size_mb:.0f} MB)")
+
+    maps = {"helsinki": helsinki, "tiled": tiled}
+    figures["load_in_process"] = {name: load_in_fresh_process(path) for name, path in maps.items()}
+    for name, row in figures["load_in_process"].items():
+        print(f"load_map {name:9s}: {row['load_s']:6.1f} s, peak {row['peak_rss_mb']:7.0f} MB, "
+              f"{row['buildings']:,} buildings, {row['facades']:,} facades")  # fmt: skip
+
+    service = Service(workdir / "service" / "data")
+    try:
+        uploads = {}
+        for name, path in maps.items():
+            uploads[name] = upload_map(service, path, name)
+            row = uploads[name]
+            print(f"upload {name:9s}: {row['upload_s']:6.1f} s, {row['buildings']:,} buildings, "
+                  f"database {row['database_mb']} MB, cached copy {row['cached_copy_mb']} MB")  # fmt: skip
+        figures["upload"] = uploads
+        figures["api_peak_rss_mb_after_uploads"] = service.peak_rss_mb().get("api")
+        figures["database_file_mb"] = round(db_file_bytes(service.data_dir / "geoloc.sqlite3") / 2**20, 1)
+
+        photos = [im.path for im in world.references]
+        figures["ingest"] = ingest(service, {name: uploads[name]["map_id"] for name in maps}, photos)
+        for name, row in figures["ingest"].items():
+            print(f"ingest {name:9s}: {row['done']}/{row['references']} labelled, "
+                  f"median {row['label_ms_median']} ms per reference")  # fmt: skip
+
+        queries = [im.path for im in world.queries]
+        warm_up = {name: query(service, uploads[name]["map_id"], queries[0]) for name in maps}
+        runs: dict[str, list[dict[str, Any]]] = {name: [] for name in maps}
+        for round_index in range(args.rounds):
+            for photo in queries:
+                order = list(maps) if round_index % 2 == 0 else list(reversed(maps))
+                for name in order:
+                    runs[name].append({"photo": photo.name, **query(service, uploads[name]["map_id"], photo)})
+        latency = {}
+        for name in maps:
+            walls = [r["wall_ms"] for r in runs[name]]
+            latency[name] = {
+                "queries": len(walls),
+                "wall_ms_median": _median(walls),
+                "wall_ms_p90": round(float(np.percentile(walls, 90)), 1),
+                "worker_total_ms_median": _median([r["timings_ms"]["total"] for r in runs[name]]),
+                "worker_ms_median_by_stage": {
+                    stage: _median([r["timings_ms"].get(stage, 0.0) for r in runs[name]])
+                    for stage in runs[name][0]["timings_ms"]
+                },
+                "first_query_wall_ms": round(warm_up[name]["wall_ms"], 1),
+            }
+        # Grids are snapped to whole cells of each map's own local frame, whose origins differ: answers
+        # on the two maps may differ by up to a cell even where the maps agree.
+        gaps = [_distance_m(a["best"], b["best"]) for a, b in zip(runs["helsinki"], runs["tiled"], strict=True)]
+        figures["query_latency"] = latency
+        figures["best_location_gap_m"] = {"median": _median(gaps), "max": round(max(gaps), 1)}
+        figures["peak_rss_mb_end"] = service.peak_rss_mb()
+    finally:
+        service.stop()
+
+    # The same query on both maps, back to back: the median of these paired ratios is the figure (the
+    # machine's load drifts between rounds; pairing cancels it). The ratio of medians is reported beside it.
+    pairs = list(zip(runs["helsinki"], runs["tiled"], strict=True))
+    ratio = float(np.median([t["wall_ms"] / h["wall_ms"] for h, t in pairs]))
+    worker_ratio = float(np.median([t["timings_ms"]["total"] / h["timings_ms"]["total"] for h, t in pairs]))
+    localize_ratio = float(np.median([t["timings_ms"]["localize"] / h["timings_ms"]["localize"] for h, t in pairs]))
+    median_ratio = latency["tiled"]["wall_ms_median"] / latency["helsinki"]["wall_ms_median"]
+    tiled_upload_s = figures["upload"]["tiled"]["upload_s"]
+    peak_gb = max(figures["load_in_process"]["tiled"]["peak_rss_mb"], figures["api_peak_rss_mb_after_uploads"]) / 1024
+    figures["targets"] = {
+        "load_s": {"value": tiled_upload_s, "target": TARGET_LOAD_S, "met": tiled_upload_s <= TARGET_LOAD_S},
+        "peak_memory_gb": {"value": round(peak_gb, 2), "target": TARGET_PEAK_GB, "met": peak_gb <= TARGET_PEAK_GB},
+        "query_latency_ratio": {
+            "value": round(ratio, 3),
+            "worker_total": round(worker_ratio, 3),
+            "localize_stage": round(localize_ratio, 3),
+            "ratio_of_medians": round(median_ratio, 3),
+            "target": TARGET_LATENCY_RATIO,
+            "met": ratio <= TARGET_LATENCY_RATIO,
+        },
+    }
+    print()
+    print(f"{'':28s}{'helsinki':>14s}{'tiled':>14s}")
+    rows = [
+        ("buildings", figures["upload"]["helsinki"]["buildings"], figures["upload"]["tiled"]["buildings"], "{:,}"),
+        ("load_map (s)", figures["load_in_process"]["helsinki"]["load_s"],
+         figures["load_in_process"]["tiled"]["load_s"], "{:.1f}"),
+        ("load_map peak (MB)", figures["load_in_process"]["helsinki"]["peak_rss_mb"],
+         figures["load_in_process"]["tiled"]["peak_rss_mb"], "{:.0f}"),
+        ("upload via API (s)", figures["upload"]["helsinki"]["upload_s"], tiled_upload_s, "{:.1f}"),
+        ("database (MB)", figures["upload"]["helsinki"]["database_mb"], figures["upload"]["tiled"]["database_mb"],
+         "{:.1f}"),
+        ("cached copy (MB)", figures["upload"]["helsinki"]["cached_copy_mb"],
+         figures["upload"]["tiled"]["cached_copy_mb"], "{:.1f}"),
+        ("worker load, cached (s)", figures["upload"]["helsinki"]["cached_copy_load_s"],
+         figures["upload"]["tiled"]["cached_copy_load_s"], "{:.1f}"),
+        ("spatial indexes (s)", figures["upload"]["helsinki"]["index_build_s"],
+         figures["upload"]["tiled"]["index_build_s"], "{:.2f}"),
+        ("warm-up query (ms)", latency["helsinki"]["first_query_wall_ms"], latency["tiled"]["first_query_wall_ms"],
+         "{:.0f}"),
+        ("query median (ms)", latency["helsinki"]["wall_ms_median"], latency["tiled"]["wall_ms_median"], "{:.0f}"),
+        ("query p90 (ms)", latency["helsinki"]["wall_ms_p90"], latency["tiled"]["wall_ms_p90"], "{:.0f}"),
+        ("worker total median (ms)", latency["helsinki"]["worker_total_ms_median"],
+         latency["tiled"]["worker_total_ms_median"], "{:.0f}"),
+    ]  # fmt: skip
+    for label, a, b, fmt in rows:
+        print(f"{label:28s}{fmt.format(a):>14s}{fmt.format(b):>14s}")
+    print(f"API process peak memory after both uploads: {figures['api_peak_rss_mb_after_uploads']:.0f} MB; "
+          f"at the end: {figures['peak_rss_mb_end']}")  # fmt: skip
+    gap = figures["best_location_gap_m"]
+    print(f"best answers on the two maps lie {gap['median']} m apart (median; max {gap['max']} m)")
+    for name, target in figures["targets"].items():
+        print(f"target {name}: {target['value']} vs {target['target']}: {'met' if target['met'] else 'NOT MET'}")
+    args.json.write_text(json.dumps(figures, indent=2))
+    print(f"figures written to {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,174 @@
+"""OpenStreetMap data (XML plain/.bz2/.gz, PBF) -> :class:`RawMap`, with pyosmium.
+
+What counts as a building: ways and ``type=multipolygon`` relations tagged ``building=*`` (not
+``building=no``); ``building:part`` ways are counted but not used (parts overlap their building).
+Also read: ``natural=tree`` nodes and ``highway=*`` ways (street furniture of the simulator).
+
+Two passes keep a city extract cheap: the first reads only relations (to learn which ways are
+members of building relations); the second reads nodes and ways with node locations cached in
+C++, where a filter hands only ``natural=*`` nodes to Python, and way geometries are built in C++
+(WKB) rather than node by node. Node references missing from the extract are dropped (counted;
+only for the ways used); a relation with member ways missing from the extract is skipped (counted).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import osmium
+import shapely
+
+from geoloc.maps.build import RawMap, RawRelation
+from geoloc.maps.model import LoadReport, MapLoadError
+from geoloc.maps.sniff import check_compressed_stream
+
+_OSMIUM_FORMATS = {"osm": "osm", "osm.bz2": "osm.bz2", "osm.gz": "osm.gz", "pbf": "pbf"}
+
+
+def read_osm(path: Path, kind: str) -> RawMap:
+    """Buildings, trees and streets of an OSM file of format ``kind`` (``osm``, ``osm.bz2``, ``osm.gz``, ``pbf``)."""
+    try:
+        return _read(path, kind)
+    except (RuntimeError, ValueError, OSError) as exc:  # osmium's parse and decompression errors
+        check_compressed_stream(path, kind)
+        raise MapLoadError(f"{path.name}: cannot read OSM data: {exc}") from exc
+
+
+def _is_building(tags: Any) -> bool:
+    value = tags.get("building")
+    return value is not None and value != "no"
+
+
+def _read(path: Path, kind: str) -> RawMap:
+    report = LoadReport(format=kind)
+    osm_file = osmium.io.File(str(path), _OSMIUM_FORMATS[kind])
+
+    relations: list[tuple[int, dict[str, str], list[tuple[int, str]]]] = []
+    relation: Any  # pyosmium's objects (typed as a union of all kinds)
+    for relation in osmium.FileProcessor(osm_file, osmium.osm.RELATION):
+        tags = relation.tags
+        if tags.get("type") == "multipolygon" and _is_building(tags):
+            members = [(m.ref, m.role) for m in relation.members if m.type == "w"]
+            relations.append((relation.id, dict(tags), members))
+    member_ids = {ref for _, _, members in relations for ref, _ in members}
+
+    factory = osmium.geom.WKBFactory()
+    trees: list[tuple[float, float]] = []
+    building_ways: list[tuple[int, dict[str, str]]] = []
+    building_geoms: list[Any] = []
+    street_geoms: list[Any] = []
+    member_geoms: dict[int, Any] = {}
+    # Only tagged nodes reach Python (node locations are cached in C++ for all). Ways all do: a relation's
+    # member ways are often untagged, and a filter by id costs memory in the id range on large extracts.
+    natural_nodes = osmium.filter.KeyFilter("natural")
+    natural_nodes.enable_for(osmium.osm.NODE)  # ways all pass
+    processor = osmium.FileProcessor(osm_file, osmium.osm.NODE | osmium.osm.WAY).with_locations()
+    obj: Any
+    for obj in processor.with_filter(natural_nodes):
+        if obj.is_node():
+            if obj.tags.get("natural") == "tree" and obj.location.valid():
+                trees.append((obj.location.lon, obj.location.lat))
+            continue
+        way_tags = obj.tags
+        building = way_tags.get("building")
+        geometry = None
+        if building is not None and building != "no":
+            geometry = _way_geometry(factory, obj, report)
+            building_ways.append((obj.id, dict(way_tags)))
+            building_geoms.append(geometry)
+        elif building is None and "building:part" in way_tags:
+            report.building_parts_ignored += 1
+        elif "highway" in way_tags:
+            geometry = _way_geometry(factory, obj, report)
+            street_geoms.append(geometry)
+        if obj.id in member_ids:
+            member_geoms[obj.id] = geometry if geometry is not None else _way_geometry(factory, obj, report)
+
+    raw = RawMap(kind, report)
+    order = np.argsort([way_id for way_id, _ in building_ways], kind="stable").astype(np.int64)
+    raw.way_coords, raw.way_offsets = _ragged([building_geoms[i] for i in order])
+    raw.way_ids = [f"way/{building_ways[i][0]}" for i in order]
+    raw.way_tags = [building_ways[i][1] for i in order]
+    report.building_ways = len(building_ways)
+
+    member_list = list(member_geoms)
+    member_coords, member_offsets = _ragged([member_geoms[way_id] for way_id in member_list])
+    member_rings = {
+        way_id: member_coords[a:b]
+        for way_id, a, b in zip(member_list, member_offsets[:-1].tolist(), member_offsets[1:].tolist(), strict=True)
+    }
+    for rel_id, tags, members in sorted(relations, key=lambda r: r[0]):
+        report.building_relations += 1
+        outers = [member_rings[ref] for ref, role in members if role != "inner" and ref in member_rings]
+        inners = [member_rings[ref] for ref, role in members if role == "inner" and ref in member_rings]
+        if len(outers) < sum(role != "inner" for _, role in members):
+            report.skipped_incomplete_relations += 1
+            continue
+        raw.relations.append(RawRelation(f"relation/{rel_id}", tags, outers, inners))
+
+    street_lonlat, street_offsets = _ragged(street_geoms)
+    long_enough = np.flatnonzero(np.diff(street_offsets) >= 2)
+    raw.street_lonlat, raw.street_offsets = _reorder(street_lonlat, street_offsets, long_enough)
+    raw.trees = np.asarray(trees, dtype=float).reshape(-1, 2)
+    return raw
+
+
+def _way_geometry(factory: Any, way: Any, report: LoadReport) -> str | np.ndarray:
+    """The way's node locations as hex WKB (built in C++), or, when some are missing or there are
+    fewer than two, an (N, 2) lon/lat array of the valid ones (the missing ones counted)."""
+    try:
+        return str(factory.create_linestring(way, osmium.geom.use_nodes.ALL))
+    except (osmium.InvalidLocationError, RuntimeError):
+        coords = []
+        for node in way.nodes:
+            if node.location.valid():
+                coords.append((node.location.lon, node.location.lat))
+            else:
+                report.missing_node_refs += 1
+        return np.asarray(coords, dtype=float).reshape(-1, 2)
+
+
+def _ragged(items: list[str | np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Coordinates (N, 2) of hex-WKB linestrings and (n, 2) arrays, in order, and offsets (len + 1,)."""
+    is_wkb = np.fromiter((isinstance(item, str) for item in items), dtype=bool, count=len(items))
+    wkb_items, array_items = np.flatnonzero(is_wkb), np.flatnonzero(~is_wkb)
+    counts = np.zeros(len(items), dtype=np.int64)
+    wkb_coords, counts[wkb_items] = _linestring_coords([items[i] for i in wkb_items.tolist()])  # type: ignore[misc]
+    arrays = [np.asarray(items[i]) for i in array_items.tolist()]
+    counts[array_items] = [len(a) for a in arrays]
+    offsets = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    coords = np.zeros((int(offsets[-1]), 2))
+    for chosen, values in ((wkb_items, wkb_coords), (array_items, np.concatenate(arrays) if arrays else None)):
+        if values is not None and len(values):
+            n = counts[chosen]
+            coords[np.repeat(offsets[chosen] - (np.cumsum(n) - n), n) + np.arange(n.sum())] = values
+    return coords, offsets
+
+
+def _linestring_coords(hex_wkb: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Coordinates (N, 2) and point counts of little-endian 2D WKB linestrings (as pyosmium writes them),
+    decoded in one go: a 9-byte header (byte order, type, count), then x, y doubles."""
+    if not hex_wkb:
+        return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
+    lengths = np.fromiter((len(h) // 2 for h in hex_wkb), dtype=np.int64, count=len(hex_wkb))
+    buffer = np.frombuffer(bytes.fromhex("".join(hex_wkb)), dtype=np.uint8)
+    starts = np.cumsum(lengths) - lengths
+    header = (starts[:, None] + np.arange(9)).ravel()
+    expected = np.tile(np.array([1, 2, 0, 0, 0], dtype=np.uint8), len(starts))
+    if not np.array_equal(buffer[(starts[:, None] + np.arange(5)).ravel()], expected):
+        geoms = shapely.from_wkb(np.array(hex_wkb, dtype=object))  # not the layout expected: let GEOS read it
+        coords, index = shapely.get_coordinates(geoms, return_index=True)
+        return coords, np.bincount(index, minlength=len(hex_wkb)).astype(np.int64)
+    body = np.ones(len(buffer), dtype=bool)
+    body[header] = False
+    return buffer[body].view("<f8").reshape(-1, 2).astype(float), (lengths - 9) // 16
+
+
+def _reorder(coords: np.ndarray, offsets: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rings ``order`` (indices) of ragged ``coords``/``offsets``, as a new ragged pair."""
+    counts = np.diff(offsets)[order]
+    starts = offsets[:-1][order]
+    index = np.repeat(starts - (np.cumsum(counts) - counts), counts) + np.arange(counts.sum())
+    return coords[index], np.r_[0, np.cumsum(counts)].astype(np.int64)
