@@ -79,23 +79,23 @@ class MapAnchors:
         """(N,) bool: the keypoint has a 3D point."""
         return self.facade_id >= 0
 
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """Plain arrays for storage."""
+    def to_arrays(self, prefix: str = "anchor") -> dict[str, np.ndarray]:
+        """Plain arrays for storage, named ``<prefix>_xyz`` etc."""
         return {
-            "anchor_xyz": self.xyz.astype(np.float32),
-            "anchor_facade_id": self.facade_id.astype(np.int32),
-            "anchor_building_id": self.building_id.astype(np.int32),
-            "anchor_distance_m": self.distance_m.astype(np.float32),
+            f"{prefix}_xyz": self.xyz.astype(np.float32),
+            f"{prefix}_facade_id": self.facade_id.astype(np.int32),
+            f"{prefix}_building_id": self.building_id.astype(np.int32),
+            f"{prefix}_distance_m": self.distance_m.astype(np.float32),
         }
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> MapAnchors:
+    def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str = "anchor") -> MapAnchors:
         """Inverse of :meth:`to_arrays`."""
         return cls(
-            np.asarray(arrays["anchor_xyz"], np.float64),
-            np.asarray(arrays["anchor_facade_id"], np.int64),
-            np.asarray(arrays["anchor_building_id"], np.int64),
-            np.asarray(arrays["anchor_distance_m"], np.float64),
+            np.asarray(arrays[f"{prefix}_xyz"], np.float64),
+            np.asarray(arrays[f"{prefix}_facade_id"], np.int64),
+            np.asarray(arrays[f"{prefix}_building_id"], np.int64),
+            np.asarray(arrays[f"{prefix}_distance_m"], np.float64),
         )
 
 

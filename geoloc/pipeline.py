@@ -163,7 +163,10 @@ class LabelledReference:
 
     identity: the identity map used downstream (marginalised by default);
     keypoint_identity: (N, M) identity probabilities of ``evidence.features`` over ``identity.building_ids``;
-    anchors: the keypoints' 3D points on the map's facades seen from the label's pose (:mod:`geoloc.anchors`).
+    anchors: the keypoints' 3D points on the map's facades seen from the label's pose (:mod:`geoloc.anchors`);
+    alternative_anchors: the same from the runner-up pose when the label is ambiguous
+    (:attr:`geoloc.labeling.ReferenceLabel.is_ambiguous`), else None: a query that sees the scene from
+    elsewhere can tell which of the two is right.
     """
 
     label: ReferenceLabel
@@ -172,6 +175,7 @@ class LabelledReference:
     keypoint_identity: np.ndarray
     anchors: MapAnchors
     timings_ms: dict[str, float] = field(default_factory=dict)
+    alternative_anchors: MapAnchors | None = None
 
     @property
     def camera_pose(self) -> CameraPose:
@@ -179,8 +183,11 @@ class LabelledReference:
         return _camera_pose(self.label, self.evidence)
 
 
-def _camera_pose(label: ReferenceLabel, evidence: PhotoEvidence) -> CameraPose:
+def _camera_pose(label: ReferenceLabel, evidence: PhotoEvidence, alternative: bool = False) -> CameraPose:
     rotation = evidence.analysis.vanishing_points.rotation_upright_from_cam
+    if alternative and label.alternative is not None:
+        alt = label.alternative
+        return CameraPose(alt.x_m, alt.y_m, alt.yaw_deg, DEFAULT_CAMERA_HEIGHT_M, rotation)
     return CameraPose(label.x_m, label.y_m, label.yaw_deg, DEFAULT_CAMERA_HEIGHT_M, rotation)
 
 
@@ -217,8 +224,12 @@ def label_reference_photo(
     timings = dict(evidence.timings_ms, labeling=1e3 * (time.perf_counter() - t0))
     t0 = time.perf_counter()
     anchors = anchor_keypoints(city_map, _camera_pose(label, evidence), photo.intrinsics, evidence.features.xy)
+    alternative = None
+    if label.is_ambiguous:
+        pose = _camera_pose(label, evidence, alternative=True)
+        alternative = anchor_keypoints(city_map, pose, photo.intrinsics, evidence.features.xy)
     timings["anchors"] = 1e3 * (time.perf_counter() - t0)
-    return LabelledReference(label, evidence, identity, keypoint_identity, anchors, timings)
+    return LabelledReference(label, evidence, identity, keypoint_identity, anchors, timings, alternative)
 
 
 def stored_reference(reference_id: Hashable, labelled: LabelledReference) -> StoredReference:
@@ -233,6 +244,7 @@ def stored_reference(reference_id: Hashable, labelled: LabelledReference) -> Sto
         labelled.anchors,
         labelled.label.position_covariance,
         np.array([labelled.label.x_m, labelled.label.y_m]),
+        labelled.alternative_anchors,
     )
 
 

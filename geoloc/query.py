@@ -121,7 +121,8 @@ class StoredReference:
     features: its local features; keypoint_prob: (N, M) identity probabilities over ``building_ids``;
     anchors: its keypoints' 3D points on the map (:mod:`geoloc.anchors`); position_covariance: (2, 2) m^2
     uncertainty of its estimated position (the anchors inherit it); position_xy: (2,) its estimated
-    position (local metres; NaN when unknown).
+    position (local metres; NaN when unknown); alternative_anchors: anchors from the runner-up pose of an
+    ambiguous label (else None).
     """
 
     reference_id: Hashable
@@ -131,6 +132,7 @@ class StoredReference:
     anchors: MapAnchors
     position_covariance: np.ndarray
     position_xy: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    alternative_anchors: MapAnchors | None = None
 
 
 class ReferenceStore(Protocol):
@@ -215,12 +217,9 @@ def geolocate(
     timings["transfer"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
-    anchored: PoseEstimate | None = None
-    anchor_refs: list[Hashable] = []
+    candidates = []
     if config.use_anchors:
-        anchored, anchor_refs = anchored_pose(
-            evidence.features, matches[: config.anchor_references], stored, photo, config
-        )
+        candidates = anchored_pose(evidence.features, matches[: config.anchor_references], stored, photo, config)
     timings["anchors"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
@@ -240,7 +239,18 @@ def geolocate(
 
     t0 = time.perf_counter()
     use_identity = bool(localization.search["identity"])
-    trust, checks = _trust_anchored(city_map, model, anchored, localization, position_prior, use_identity, config)
+    # Each candidate is checked; of the trusted ones (a reference's two readings, at most) the map and the
+    # prior pick the one that explains the query best.
+    anchored: PoseEstimate | None = None
+    anchor_refs: list[Hashable] = []
+    trust, checks, best_key = False, {}, (False, -1.0)
+    for estimate, refs in candidates:
+        ok, candidate_checks, lik = _trust_anchored(
+            city_map, model, estimate, localization, position_prior, use_identity, config
+        )
+        key = (ok, lik * _prior_weight(position_prior, estimate))
+        if anchored is None or key > best_key:
+            anchored, anchor_refs, checks, trust, best_key = estimate, refs, candidate_checks, ok, key
     poses: list[AnswerPose] = []
     if trust and anchored is not None:
         poses.append(_anchored_answer(city_map, model, anchored, anchor_refs, stored, use_identity, config))
@@ -323,30 +333,44 @@ def anchored_pose(
     stored: dict[Hashable, StoredReference],
     photo: Photo,
     config: QueryConfig,
-) -> tuple[PoseEstimate | None, list[Hashable]]:
-    """PnP on the query's putative matches to the anchored keypoints of the given references.
+) -> list[tuple[PoseEstimate, list[Hashable]]]:
+    """PnP on the query's matches to the anchored keypoints of the given references.
 
-    Returns the estimate (None when RANSAC finds fewer than ``config.pnp_min_inliers``) and the references
-    that contributed inliers.
+    Returns the estimate with the references that contributed inliers, and a second one where the
+    ambiguous references (:attr:`StoredReference.alternative_anchors`) use their runner-up pose's anchors;
+    estimates with fewer than ``config.pnp_min_inliers`` inliers are left out (so the list may be empty).
     """
-    groups: list[tuple[np.ndarray, np.ndarray]] = []
-    group_refs: list[Hashable] = []
+    pairs_of: list[tuple[StoredReference, np.ndarray]] = []
     for match in matches:
         ref = stored.get(match.reference_id)
-        if ref is None:
-            continue
-        pairs = match_features(query_features, ref.features, config.anchor_ratio)
-        valid = ref.anchors.valid[pairs[:, 1]] if len(pairs) else np.zeros(0, bool)
-        if valid.sum() < 4:
-            continue
-        groups.append((ref.anchors.xyz[pairs[valid, 1]], query_features.xy[pairs[valid, 0]]))
-        group_refs.append(match.reference_id)
-    estimate, owner = estimate_pose_from_groups(
-        groups, photo.intrinsics, threshold_px=config.pnp_threshold_px, min_inliers=config.pnp_min_inliers
-    )
-    if estimate is None:
-        return None, []
-    return estimate, [group_refs[i] for i in np.unique(owner[estimate.inliers])]
+        if ref is not None:
+            pairs_of.append((ref, match_features(query_features, ref.features, config.anchor_ratio)))
+    variants = [False]
+    if any(ref.alternative_anchors is not None for ref, _ in pairs_of):
+        variants.append(True)
+    out = []
+    for use_alternative in variants:
+        groups: list[tuple[np.ndarray, np.ndarray]] = []
+        group_refs: list[Hashable] = []
+        for ref, pairs in pairs_of:
+            anchors = ref.alternative_anchors if use_alternative and ref.alternative_anchors else ref.anchors
+            valid = anchors.valid[pairs[:, 1]] if len(pairs) else np.zeros(0, bool)
+            if valid.sum() < 4:
+                continue
+            groups.append((anchors.xyz[pairs[valid, 1]], query_features.xy[pairs[valid, 0]]))
+            group_refs.append(ref.reference_id)
+        estimate, owner = estimate_pose_from_groups(
+            groups, photo.intrinsics, threshold_px=config.pnp_threshold_px, min_inliers=config.pnp_min_inliers
+        )
+        if estimate is not None:
+            out.append((estimate, [group_refs[i] for i in np.unique(owner[estimate.inliers])]))
+    return out
+
+
+def _prior_weight(position_prior: PositionPrior | None, estimate: PoseEstimate) -> float:
+    if position_prior is None:
+        return 1.0
+    return float(position_prior.weights(np.array([[estimate.pose.x_m, estimate.pose.y_m]]))[0])
 
 
 def _reference_evidence(ref: StoredReference, match: ReferenceMatch) -> ReferenceEvidence:
@@ -370,15 +394,13 @@ def _likelihood_at(
 def _trust_anchored(
     city_map: CityMap,
     model: ImageModel,
-    anchored: PoseEstimate | None,
+    anchored: PoseEstimate,
     localization: Localization,
     position_prior: PositionPrior | None,
     use_identity: bool,
     config: QueryConfig,
-) -> tuple[bool, dict[str, object]]:
-    """Whether the anchored pose is trusted, and the value of each check."""
-    if anchored is None:
-        return False, {}
+) -> tuple[bool, dict[str, object], float]:
+    """Whether the anchored pose is trusted, the value of each check, and the likelihood at the pose."""
     pose = anchored.pose
     checks: dict[str, object] = {
         "inliers": anchored.n_inliers,
@@ -399,7 +421,7 @@ def _trust_anchored(
     if anchored.n_inliers < config.strong_inliers:
         # Repeated facade elements let a wrong reference pass RANSAC with a few inliers: the map must agree.
         ok &= lik >= config.min_likelihood_ratio * best
-    return bool(ok), checks
+    return bool(ok), checks, lik
 
 
 def _anchored_answer(

@@ -127,6 +127,11 @@ def label_reference(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[
                 **labelled.anchors.to_arrays(),
                 "position_covariance": label.position_covariance,
                 "position_xy": np.array([label.x_m, label.y_m]),
+                **(
+                    labelled.alternative_anchors.to_arrays("alt_anchor")
+                    if labelled.alternative_anchors is not None
+                    else {}
+                ),
             },
         )
         sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))

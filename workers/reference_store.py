@@ -69,4 +69,5 @@ def stored_reference_from_arrays(reference_id: Hashable, arrays: dict[str, np.nd
         anchors,
         np.asarray(covariance, float),
         np.full(2, np.nan) if position is None else np.asarray(position, float),
+        MapAnchors.from_arrays(arrays, "alt_anchor") if "alt_anchor_xyz" in arrays else None,
     )
