@@ -1,4 +1,16 @@
-"""Local features on building pixels: SIFT keypoints with RootSIFT descriptors (the paper's SBoW uses building only).
+"""Local features on building pixels (the paper's SBoW uses building only): RootSIFT or ALIKED.
+
+Two feature types (``method``), with the same output contract (:class:`Features`: positions in input
+pixels, unit-norm descriptors, strongest first, only on the building mask):
+
+- ``"rootsift"``: OpenCV SIFT keypoints with RootSIFT descriptors (128-D, non-negative).
+- ``"aliked-n16"`` (alias ``"aliked"``) and ``"aliked-t16"``: the learned ALIKED keypoints and
+  descriptors (128-D and 64-D, signed; :mod:`geoloc.aliked`, exported by ``geoloc models build``).
+  ALIKED keypoints have no scale or orientation: ``sizes`` is the 5x5 detection window (in input
+  pixels) and ``angles`` is 0 (the descriptors are not rotation invariant; photos are upright).
+
+:data:`DEFAULT_METHOD` is the one setting that chooses the feature type everywhere (extraction in the
+pipeline, the SBoW vocabulary); the figures that decide it are in ``benchmarks/bench_features.py``.
 
 Pipeline (:func:`extract_features`):
 
@@ -9,9 +21,11 @@ Pipeline (:func:`extract_features`):
    pixels (default 4): segmentation tends to undershoot building outlines, and keypoints on a
    building's silhouette (roof line against the sky, corners) are among the most distinctive ones.
    Keypoints are detected only where this dilated mask is set.
-3. OpenCV SIFT keeps the ``max_features`` strongest keypoints; each descriptor is made RootSIFT
-   (L1-normalised, element-wise square root: unit L2 norm, so Euclidean distance between RootSIFT
-   descriptors is the Hellinger distance between the SIFT histograms, and dot products are similarities).
+3. RootSIFT: OpenCV SIFT keeps the ``max_features`` strongest keypoints; each descriptor is made
+   RootSIFT (L1-normalised, element-wise square root: unit L2 norm, so Euclidean distance between
+   RootSIFT descriptors is the Hellinger distance between the SIFT histograms, and dot products are
+   similarities). ALIKED: the ``max_features`` strongest local maxima of the score map whose pixel
+   is on the mask (:func:`geoloc.aliked.detect_keypoints`), described by the network's head.
 4. Keypoints are sorted by response (strongest first; ties by position), and their positions are
    returned in the *input* image's pixel coordinates (pixel centres at integer + 0.5 convention of
    OpenCV: ``x_in = (x_work + 0.5) / scale - 0.5``).
@@ -29,7 +43,24 @@ import numpy as np
 
 DEFAULT_MAX_SIDE = 1024
 DEFAULT_MAX_FEATURES = 1500
-DESCRIPTOR_DIM = 128
+DESCRIPTOR_DIM = 128  # RootSIFT and ALIKED-n16; ALIKED-t16 has 64
+
+FEATURE_METHODS = ("rootsift", "aliked-n16", "aliked-t16")
+METHOD_ALIASES = {"aliked": "aliked-n16"}
+DEFAULT_METHOD = "rootsift"
+"""The feature type used wherever none is given (pipeline, vocabulary). See the module docstring."""
+ALIKED_WINDOW_PX = 5  # ALIKED's detection window (NMS and soft-argmax), reported as the keypoint size
+
+
+def canonical_method(method: str | None) -> str:
+    """The canonical feature type name ("rootsift", "aliked-n16", "aliked-t16"); None is :data:`DEFAULT_METHOD`.
+
+    Raises ValueError for an unknown name.
+    """
+    name = DEFAULT_METHOD if method is None else METHOD_ALIASES.get(method, method)
+    if name not in FEATURE_METHODS:
+        raise ValueError(f"unknown feature method {method!r}; known: {', '.join(FEATURE_METHODS)} (or 'aliked')")
+    return name
 
 
 @dataclass
@@ -37,11 +68,13 @@ class Features:
     """Local features of one image.
 
     xy: (N, 2) float32 keypoint positions (x, y) in pixels of the input image.
-    descriptors: (N, 128) float32 RootSIFT descriptors (non-negative, unit L2 norm).
+    descriptors: (N, D) float32 unit-L2-norm descriptors (RootSIFT: D = 128, non-negative; ALIKED-n16:
+    128, ALIKED-t16: 64).
     sizes: (N,) float32 keypoint diameters in input-image pixels. angles: (N,) float32 orientations (deg).
     responses: (N,) float32 detector responses (strongest first).
     image_shape: (H, W) of the input image. scale: working size / input size (<= 1); coordinates
     multiplied by ``scale`` are in working pixels, where pixel thresholds (RANSAC) are meant.
+    method: the feature type (:data:`FEATURE_METHODS`); descriptors of different types must not be matched.
     """
 
     xy: np.ndarray
@@ -51,10 +84,15 @@ class Features:
     responses: np.ndarray
     image_shape: tuple[int, int]
     scale: float = 1.0
+    method: str = "rootsift"
 
     def __post_init__(self) -> None:
         self.xy = np.asarray(self.xy, dtype=np.float32).reshape(-1, 2)
-        self.descriptors = np.asarray(self.descriptors, dtype=np.float32).reshape(-1, DESCRIPTOR_DIM)
+        desc = np.asarray(self.descriptors, dtype=np.float32)
+        if desc.ndim != 2:
+            desc = desc.reshape(len(self.xy), -1) if desc.size else np.zeros((0, DESCRIPTOR_DIM), np.float32)
+        self.descriptors = desc
+        self.method = canonical_method(str(self.method))
         self.sizes = np.asarray(self.sizes, dtype=np.float32).reshape(-1)
         self.angles = np.asarray(self.angles, dtype=np.float32).reshape(-1)
         self.responses = np.asarray(self.responses, dtype=np.float32).reshape(-1)
@@ -66,11 +104,18 @@ class Features:
     def __len__(self) -> int:
         return len(self.xy)
 
+    @property
+    def descriptor_dim(self) -> int:
+        """D, the length of one descriptor."""
+        return int(self.descriptors.shape[1])
+
     @classmethod
-    def empty(cls, image_shape: tuple[int, int], scale: float = 1.0) -> Features:
+    def empty(
+        cls, image_shape: tuple[int, int], scale: float = 1.0, method: str = "rootsift", descriptor_dim: int = 128
+    ) -> Features:
         """No keypoints (e.g. an image without building pixels)."""
         z = np.zeros(0, np.float32)
-        return cls(np.zeros((0, 2)), np.zeros((0, DESCRIPTOR_DIM)), z, z, z, image_shape, scale)
+        return cls(np.zeros((0, 2)), np.zeros((0, descriptor_dim)), z, z, z, image_shape, scale, method)
 
     def subset(self, index: np.ndarray) -> Features:
         """The keypoints selected by ``index`` (bool mask or integer indices)."""
@@ -82,10 +127,11 @@ class Features:
             self.responses[index],
             self.image_shape,
             self.scale,
+            self.method,
         )
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        """Plain arrays for storage (descriptors as float16: RootSIFT values lie in [0, 1])."""
+        """Plain arrays for storage (descriptors as float16: unit vectors, components in [-1, 1])."""
         return {
             "xy": self.xy,
             "descriptors": self.descriptors.astype(np.float16),
@@ -94,11 +140,13 @@ class Features:
             "responses": self.responses,
             "image_shape": np.asarray(self.image_shape, np.int64),
             "scale": np.asarray(self.scale, np.float64),
+            "method": np.asarray(self.method),
         }
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray]) -> Features:
-        """Inverse of :meth:`to_arrays` (accepts an ``np.load`` result)."""
+        """Inverse of :meth:`to_arrays` (accepts an ``np.load`` result; arrays stored without ``method``
+        are RootSIFT, the only type before it existed)."""
         return cls(
             arrays["xy"],
             np.asarray(arrays["descriptors"], np.float32),
@@ -107,6 +155,7 @@ class Features:
             arrays["responses"],
             tuple(np.asarray(arrays["image_shape"]).tolist()),
             float(arrays["scale"]),
+            str(arrays["method"]) if "method" in arrays else "rootsift",
         )
 
     def save(self, path: str | Path) -> None:
@@ -131,16 +180,25 @@ def root_sift(descriptors: np.ndarray, eps: float = 1e-12) -> np.ndarray:
     return np.sqrt(d, out=d)
 
 
-def _to_gray_u8(image_rgb: np.ndarray) -> np.ndarray:
-    img = np.asarray(image_rgb)
+def _to_u8(image: np.ndarray) -> np.ndarray:
+    """uint8 copy of an image given as uint8, or float in [0, 1] or [0, 255]; an alpha channel is dropped."""
+    img = np.asarray(image)
     if img.dtype != np.uint8:
         scale = 255.0 if img.dtype.kind == "f" and img.max(initial=0) <= 1.0 else 1.0
         img = np.clip(img.astype(np.float32) * scale, 0, 255).astype(np.uint8)
-    if img.ndim == 2:
-        return img
-    if img.shape[2] == 4:
+    if img.ndim == 3 and img.shape[2] == 4:
         img = img[..., :3]
-    return cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY)
+    return np.ascontiguousarray(img)
+
+
+def _to_gray_u8(image_rgb: np.ndarray) -> np.ndarray:
+    img = _to_u8(image_rgb)
+    return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+
+
+def _to_rgb_u8(image_rgb: np.ndarray) -> np.ndarray:
+    img = _to_u8(image_rgb)
+    return cv2.cvtColor(img, cv2.COLOR_GRAY2RGB) if img.ndim == 2 else img
 
 
 def detection_mask(building_mask: np.ndarray, size_wh: tuple[int, int], dilate_px: int) -> np.ndarray:
@@ -159,26 +217,30 @@ def extract_features(
     building_mask: np.ndarray | None,
     max_features: int = DEFAULT_MAX_FEATURES,
     *,
+    method: str | None = None,
     max_side: int = DEFAULT_MAX_SIDE,
     dilate_px: int = 4,
     contrast_threshold: float = 0.02,
     edge_threshold: float = 10.0,
 ) -> Features:
-    """SIFT keypoints with RootSIFT descriptors on the building pixels of an image.
+    """Local features on the building pixels of an image (module docstring).
 
     image_rgb: (H, W, 3) uint8 RGB (or (H, W) gray). building_mask: (H, W) bool/int, non-zero on building
     pixels (any size: it is resized to the image); None means the whole image.
-    max_features: keep at most this many keypoints (strongest by SIFT response).
+    max_features: keep at most this many keypoints (the strongest).
+    method: "rootsift", "aliked-n16" (alias "aliked") or "aliked-t16"; None is :data:`DEFAULT_METHOD`.
     max_side: working resolution (longer side, pixels); dilate_px: mask dilation in working pixels.
-    contrast_threshold, edge_threshold: OpenCV SIFT detector thresholds.
+    contrast_threshold, edge_threshold: OpenCV SIFT detector thresholds (RootSIFT only).
     Returns :class:`Features` with positions in input-image pixels, strongest first.
+    Raises :class:`geoloc.aliked.AlikedNotBuiltError` when ALIKED is asked for and not exported.
     """
-    gray = _to_gray_u8(image_rgb)
-    h, w = gray.shape
+    method = canonical_method(method)
+    image = _to_gray_u8(image_rgb) if method == "rootsift" else _to_rgb_u8(image_rgb)
+    h, w = image.shape[:2]
     scale = working_scale((h, w), max_side)
     size_wh = (max(1, round(w * scale)), max(1, round(h * scale)))
     if size_wh != (w, h):
-        gray = cv2.resize(gray, size_wh, interpolation=cv2.INTER_AREA)
+        image = cv2.resize(image, size_wh, interpolation=cv2.INTER_AREA)
         # Exact per-axis factors (rounding of the working size).
         sx, sy = size_wh[0] / w, size_wh[1] / h
     else:
@@ -187,21 +249,52 @@ def extract_features(
         mask = np.full((size_wh[1], size_wh[0]), 255, np.uint8)
     else:
         mask = detection_mask(building_mask, size_wh, dilate_px)
+    dim = 64 if method == "aliked-t16" else DESCRIPTOR_DIM
     if not mask.any() or max_features <= 0:
-        return Features.empty((h, w), scale)
+        return Features.empty((h, w), scale, method, dim)
+    if method == "rootsift":
+        found = _rootsift(image, mask, max_features, contrast_threshold, edge_threshold)
+    else:
+        found = _aliked(image, mask, max_features, method)
+    if found is None:
+        return Features.empty((h, w), scale, method, dim)
+    pts, desc, sizes, angles, responses = found
+    # Strongest first; ties broken by position, so the order does not depend on the detector's internal order.
+    order = np.lexsort((pts[:, 0], pts[:, 1], -responses))[: int(max_features)]
+    xy = np.empty_like(pts[order])
+    xy[:, 0] = (pts[order, 0] + 0.5) / sx - 0.5
+    xy[:, 1] = (pts[order, 1] + 0.5) / sy - 0.5
+    return Features(
+        xy, desc[order], sizes[order] / scale, angles[order], responses[order], (h, w), scale, method
+    )
+
+
+_Found = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _rootsift(
+    gray: np.ndarray, mask: np.ndarray, max_features: int, contrast_threshold: float, edge_threshold: float
+) -> _Found | None:
+    """SIFT on a working-size gray image inside ``mask``: positions, RootSIFT, sizes, angles, responses."""
     sift = cv2.SIFT_create(
         nfeatures=int(max_features), contrastThreshold=contrast_threshold, edgeThreshold=edge_threshold
     )
     keypoints, desc = sift.detectAndCompute(gray, mask)
     if desc is None or len(keypoints) == 0:
-        return Features.empty((h, w), scale)
+        return None
     pts = np.array([k.pt for k in keypoints], np.float32).reshape(-1, 2)
     sizes = np.array([k.size for k in keypoints], np.float32)
     angles = np.array([k.angle for k in keypoints], np.float32)
     responses = np.array([k.response for k in keypoints], np.float32)
-    # Strongest first; ties broken by position, so the order does not depend on OpenCV's internal order.
-    order = np.lexsort((pts[:, 0], pts[:, 1], -responses))[: int(max_features)]
-    xy = np.empty_like(pts[order])
-    xy[:, 0] = (pts[order, 0] + 0.5) / sx - 0.5
-    xy[:, 1] = (pts[order, 1] + 0.5) / sy - 0.5
-    return Features(xy, root_sift(desc[order]), sizes[order] / scale, angles[order], responses[order], (h, w), scale)
+    return pts, root_sift(desc), sizes, angles, responses
+
+
+def _aliked(rgb: np.ndarray, mask: np.ndarray, max_features: int, method: str) -> _Found | None:
+    """ALIKED on a working-size RGB image, keypoints on ``mask``: positions, descriptors, sizes, angles, scores."""
+    from geoloc.aliked import aliked_keypoints, load_runtime
+
+    pts, scores, desc = aliked_keypoints(rgb, int(max_features), mask > 0, runtime=load_runtime(method))
+    if len(pts) == 0:
+        return None
+    n = len(pts)
+    return pts, desc, np.full(n, ALIKED_WINDOW_PX, np.float32), np.zeros(n, np.float32), scores
