@@ -4,6 +4,9 @@
         --references 60 --queries 30 --seed 1
     .venv/bin/python benchmarks/bench_features.py /tmp/aliked_w1 --json bench_features.json
 
+Feature types (``--methods``): ``rootsift``, ``aliked-n16``, ``aliked-t16`` and ``aliked-n16@1,0.5,0.25``
+(ALIKED-n16 on a three-level image pyramid, ``extract_features(aliked_scales=...)``).
+
 Needs the models in the cache (``geoloc models build --features rootsift --features aliked-n16
 --features aliked-t16``: the segmentation and ALIKED exports and one SBoW vocabulary per feature type).
 Every feature type runs on the same images with the same building masks (the segmentation network's,
@@ -32,8 +35,10 @@ Simulated world (ground truth: true poses, intrinsics, per-pixel facade ids):
   pose, within ``--tol-px`` (4) pixels of the reference keypoint;
 - per feature: the share of queries whose best co-visible reference (over queries with one that sees
   >= 0.1 of the image) gets >= 12 and >= 30 correct inliers; correct / all inliers over sharing
-  pairs; the wrong pairs that pass verification (>= 12 inliers) and their largest
-  inlier count; extraction time per 640 x 480 image (median; feature types interleaved per image);
+  pairs; the wrong pairs that pass verification (>= 12 inliers) and their largest inlier count;
+  how many of the verified pairs (sharing or wrong) are *right* (a sharing pair with at least half
+  of its inliers correct), and for how many queries the evaluated reference with the most inliers is
+  right; extraction time per 640 x 480 image (median; feature types interleaved per image);
 - retrieval with each feature type's own vocabulary (4096 words from CamVid train): the share of
   queries whose best-overlapping reference (``geoloc.evaluation``'s definition: ties within 0.02) is
   in the SBoW top 20, and in the top 4 after re-ranking those 20 by verified inliers.
@@ -68,7 +73,7 @@ from geoloc.sim.render import Pose, rotation_matrix
 from geoloc.sim.world import World, load_world
 from geoloc.transfer import DEFAULT_MIN_INLIERS, geometric_verification, match_features
 
-METHODS = ("rootsift", "aliked-n16", "aliked-t16")
+METHODS = ("rootsift", "aliked-n16", "aliked-t16", "aliked-n16@1,0.5,0.25")
 MATCHERS = ("ratio0.8", "mnn+ratio0.8", "mnn+ratio0.9", "mnn+ratio0.95")
 SHORTLIST = 20
 TOP_K = 4
@@ -196,6 +201,18 @@ def building_mask(rgb: np.ndarray, gt_labels: np.ndarray | None) -> np.ndarray:
     return (gt_labels if gt_labels is not None else segment(rgb)) == classes.BUILDING
 
 
+def parse_method(spec: str) -> tuple[str, tuple[float, ...]]:
+    """"aliked-n16@1,0.5" -> ("aliked-n16", (1.0, 0.5)): a feature type and ALIKED's pyramid scales."""
+    name, _, scales = spec.partition("@")
+    return name, tuple(float(v) for v in scales.split(",")) if scales else (1.0,)
+
+
+def extract(spec: str, rgb: np.ndarray, mask: np.ndarray, max_features: int) -> Features:
+    """Features of one image for a method spec (see :func:`parse_method`)."""
+    name, scales = parse_method(spec)
+    return extract_features(rgb, mask, max_features, method=name, aliked_scales=scales)
+
+
 def extract_all(
     images: dict[str, np.ndarray], masks: dict[str, np.ndarray], methods: tuple[str, ...], max_features: int
 ) -> tuple[dict[str, dict[str, Features]], dict[str, list[float]]]:
@@ -204,11 +221,11 @@ def extract_all(
     times: dict[str, list[float]] = {m: [] for m in methods}
     for method in methods:  # warm-up (session creation) outside the timings
         first = next(iter(images))
-        extract_features(images[first], masks[first], max_features, method=method)
+        extract(method, images[first], masks[first], max_features)
     for name, rgb in images.items():
         for method in methods:
             t0 = time.perf_counter()
-            feats[method][name] = extract_features(rgb, masks[name], max_features, method=method)
+            feats[method][name] = extract(method, rgb, masks[name], max_features)
             times[method].append(time.perf_counter() - t0)
     return feats, times
 
@@ -297,10 +314,10 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
             "keypoints_median": int(np.median([len(fm[n]) for n in names])),
             "matchers": {},
         }
-        vocabulary = default_vocabulary(progress=False, method=method)
+        vocabulary = default_vocabulary(progress=False, method=parse_method(method)[0])
         words = {n: vocabulary.words(fm[n].descriptors) for n in names}
         index = InvertedIndex.from_documents((r, words[r]) for r in refs)
-        for mname in MATCHERS:
+        for mname in args.matcher_names:
             match = matcher(mname)
             rows = []
             for kind, pairs in (("sharing", sharing), ("wrong", wrong)):
@@ -334,6 +351,14 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
                 ranked.sort()
                 in_top20.append(bool(best_sets[q] & {r for r, _ in shortlist}))
                 in_top4.append(bool(best_sets[q] & {r for _, _, r in ranked[:TOP_K]}))
+            good = [row for row in share_rows if row["inliers"] and row["correct"] >= 0.5 * row["inliers"]]
+            passing = [row for row in rows if row["inliers"] >= DEFAULT_MIN_INLIERS]
+            top_right = top_any = 0
+            for q in queries:
+                top = max((row for row in rows if row["query"] == q), key=lambda row: row["inliers"])
+                if top["inliers"] >= DEFAULT_MIN_INLIERS:
+                    top_any += 1
+                    top_right += top in good
             per_method["matchers"][mname] = {
                 "best_pair_correct_ge12": round(float(np.mean(best_correct >= DEFAULT_MIN_INLIERS)), 4),
                 "best_pair_correct_ge30": round(float(np.mean(best_correct >= 30)), 4),
@@ -345,11 +370,15 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
                 "wrong_pairs_passing": round(float(np.mean(wrong_inl > 0)), 4),
                 "wrong_pairs_passing_count": int((wrong_inl > 0).sum()),
                 "wrong_inliers_max": int(wrong_inl.max(initial=0)),
+                "verified_pairs": len(passing),
+                "verified_pairs_right": sum(row in good for row in passing),
+                "top_by_inliers_verified": top_any,
+                "top_by_inliers_right": top_right,
                 "retrieval_best_in_sbow_top20": round(float(np.mean(in_top20)), 4),
                 "retrieval_best_in_reranked_top4": round(float(np.mean(in_top4)), 4),
                 "pairs": rows,
             }
-            print(f"  {method:<11} {mname:<14} done")
+            print(f"  {method:<22} {mname:<14} done", flush=True)
         results["features"][method] = per_method
     return results
 
@@ -371,7 +400,7 @@ def bench_lund(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
         fm = feats[method]
         t_ms = 1e3 * np.asarray(times[method])
         entry: dict = {"extract_ms_median": round(float(np.median(t_ms)), 1), "matchers": {}}
-        for mname in MATCHERS:
+        for mname in args.matcher_names:
             match = matcher(mname)
             adj = np.array([int(verified(fm[a], fm[b], match)[1].sum()) for a, b in adjacent])
             far_inl = np.array([int(verified(fm[a], fm[b], match)[1].sum()) for a, b in far])
@@ -395,26 +424,29 @@ def bench_lund(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
 def print_tables(world: dict | None, lund: dict | None) -> None:
     if world:
         print("\nSimulated world: best co-visible pairs (>= 0.1), co-visible pairs, wrong pairs, retrieval")
-        head = (f"{'feature':<11} {'matcher':<14} {'ms/img':>7} {'>=12 ok':>8} {'>=30 ok':>8} {'med ok':>7} "
-                f"{'ok/inl':>7} {'inl/pair':>8} {'wrong>0':>8} {'wrongmax':>8} {'top20':>6} {'top4':>6}")
+        head = (f"{'feature':<22} {'matcher':<14} {'ms/img':>7} {'>=12 ok':>8} {'>=30 ok':>8} {'med ok':>7} "
+                f"{'ok/inl':>7} {'inl/pair':>8} {'wrong>0':>8} {'wrongmax':>8} {'right/ver':>9} {'top1':>6} "
+                f"{'top20':>6} {'top4':>6}")
         print(head)
         for method, entry in world["features"].items():
             for mname, m in entry["matchers"].items():
                 print(
-                    f"{method:<11} {mname:<14} {entry['extract_ms_median']:>7.0f} {m['best_pair_correct_ge12']:>8.2f} "
+                    f"{method:<22} {mname:<14} {entry['extract_ms_median']:>7.0f} {m['best_pair_correct_ge12']:>8.2f} "
                     f"{m['best_pair_correct_ge30']:>8.2f} {m['best_pair_correct_median']:>7.0f} "
                     f"{m['sharing_correct_ratio']:>7.2f} {m['sharing_inliers_mean']:>8.1f} "
                     f"{m['wrong_pairs_passing']:>8.3f} {m['wrong_inliers_max']:>8d} "
+                    f"{m['verified_pairs_right']:>4d}/{m['verified_pairs']:<4d} "
+                    f"{m['top_by_inliers_right']:>3d}/{m['top_by_inliers_verified']:<2d} "
                     f"{m['retrieval_best_in_sbow_top20']:>6.2f} {m['retrieval_best_in_reranked_top4']:>6.2f}"
                 )
     if lund:
         print(f"\nLund: verified inliers, {lund['adjacent_pairs']} adjacent pairs vs {lund['far_pairs']} far pairs")
-        print(f"{'feature':<11} {'matcher':<14} {'ms/img':>7} {'adj med':>8} {'adj mean':>8} {'adj>=30':>8} "
+        print(f"{'feature':<22} {'matcher':<14} {'ms/img':>7} {'adj med':>8} {'adj mean':>8} {'adj>=30':>8} "
               f"{'far>0':>6} {'farmax':>6}")
         for method, entry in lund["features"].items():
             for mname, m in entry["matchers"].items():
                 print(
-                    f"{method:<11} {mname:<14} {entry['extract_ms_median']:>7.0f} {m['adjacent_inliers_median']:>8.0f} "
+                    f"{method:<22} {mname:<14} {entry['extract_ms_median']:>7.0f} {m['adjacent_inliers_median']:>8.0f} "
                     f"{m['adjacent_inliers_mean']:>8.1f} {m['adjacent_ge30']:>8.2f} {m['far_passing']:>6.2f} "
                     f"{m['far_inliers_max']:>6d}"
                 )
@@ -424,7 +456,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("world", nargs="?", help="a world folder from `geoloc sim world` (omit to skip)")
     parser.add_argument("--json", type=Path, default=Path("bench_features.json"))
-    parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--methods", default=";".join(METHODS), help="feature types, ';'-separated; "
+                        "'aliked-n16@1,0.5' runs ALIKED on a pyramid of those scales")
     parser.add_argument("--mask", choices=("network", "gt"), default="network")
     parser.add_argument("--max-features", type=int, default=1500)
     parser.add_argument("--min-covisible", type=float, default=0.02)
@@ -433,11 +466,13 @@ def main() -> None:
     parser.add_argument("--wrong-per-query", type=int, default=15)
     parser.add_argument("--lund-far", type=int, default=8)
     parser.add_argument("--skip-lund", action="store_true")
+    parser.add_argument("--matchers", default="", help=f"';'-separated subset of {';'.join(MATCHERS)}")
     args = parser.parse_args()
-    methods = tuple(m.strip() for m in args.methods.split(","))
+    methods = tuple(m.strip() for m in args.methods.split(";"))
 
     machine = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}"
     print(f"machine: {machine}")
+    args.matcher_names = tuple(args.matchers.split(";")) if args.matchers else MATCHERS
     t0 = time.perf_counter()
     world = bench_world(args, methods) if args.world else None
     lund = None if args.skip_lund else bench_lund(args, methods)

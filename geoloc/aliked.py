@@ -71,10 +71,12 @@ class SddhWeights:
 
     @property
     def n_samples(self) -> int:
+        """M, the deformable samples per keypoint."""
         return int(self.aggregate.shape[0])
 
     @property
     def descriptor_dim(self) -> int:
+        """D, the descriptor length."""
         return int(self.aggregate.shape[2])
 
     @classmethod
@@ -103,6 +105,7 @@ class AlikedRuntime:
 
     @property
     def descriptor_dim(self) -> int:
+        """D, the descriptor length (128 for n16, 64 for t16)."""
         return self.head.descriptor_dim
 
 
@@ -125,13 +128,19 @@ def _cached_runtime(onnx_path: str, head_path: str, config_name: str, threads: i
 
 
 def load_runtime(config_name: str = "aliked-n16", threads: int | None = None) -> AlikedRuntime:
-    """The ALIKED runtime of ``config_name`` ("aliked-n16" or "aliked-t16"), cached per process.
+    """Return the ALIKED runtime of ``config_name`` ("aliked-n16" or "aliked-t16"), cached per process.
 
-    Args:
-        config_name: which export.
-        threads: onnxruntime intra-op threads; default ``$GEOLOC_SEG_THREADS`` or min(4, cpu count).
-    Raises:
-        AlikedNotBuiltError: the export is not in the cache.
+    Parameters
+    ----------
+    config_name
+        Which export.
+    threads
+        onnxruntime intra-op threads; default ``$GEOLOC_SEG_THREADS`` or min(4, cpu count).
+
+    Raises
+    ------
+    AlikedNotBuiltError
+        The export is not in the cache.
     """
     files = aliked_files(config_name)
     if not (files.onnx.exists() and files.head.exists()):
@@ -143,7 +152,7 @@ def load_runtime(config_name: str = "aliked-n16", threads: int | None = None) ->
 
 
 def export_metadata(config_name: str) -> dict[str, Any] | None:
-    """The export's JSON metadata (weights sha256, versions), or None if missing."""
+    """Return the export's JSON metadata (weights sha256, versions), or None if missing."""
     try:
         return dict(json.loads(aliked_files(config_name).meta.read_text()))
     except (OSError, ValueError):
@@ -172,6 +181,7 @@ class DenseMaps:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(h, w) of the image."""
         return int(self.score.shape[0]), int(self.score.shape[1])
 
 
@@ -291,8 +301,10 @@ def _selu(x: np.ndarray) -> np.ndarray:
 
 
 def _upsample_taps(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Bilinear upsampling with aligned corners from ``n_in`` to ``n_out`` samples along one axis: for every
-    output index its two source indices and the weight of the second."""
+    """Taps of bilinear upsampling with aligned corners from ``n_in`` to ``n_out`` samples along one axis.
+
+    Returns, for every output index, its two source indices and the weight of the second.
+    """
     src = np.arange(n_out, dtype=np.float32) * np.float32((n_in - 1) / max(n_out - 1, 1))
     lo = np.minimum(np.floor(src).astype(np.int64), n_in - 1)
     return lo, np.minimum(lo + 1, n_in - 1), (src - lo).astype(np.float32)
@@ -367,11 +379,28 @@ def describe(maps: DenseMaps, head: SddhWeights, xy: np.ndarray) -> np.ndarray:
     table[:-1] = descriptor_map_at(maps, pixels // w, pixels % w)
     corner_slot = np.full(valid.shape, len(pixels), np.int64)
     corner_slot[valid] = slot.reshape(-1)
-    samples = sum(table[corner_slot[:, j]] * corner_w[:, j, None] for j in range(4))
+    samples = table[corner_slot[:, 0]] * corner_w[:, 0, None]
+    for j in range(1, 4):
+        samples += table[corner_slot[:, j]] * corner_w[:, j, None]
     samples = _selu(samples.reshape(n, m, -1) @ head.sample_w.T)  # (N, M, C)
     descriptors = samples.reshape(n, -1) @ head.aggregate.reshape(-1, head.descriptor_dim)  # sum over (m, c)
     descriptors /= np.maximum(np.linalg.norm(descriptors, axis=1, keepdims=True), np.float32(1e-12))
     return descriptors.astype(np.float32)
+
+
+@dataclass
+class Keypoints:
+    """ALIKED keypoints of one image: (N, 2) float32 positions (x, y) in its pixels, (N,) float32 scores,
+    (N, D) float32 unit descriptors and (N,) float32 the pyramid scale each was detected at (1 = full size);
+    strongest first."""
+
+    xy: np.ndarray
+    scores: np.ndarray
+    descriptors: np.ndarray
+    scales: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.xy)
 
 
 def aliked_keypoints(
@@ -381,13 +410,55 @@ def aliked_keypoints(
     *,
     runtime: AlikedRuntime | None = None,
     min_score: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ALIKED on one (h, w, 3) uint8 RGB image: (N, 2) positions, (N,) scores, (N, D) descriptors.
+    scales: tuple[float, ...] = (1.0,),
+) -> Keypoints:
+    """ALIKED on one (h, w, 3) uint8 RGB image, optionally over an image pyramid.
 
     allowed: optional (h, w) bool mask where keypoints may lie. runtime: default ``load_runtime()`` (n16).
-    Keypoints are the ``max_keypoints`` strongest, strongest first (see :func:`detect_keypoints`).
+    scales: the image is also run at these sizes (``cv2.INTER_AREA``; the mask nearest); sizes below 32 px
+    are skipped. ALIKED is single-scale: a facade seen 3x larger in one photo than in another has few
+    matches at one scale, so a pyramid extends the scale range matching covers. Keypoints of all levels
+    compete by score for the ``max_keypoints`` places (:func:`detect_keypoints` per level; only the kept
+    ones are described); positions are returned in the input image's pixels.
     """
     runtime = runtime or load_runtime()
-    maps = dense_maps(runtime, image_rgb)
-    xy, scores = detect_keypoints(maps.score, max_keypoints, allowed, min_score=min_score)
-    return xy, scores, describe(maps, runtime.head, xy)
+    img = np.asarray(image_rgb)
+    h, w = img.shape[:2]
+    levels = []
+    for scale in scales:
+        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        if min(size) < PAD_MULTIPLE:
+            continue
+        if size == (w, h):
+            img_s, allowed_s = img, allowed
+        else:
+            img_s = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+            allowed_s = None
+            if allowed is not None:
+                allowed_s = cv2.resize(np.asarray(allowed, np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+        maps = dense_maps(runtime, img_s)
+        xy, scores = detect_keypoints(maps.score, max_keypoints, allowed_s, min_score=min_score)
+        levels.append((maps, xy, scores, size[0] / w, size[1] / h))
+    if not levels:
+        return Keypoints(np.zeros((0, 2), np.float32), np.zeros(0, np.float32),
+                         np.zeros((0, runtime.descriptor_dim), np.float32), np.zeros(0, np.float32))
+    level_of = np.concatenate([np.full(len(lv[1]), i) for i, lv in enumerate(levels)])
+    all_scores = np.concatenate([lv[2] for lv in levels])
+    keep = np.sort(np.argsort(-all_scores, kind="stable")[:max_keypoints])
+    out_xy, out_scores, out_desc, out_scale = [], [], [], []
+    start = 0
+    for i, (maps, xy, scores, sx, sy) in enumerate(levels):
+        mine = keep[level_of[keep] == i] - start
+        start += len(xy)
+        out_desc.append(describe(maps, runtime.head, xy[mine]))
+        out_xy.append(np.column_stack([(xy[mine, 0] + 0.5) / sx - 0.5, (xy[mine, 1] + 0.5) / sy - 0.5]))
+        out_scores.append(scores[mine])
+        out_scale.append(np.full(len(mine), sx, np.float32))
+    scores_all = np.concatenate(out_scores)
+    order = np.argsort(-scores_all, kind="stable")
+    return Keypoints(
+        np.concatenate(out_xy).astype(np.float32)[order],
+        scores_all[order],
+        np.concatenate(out_desc)[order],
+        np.concatenate(out_scale)[order],
+    )

@@ -50,6 +50,7 @@ METHOD_ALIASES = {"aliked": "aliked-n16"}
 DEFAULT_METHOD = "rootsift"
 """The feature type used wherever none is given (pipeline, vocabulary). See the module docstring."""
 ALIKED_WINDOW_PX = 5  # ALIKED's detection window (NMS and soft-argmax), reported as the keypoint size
+DEFAULT_ALIKED_SCALES: tuple[float, ...] = (1.0,)
 
 
 def canonical_method(method: str | None) -> str:
@@ -222,6 +223,7 @@ def extract_features(
     dilate_px: int = 4,
     contrast_threshold: float = 0.02,
     edge_threshold: float = 10.0,
+    aliked_scales: tuple[float, ...] = DEFAULT_ALIKED_SCALES,
 ) -> Features:
     """Local features on the building pixels of an image (module docstring).
 
@@ -231,6 +233,8 @@ def extract_features(
     method: "rootsift", "aliked-n16" (alias "aliked") or "aliked-t16"; None is :data:`DEFAULT_METHOD`.
     max_side: working resolution (longer side, pixels); dilate_px: mask dilation in working pixels.
     contrast_threshold, edge_threshold: OpenCV SIFT detector thresholds (RootSIFT only).
+    aliked_scales: ALIKED's image pyramid, as factors of the working size (ALIKED only; see
+    :func:`geoloc.aliked.aliked_keypoints`).
     Returns :class:`Features` with positions in input-image pixels, strongest first.
     Raises :class:`geoloc.aliked.AlikedNotBuiltError` when ALIKED is asked for and not exported.
     """
@@ -255,7 +259,7 @@ def extract_features(
     if method == "rootsift":
         found = _rootsift(image, mask, max_features, contrast_threshold, edge_threshold)
     else:
-        found = _aliked(image, mask, max_features, method)
+        found = _aliked(image, mask, max_features, method, aliked_scales)
     if found is None:
         return Features.empty((h, w), scale, method, dim)
     pts, desc, sizes, angles, responses = found
@@ -289,12 +293,14 @@ def _rootsift(
     return pts, root_sift(desc), sizes, angles, responses
 
 
-def _aliked(rgb: np.ndarray, mask: np.ndarray, max_features: int, method: str) -> _Found | None:
+def _aliked(
+    rgb: np.ndarray, mask: np.ndarray, max_features: int, method: str, scales: tuple[float, ...]
+) -> _Found | None:
     """ALIKED on a working-size RGB image, keypoints on ``mask``: positions, descriptors, sizes, angles, scores."""
     from geoloc.aliked import aliked_keypoints, load_runtime
 
-    pts, scores, desc = aliked_keypoints(rgb, int(max_features), mask > 0, runtime=load_runtime(method))
-    if len(pts) == 0:
+    found = aliked_keypoints(rgb, int(max_features), mask > 0, runtime=load_runtime(method), scales=scales)
+    if len(found) == 0:
         return None
-    n = len(pts)
-    return pts, desc, np.full(n, ALIKED_WINDOW_PX, np.float32), np.zeros(n, np.float32), scores
+    sizes = np.float32(ALIKED_WINDOW_PX) / found.scales
+    return found.xy, found.descriptors, sizes, np.zeros(len(found), np.float32), found.scores

@@ -134,7 +134,8 @@ def test_onnx_runtime_matches_pytorch_on_a_real_photo(exported: Path, name: str)
     net = load_aliked(models.aliked_weights_path(name), name)
     runtime = aliked.load_runtime(name)
     image = _lund("05", (500, 370))  # not a multiple of 32: exercises the padding
-    xy, scores, desc = aliked.aliked_keypoints(image, 1000, runtime=runtime)
+    found = aliked.aliked_keypoints(image, 1000, runtime=runtime)
+    xy, scores, desc = found.xy, found.scores, found.descriptors
     with torch.no_grad():
         x = torch.from_numpy(image.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
         score_map, feature_map = net.dense(x)

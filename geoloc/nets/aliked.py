@@ -1,5 +1,7 @@
-"""ALIKED local features (Zhao et al., "ALIKED: A Lighter Keypoint and Descriptor Extraction Network
-via Deformable Transformation", IEEE TIM 2023), written for our export path.
+"""ALIKED local features, written for our export path.
+
+Zhao et al., "ALIKED: A Lighter Keypoint and Descriptor Extraction Network via Deformable
+Transformation", IEEE TIM 2023.
 
 The module layout (attribute names, nesting, channel counts) reproduces the published state dicts
 (``aliked-n16.pth``, ``aliked-t16.pth`` in ``shared/models``) so that ``load_state_dict(strict=True)``
@@ -88,6 +90,7 @@ class DeformConv3x3(nn.Module):
         self.regular_conv = nn.Conv2d(c_in, c_out, 3, padding=1, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, C_in, H, W) -> (B, C_out, H, W)."""
         offset = self.offset_conv(x)
         xs, ys = _pixel_grids(x)
         x_max, y_max = xs.amax(), ys.amax()  # W - 1, H - 1
@@ -120,6 +123,7 @@ class ConvBlock(nn.Module):
         self.bn2 = nn.BatchNorm2d(c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, C_in, H, W) -> (B, C_out, H, W)."""
         x = F.selu(self.bn1(self.conv1(x)))
         return F.selu(self.bn2(self.conv2(x)))
 
@@ -136,6 +140,7 @@ class ResBlock(nn.Module):
         self.downsample = nn.Conv2d(c_in, c_out, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, C_in, H, W) -> (B, C_out, H, W)."""
         out = F.selu(self.bn1(self.conv1(x)))
         out = self.bn2(self.conv2(out))
         return F.selu(out + self.downsample(x))
@@ -189,7 +194,9 @@ class Aliked(nn.Module):
     # -- dense part -------------------------------------------------------------------------
 
     def levels(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Aggregated levels (after conv1..4 and SELU) at 1, 1/2, 1/8, 1/32 of a (B, 3, H, W) [0, 1] image.
+        """Compute the aggregated levels (after conv1..4 and SELU) at 1, 1/2, 1/8, 1/32 of a [0, 1] image.
+
+        The image is (B, 3, H, W) RGB.
 
         H and W must be multiples of 32.
         """
@@ -313,10 +320,13 @@ class AlikedDense(nn.Module):
         self.net = net
 
     def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """(1, 3, H, W) RGB 0..255 -> (score, level1, level2, level3, level4), see the class docstring."""
         levels = self.net.levels(image * (1.0 / 255.0))
         head = self.net.score_head
         # The head's first conv is 1x1 and linear: apply it per level, then upsample (8 channels, not dim).
-        w0 = head[0].weight
+        first = head[0]
+        assert isinstance(first, nn.Conv2d)
+        w0 = first.weight
         quarter = self.net.config.dim // 4
         parts = [F.conv2d(f, w0[:, i * quarter : (i + 1) * quarter]) for i, f in enumerate(levels)]
         s = parts[0]
