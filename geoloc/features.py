@@ -10,7 +10,35 @@ pixels, unit-norm descriptors, strongest first, only on the building mask):
   pixels) and ``angles`` is 0 (the descriptors are not rotation invariant; photos are upright).
 
 :data:`DEFAULT_METHOD` is the one setting that chooses the feature type everywhere (extraction in the
-pipeline, the SBoW vocabulary); the figures that decide it are in ``benchmarks/bench_features.py``.
+pipeline, the SBoW vocabulary: ``geoloc models build --features <type>`` builds a type's vocabulary).
+Descriptors of both types are unit vectors, so :func:`geoloc.transfer.match_features` (dot products,
+Lowe's ratio 0.8, one-to-one) serves both; features of different types must never be matched or
+indexed together (``Features.method`` says which type a set is).
+
+Measured (``benchmarks/bench_features.py``; simulated Helsinki world seed 1, 60 references, 30
+queries, 640 x 480, network building masks, 1500 keypoints; the pipeline's matching and RANSAC; Lund:
+29 real 1024 x 768 photos along a street; times on the shared 2-core box at load 5-11)::
+
+                                                   RootSIFT   ALIKED-n16  ALIKED-t16  n16, pyramid 1,1/2,1/4
+    best co-visible reference, >= 12 / >= 30
+      correct inliers (18 queries)                0.39/0.28   0.28/0.22   0.33/0.22   0.39/0.22
+    verified inliers that are correct             0.41        0.70        0.56        0.72
+    unrelated references passing RANSAC (of 450)  24 %        0.4 %       3.6 %       0.2 %
+      their most inliers                          38          14          35          15
+    reference with most inliers is right          7 of 26     9 of 13     8 of 17     8 of 12
+    SBoW top 20 / re-ranked top 4                 0.76/0.67   0.81/0.48   0.76/0.43   0.81/0.48
+    Lund adjacent pairs, median verified inliers  84          183         168         188
+    Lund pairs >= 8 apart passing RANSAC          5 %         8 %         11 %        10 %
+    ms per 640 x 480 / 1024 x 768 image           114/314     636/1977    439/1295    899/2789
+
+ALIKED's inliers are far more often right and unrelated references (repeated facade textures) almost
+never pass verification; on real photos it finds twice the inliers. It does not cover more simulated
+queries: it is single-scale, and beyond a ~2.5x scale change between two photos of a facade it finds
+nothing (the pyramid, ``aliked_scales``, recovers RootSIFT's coverage at 1.4x its time), and it costs
+4-6x RootSIFT's extraction time (at lower load: network 0.13 s + descriptor head 0.12-0.16 s per
+640 x 480 image). Mutual
+nearest neighbours add nothing to the ratio test with one-to-one matching; looser ratios (0.9, 0.95)
+find more inliers for both types but let most unrelated references pass. RootSIFT stays the default.
 
 Pipeline (:func:`extract_features`):
 

@@ -248,3 +248,33 @@ def test_feature_types_are_named_and_have_their_own_vocabulary_file() -> None:
     stored = Features.empty((10, 10)).to_arrays()
     stored.pop("method")  # stored before feature types existed: RootSIFT
     assert Features.from_arrays(stored).method == "rootsift"
+
+
+def test_pyramid_levels_are_the_image_at_that_size(exported: Path) -> None:
+    """Keypoints found at pyramid scale 0.5 are those of the half-size image, positions in full-size pixels."""
+    image = _lund("05", (640, 480))
+    runtime = aliked.load_runtime("aliked-n16")
+    both = aliked.aliked_keypoints(image, 1200, runtime=runtime, scales=(1.0, 0.5))
+    assert set(np.unique(both.scales).tolist()) == {0.5, 1.0}
+    assert np.all(np.diff(both.scores) <= 0)
+    half = aliked.aliked_keypoints(cv2.resize(image, (320, 240), interpolation=cv2.INTER_AREA), 1200, runtime=runtime)
+    small = both.scales == 0.5
+    in_half = (both.xy[small] + 0.5) * 0.5 - 0.5
+    dist = np.linalg.norm(in_half[:, None, :] - half.xy[None, :, :], axis=2)
+    nearest = dist.argmin(axis=1)
+    np.testing.assert_allclose(dist[np.arange(len(in_half)), nearest], 0.0, atol=1e-4)
+    np.testing.assert_allclose(both.descriptors[small], half.descriptors[nearest], atol=1e-5)
+    f = extract_features(image, None, 500, method="aliked", aliked_scales=(1.0, 0.5))
+    assert len(f) == 500 and f.sizes.max() == pytest.approx(2 * f.sizes.min())  # 5 px windows at both scales
+
+
+def test_models_build_rejects_an_unknown_feature_type(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from typer.testing import CliRunner
+
+    from cli.main import app
+
+    monkeypatch.setenv("GEOLOC_DATA_DIR", str(tmp_path))
+    result = CliRunner().invoke(app, ["models", "build", "--features", "orb"])
+    assert result.exit_code == 2
+    assert "unknown feature method" in result.output
+    assert not (tmp_path / "cache" / "models").exists() or not any((tmp_path / "cache" / "models").iterdir())
