@@ -383,7 +383,7 @@ def describe(maps: DenseMaps, head: SddhWeights, xy: np.ndarray) -> np.ndarray:
     for j in range(1, 4):
         samples += table[corner_slot[:, j]] * corner_w[:, j, None]
     samples = _selu(samples.reshape(n, m, -1) @ head.sample_w.T)  # (N, M, C)
-    descriptors = samples.reshape(n, -1) @ head.aggregate.reshape(-1, head.descriptor_dim)  # sum over (m, c)
+    descriptors: np.ndarray = samples.reshape(n, -1) @ head.aggregate.reshape(-1, head.descriptor_dim)  # sum (m, c)
     descriptors /= np.maximum(np.linalg.norm(descriptors, axis=1, keepdims=True), np.float32(1e-12))
     return descriptors.astype(np.float32)
 

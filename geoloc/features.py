@@ -36,9 +36,9 @@ never pass verification; on real photos it finds twice the inliers. It does not 
 queries: it is single-scale, and beyond a ~2.5x scale change between two photos of a facade it finds
 nothing (the pyramid, ``aliked_scales``, recovers RootSIFT's coverage at 1.4x its time), and it costs
 4-6x RootSIFT's extraction time (at lower load: network 0.13 s + descriptor head 0.12-0.16 s per
-640 x 480 image). Mutual
-nearest neighbours add nothing to the ratio test with one-to-one matching; looser ratios (0.9, 0.95)
-find more inliers for both types but let most unrelated references pass. RootSIFT stays the default.
+640 x 480 image). Mutual nearest neighbours add nothing to the ratio test with one-to-one matching;
+looser ratios (0.9, 0.95) find more inliers for both types but let most unrelated references pass.
+RootSIFT stays the default.
 
 Pipeline (:func:`extract_features`):
 
@@ -74,6 +74,7 @@ DEFAULT_MAX_FEATURES = 1500
 DESCRIPTOR_DIM = 128  # RootSIFT and ALIKED-n16; ALIKED-t16 has 64
 
 FEATURE_METHODS = ("rootsift", "aliked-n16", "aliked-t16")
+DESCRIPTOR_DIMS = {"rootsift": 128, "aliked-n16": 128, "aliked-t16": 64}
 METHOD_ALIASES = {"aliked": "aliked-n16"}
 DEFAULT_METHOD = "rootsift"
 """The feature type used wherever none is given (pipeline, vocabulary). See the module docstring."""
@@ -281,7 +282,7 @@ def extract_features(
         mask = np.full((size_wh[1], size_wh[0]), 255, np.uint8)
     else:
         mask = detection_mask(building_mask, size_wh, dilate_px)
-    dim = 64 if method == "aliked-t16" else DESCRIPTOR_DIM
+    dim = DESCRIPTOR_DIMS[method]
     if not mask.any() or max_features <= 0:
         return Features.empty((h, w), scale, method, dim)
     if method == "rootsift":

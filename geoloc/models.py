@@ -263,7 +263,9 @@ def build_aliked_model(config_name: str = "aliked-n16", force: bool = False) -> 
     return files
 
 
-def _export_aliked(weights: Path, config_name: str, onnx_out: Path, head_out: Path) -> tuple[dict, dict]:
+def _export_aliked(
+    weights: Path, config_name: str, onnx_out: Path, head_out: Path
+) -> tuple[dict[str, str], dict[str, int]]:
     """Load the weights strictly, export the dense graph (dynamic H, W) and save the head's weights."""
     try:
         import numpy as np
