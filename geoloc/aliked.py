@@ -19,8 +19,9 @@ here, vectorised over keypoints (no torch):
    descriptor, L2-normalised.
 
 Positions are (x, y) pixel centres of the input image (OpenCV's convention: pixel i spans
-[i - 0.5, i + 0.5]). :func:`aliked_keypoints` does the three steps; ``geoloc.features`` wraps it into
-the project's :class:`~geoloc.features.Features` (building mask, working resolution).
+[i - 0.5, i + 0.5]). :func:`aliked_keypoints` does the three steps, optionally on an image pyramid;
+``geoloc.features`` wraps it into the project's :class:`~geoloc.features.Features` (building mask,
+working resolution).
 """
 
 from __future__ import annotations
@@ -415,8 +416,8 @@ def aliked_keypoints(
     """ALIKED on one (h, w, 3) uint8 RGB image, optionally over an image pyramid.
 
     allowed: optional (h, w) bool mask where keypoints may lie. runtime: default ``load_runtime()`` (n16).
-    scales: the image is also run at these sizes (``cv2.INTER_AREA``; the mask nearest); sizes below 32 px
-    are skipped. ALIKED is single-scale: a facade seen 3x larger in one photo than in another has few
+    scales: the image is run at each of these factors of its size (``cv2.INTER_AREA``; the mask nearest);
+    levels below 32 px are skipped. ALIKED is single-scale: a facade seen 3x larger in one photo than in another has few
     matches at one scale, so a pyramid extends the scale range matching covers. Keypoints of all levels
     compete by score for the ``max_keypoints`` places (:func:`detect_keypoints` per level; only the kept
     ones are described); positions are returned in the input image's pixels.
