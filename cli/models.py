@@ -6,7 +6,9 @@ import time
 
 import typer
 
-app = typer.Typer(no_args_is_help=True, help="Build the exported models (ONNX network, SBoW vocabulary) in the cache.")
+app = typer.Typer(
+    no_args_is_help=True, help="Build the exported models (ONNX networks, SBoW vocabularies) in the cache."
+)
 
 
 @app.command("build")
@@ -15,17 +17,36 @@ def build(
     size: str | None = typer.Option(
         None, "--size", help="Network input WxH, multiples of 16 (default: the runtime's size)."
     ),
+    features: list[str] | None = typer.Option(
+        None,
+        "--features",
+        help="Feature types to build an SBoW vocabulary for: rootsift, aliked-n16, aliked-t16 "
+        "(repeatable; default: the default feature type).",
+    ),
 ) -> None:
-    """Export the ESPNetv2 segmentation network to ONNX and build the SBoW vocabulary, into the cache.
+    """Export the segmentation network (and ALIKED when its features are asked for) to ONNX and build the SBoW
+    vocabulary, into the cache.
 
     Everything the service needs at run time, so that nothing is built on a first request.
     """
-    from geoloc.models import build_segmentation_model, parse_size, read_meta, segmentation_files
+    from geoloc.features import canonical_method
+    from geoloc.models import (
+        ALIKED_CONFIG_NAMES,
+        build_aliked_model,
+        build_segmentation_model,
+        parse_size,
+        read_meta,
+        segmentation_files,
+    )
 
     try:
         net_size = parse_size(size) if size else None
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--size") from exc
+    try:
+        methods = sorted({canonical_method(m) for m in features}) if features else [canonical_method(None)]
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--features") from exc
     t0 = time.perf_counter()
     try:
         path = build_segmentation_model(force=force, size=net_size)
@@ -39,13 +60,24 @@ def build(
     typer.echo(f"input shape         {shape}  (weights sha256 {str(meta.get('weights_sha256', '?'))[:12]}...)")
     typer.echo(f"took                {seconds:.1f} s" + ("" if force or seconds > 1 else " (already current)"))
 
+    # ALIKED (measured, not the default: README "Local features") is exported only when asked for.
+    for config_name in [name for name in ALIKED_CONFIG_NAMES if name in methods]:
+        t0 = time.perf_counter()
+        try:
+            files = build_aliked_model(config_name, force=force)
+        except (FileNotFoundError, RuntimeError) as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from exc
+        typer.echo(f"{config_name + ' model':<20}{files.onnx}  ({time.perf_counter() - t0:.1f} s)")
+
     from geoloc.retrieval import default_vocabulary, vocabulary_path
 
-    t0 = time.perf_counter()
-    try:
-        vocabulary = default_vocabulary(progress=True)
-    except FileNotFoundError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from exc
-    typer.echo(f"sbow vocabulary     {vocabulary_path(len(vocabulary))}  ({len(vocabulary)} words)")
-    typer.echo(f"took                {time.perf_counter() - t0:.1f} s")
+    for method in methods:
+        t0 = time.perf_counter()
+        try:
+            vocabulary = default_vocabulary(progress=True, method=method)
+        except FileNotFoundError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from exc
+        typer.echo(f"sbow vocabulary     {vocabulary_path(len(vocabulary), method)}  ({len(vocabulary)} words)")
+        typer.echo(f"took                {time.perf_counter() - t0:.1f} s")

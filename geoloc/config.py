@@ -135,7 +135,7 @@ class Settings(BaseSettings):
     seg_threads: int | None = Field(
         default=None,
         ge=1,
-        description="onnxruntime threads for segmentation",
+        description="onnxruntime threads for segmentation and ALIKED",
         json_schema_extra=_shown("min(4, cores)"),
     )
     log_level: str = Field(default="INFO", description="log level of the workers")

@@ -1,4 +1,4 @@
-"""Exported models: build the segmentation network's ONNX file in the cache, outside git.
+"""Exported models: build the networks' ONNX files in the cache, outside git.
 
 ``build_segmentation_model`` reads the published ESPNetv2 Cityscapes weights from the shared
 folder (``GEOLOC_SHARED/models``), exports them to ONNX with a fixed input size into
@@ -8,6 +8,12 @@ Only this path imports torch (lazily, inside ``_export``); install it with the `
 
 The ONNX graph: input ``image`` (1, 3, H, W) float32 RGB in 0..255 (normalisation is inside the
 graph); output ``logits`` (1, 20, H/2, W/2) float32 in Cityscapes trainId order (19 = void).
+
+``build_aliked_model`` does the same for the ALIKED local-feature network (``aliked-n16``,
+``aliked-t16``, :mod:`geoloc.nets.aliked`): ``<config>.onnx`` is the dense part (input ``image``
+(1, 3, H, W) float32 RGB 0..255, H and W any multiples of 32; outputs ``score`` and ``level1..4``),
+``<config>_head.npz`` the sparse descriptor head's weights as float32 arrays (the head runs in numpy,
+:mod:`geoloc.aliked`), and ``<config>.json`` the metadata with the weights' sha256.
 """
 
 from __future__ import annotations
@@ -31,6 +37,8 @@ SEG_DEFAULT_SIZE: tuple[int, int] = (768, 384)
 OUTPUT_STRIDE = 2  # the graph returns logits at 1/2 of the input size
 EXPORT_VERSION = 1  # bump when the export recipe changes, to force a rebuild
 OPSET = 17
+ALIKED_EXPORT_VERSION = 1  # bump when the ALIKED export recipe changes
+ALIKED_CONFIG_NAMES = ("aliked-n16", "aliked-t16")
 
 
 @dataclass(frozen=True)
@@ -171,3 +179,123 @@ def _export(weights: Path, out: Path, size: tuple[int, int]) -> dict[str, str]:
             do_constant_folding=True,
         )
     return {"torch": torch.__version__}
+
+
+# ----------------------------------------------------------------------------------------------
+# ALIKED
+
+
+@dataclass(frozen=True)
+class AlikedModelFiles:
+    """Where an ALIKED export lives: the dense ONNX graph, the descriptor head's weights, the metadata."""
+
+    onnx: Path
+    head: Path
+    meta: Path
+
+
+def aliked_files(config_name: str) -> AlikedModelFiles:
+    """Paths of the ALIKED export of ``config_name`` ("aliked-n16" or "aliked-t16") in the cache."""
+    if config_name not in ALIKED_CONFIG_NAMES:
+        raise ValueError(f"unknown ALIKED config {config_name!r}; known: {', '.join(ALIKED_CONFIG_NAMES)}")
+    folder = config.cache_dir() / "models"
+    stem = folder / config_name
+    return AlikedModelFiles(stem.with_suffix(".onnx"), folder / f"{config_name}_head.npz", stem.with_suffix(".json"))
+
+
+def aliked_weights_path(config_name: str) -> Path:
+    """The shared ALIKED weights of a config (FileNotFoundError with a hint if absent)."""
+    return config.shared_path("models", f"{config_name}.pth")
+
+
+def aliked_is_current(files: AlikedModelFiles, weights_sha256: str) -> bool:
+    """True if the ALIKED export exists and was made from these weights with this recipe."""
+    try:
+        meta = json.loads(files.meta.read_text())
+    except (OSError, ValueError):
+        return False
+    return (
+        files.onnx.exists()
+        and files.head.exists()
+        and meta.get("weights_sha256") == weights_sha256
+        and meta.get("export_version") == ALIKED_EXPORT_VERSION
+    )
+
+
+def build_aliked_model(config_name: str = "aliked-n16", force: bool = False) -> AlikedModelFiles:
+    """Export ALIKED ``config_name`` to the cache (ONNX dense graph + head weights) unless up to date.
+
+    Args:
+        config_name: "aliked-n16" (128-D descriptors) or "aliked-t16" (64-D).
+        force: re-export even if the cached files match the weights.
+    Returns:
+        The :class:`AlikedModelFiles`.
+    """
+    files = aliked_files(config_name)
+    weights = aliked_weights_path(config_name)
+    sha = sha256_file(weights)
+    if not force and aliked_is_current(files, sha):
+        return files
+    files.onnx.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    tmp_onnx = files.onnx.with_suffix(f".tmp{os.getpid()}.onnx")
+    tmp_head = files.head.with_suffix(f".tmp{os.getpid()}.npz")
+    try:
+        versions, info = _export_aliked(weights, config_name, tmp_onnx, tmp_head)
+        os.replace(tmp_onnx, files.onnx)
+        os.replace(tmp_head, files.head)
+    finally:
+        tmp_onnx.unlink(missing_ok=True)
+        tmp_head.unlink(missing_ok=True)
+    meta = {
+        "config": config_name,
+        "weights": weights.name,
+        "weights_sha256": sha,
+        **info,
+        "input": {"name": "image", "shape": [1, 3, "H", "W"], "format": "RGB float 0..255, H and W multiples of 32"},
+        "outputs": ["score", "level1", "level2", "level3", "level4"],
+        "export_version": ALIKED_EXPORT_VERSION,
+        "opset": OPSET,
+        "export_seconds": round(time.perf_counter() - t0, 2),
+        **versions,
+    }
+    files.meta.write_text(json.dumps(meta, indent=2) + "\n")
+    return files
+
+
+def _export_aliked(
+    weights: Path, config_name: str, onnx_out: Path, head_out: Path
+) -> tuple[dict[str, str], dict[str, int]]:
+    """Load the weights strictly, export the dense graph (dynamic H, W) and save the head's weights."""
+    try:
+        import numpy as np
+        import torch
+
+        from geoloc.nets.aliked import AlikedDense, load_aliked
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise RuntimeError("exporting ALIKED needs torch: pip install -e '.[export]'") from exc
+    net = load_aliked(weights, config_name)
+    model = AlikedDense(net).eval()
+    dummy = torch.zeros(1, 3, 64, 96)
+    outputs = ["score", "level1", "level2", "level3", "level4"]
+    dynamic = {"image": {2: "height", 3: "width"}, **{name: {2: f"{name}_h", 3: f"{name}_w"} for name in outputs}}
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter is what we want
+        torch.onnx.export(
+            model,
+            (dummy,),
+            str(onnx_out),
+            input_names=["image"],
+            output_names=outputs,
+            dynamic_axes=dynamic,
+            opset_version=OPSET,
+            dynamo=False,
+            do_constant_folding=True,
+        )
+    head = {name: p.detach().numpy().astype(np.float32) for name, p in net.desc_head.state_dict().items()}
+    with head_out.open("wb") as fh:
+        np.savez(fh, **head)
+    cfg = net.config
+    info = {"descriptor_dim": cfg.dim, "sddh_kernel": cfg.kernel, "sddh_samples": cfg.n_samples}
+    return {"torch": torch.__version__}, info

@@ -1,0 +1,493 @@
+"""RootSIFT against ALIKED (n16, t16) for matching across viewpoints (prints tables, writes JSON; not a test).
+
+    .venv/bin/geoloc sim world --map ../shared/data/osm/helsinki.osm.pbf --out /tmp/aliked_w1 \\
+        --references 60 --queries 30 --seed 1
+    .venv/bin/python benchmarks/bench_features.py /tmp/aliked_w1 --json bench_features.json
+
+Feature types (``--methods``): ``rootsift``, ``aliked-n16``, ``aliked-t16`` and ``aliked-n16@1,0.5,0.25``
+(ALIKED-n16 on a three-level image pyramid, ``extract_features(aliked_scales=...)``).
+
+Needs the models in the cache (``geoloc models build --features rootsift --features aliked-n16
+--features aliked-t16``: the segmentation and ALIKED exports and one SBoW vocabulary per feature type).
+Every feature type runs on the same images with the same building masks (the segmentation network's,
+as the pipeline does; ``--mask gt`` uses the renderer's labels), ``max_features`` 1500, working side
+1024 px (the simulated photos are 640 x 480, the Lund photos 1024 x 768). Matching variants:
+
+- ``ratio0.8``: :func:`geoloc.transfer.match_features` as the pipeline does (Lowe ratio 0.8, then
+  one-to-one);
+- ``mnn+ratio0.8`` / ``0.9`` / ``0.95``: mutual nearest neighbours, then the ratio test at 0.8 / 0.9 / 0.95;
+
+each followed by the pipeline's verification (:func:`geoloc.transfer.geometric_verification`: USAC
+MAGSAC++ F and H, 3 working px, at least 12 inliers or none).
+
+Simulated world (ground truth: true poses, intrinsics, per-pixel facade ids):
+
+- pairs: every query with every reference that sees at least ``--min-covisible`` (0.02) of the
+  query image's area, and every query with every reference sharing *no* building ("wrong pairs").
+  Co-visibility is measured by ground truth, not by building shares: a query pixel on a facade is
+  co-visible when its 3D point (true ray cut with the facade's plane) projects into the reference
+  onto the same facade (so occluded and back-side facades do not count; Helsinki's blocks are single
+  buildings with many facades, and a reference often shows another side of the query's building);
+  wrong pairs are ``--wrong-per-query`` (15) of those per query, drawn at random (seed 0);
+- a verified inlier is *correct* when both keypoints lie on the same facade (GT facade id at the
+  keypoint's pixel, or within 2 px for keypoints just off a facade's outline) and the point where the
+  query's true viewing ray meets that facade's vertical plane reprojects, with the reference's true
+  pose, within ``--tol-px`` (4) pixels of the reference keypoint;
+- per feature: the share of queries whose best co-visible reference (over queries with one that sees
+  >= 0.1 of the image) gets >= 12 and >= 30 correct inliers; correct / all inliers over sharing
+  pairs; the wrong pairs that pass verification (>= 12 inliers) and their largest inlier count;
+  how many of the verified pairs (sharing or wrong) are *right* (a sharing pair with at least half
+  of its inliers correct), and for how many queries the evaluated reference with the most inliers is
+  right; extraction time per 640 x 480 image (median; feature types interleaved per image);
+- retrieval with each feature type's own vocabulary (4096 words from CamVid train): the share of
+  queries whose best-overlapping reference (``geoloc.evaluation``'s definition: ties within 0.02) is
+  in the SBoW top 20, and in the top 4 after re-ranking those 20 by verified inliers.
+
+Real photos (``../shared/data/lund/images``, 29 photos along one street, adjacent photos overlap):
+verified inliers of the 28 adjacent pairs against pairs at least ``--lund-far`` (8) photos apart.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from geoloc import labels as classes
+from geoloc.camera import Intrinsics
+from geoloc.config import shared_path
+from geoloc.evaluation import _best_overlapping_references
+from geoloc.features import Features, extract_features
+from geoloc.osm import CityMap
+from geoloc.retrieval import InvertedIndex, default_vocabulary
+from geoloc.segmentation import segment
+from geoloc.sim.render import Pose, rotation_matrix
+from geoloc.sim.world import World, load_world
+from geoloc.transfer import DEFAULT_MIN_INLIERS, geometric_verification, match_features
+
+METHODS = ("rootsift", "aliked-n16", "aliked-t16", "aliked-n16@1,0.5,0.25")
+MATCHERS = ("ratio0.8", "mnn+ratio0.8", "mnn+ratio0.9", "mnn+ratio0.95")
+SHORTLIST = 20
+TOP_K = 4
+
+
+# ----------------------------------------------------------------------------------------------
+# Matching
+
+
+def mutual_matches(query: Features, reference: Features, ratio: float) -> np.ndarray:
+    """(K, 2) (query, reference) index pairs: mutual nearest neighbours passing Lowe's ratio test."""
+    if len(query) == 0 or len(reference) < 2:
+        return np.zeros((0, 2), np.int64)
+    sim = query.descriptors @ reference.descriptors.T
+    best_r = np.argmax(sim, axis=1)
+    best_q = np.argmax(sim, axis=0)
+    rows = np.arange(len(query))
+    top2 = -np.partition(-sim, 1, axis=1)[:, :2]
+    d1 = np.sqrt(np.maximum(2.0 - 2.0 * top2[:, 0], 0.0))
+    d2 = np.sqrt(np.maximum(2.0 - 2.0 * top2[:, 1], 0.0))
+    keep = (best_q[best_r] == rows) & (d1 < ratio * d2)
+    return np.stack([rows[keep], best_r[keep]], axis=1).astype(np.int64)
+
+
+def matcher(name: str) -> Callable[[Features, Features], np.ndarray]:
+    """The putative-match function of a variant name (module docstring)."""
+    if name == "ratio0.8":
+        return lambda q, r: match_features(q, r, 0.8)
+    ratio = float(name.split("ratio")[1])
+    return lambda q, r: mutual_matches(q, r, ratio)
+
+
+def verified(query: Features, reference: Features, match: Callable[[Features, Features], np.ndarray]):
+    """Putative pairs (K, 2) and their inlier mask, verified as the pipeline does."""
+    pairs = match(query, reference)
+    if len(pairs) == 0:
+        return pairs, np.zeros(0, bool)
+    q_xy = query.xy[pairs[:, 0]] * query.scale
+    inliers, _ = geometric_verification(q_xy, reference.xy[pairs[:, 1]] * reference.scale)
+    return pairs, inliers
+
+
+# ----------------------------------------------------------------------------------------------
+# Ground truth geometry (local frame: x east, y north, z up; camera x right, y down, z forward)
+
+
+def _camera_axes(pose: Pose) -> np.ndarray:
+    """3x3 matrix whose rows are the upright camera's right, down and forward axes in the local frame."""
+    yaw = np.radians(pose.yaw_deg)
+    return np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [0.0, 0.0, -1.0], [np.sin(yaw), np.cos(yaw), 0.0]])
+
+
+def viewing_rays(pose: Pose, intr: Intrinsics, xy: np.ndarray) -> np.ndarray:
+    """(N, 3) local-frame directions of the rays through keypoints at (N, 2) pixel centres (OpenCV convention)."""
+    pix = np.column_stack([xy[:, 0] + 0.5, xy[:, 1] + 0.5, np.ones(len(xy))])
+    d_cam = pix @ np.linalg.inv(intr.matrix).T
+    d_up = d_cam @ rotation_matrix(pose.pitch_deg, pose.roll_deg)  # R^T d for each row
+    return d_up @ _camera_axes(pose)
+
+
+def project(pose: Pose, intr: Intrinsics, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) keypoint coordinates (OpenCV convention) and (N,) depth of local-frame points (N, 3)."""
+    centre = np.array([pose.x_m, pose.y_m, pose.height_m])
+    d_up = (points - centre) @ _camera_axes(pose).T
+    d_cam = d_up @ rotation_matrix(pose.pitch_deg, pose.roll_deg).T
+    z = d_cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pix = d_cam @ intr.matrix.T
+        uv = pix[:, :2] / pix[:, 2:3] - 0.5
+    return uv, z
+
+
+def filled_facade_ids(facade_id: np.ndarray, radius: int = 2) -> np.ndarray:
+    """Facade id per pixel; pixels showing no facade take a facade id found within ``radius`` px (if any)."""
+    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+    near = cv2.dilate((facade_id + 1).astype(np.float32), kernel).astype(np.int64) - 1
+    return np.where(facade_id >= 0, facade_id, near)
+
+
+def _ids_at(ids: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    h, w = ids.shape
+    return ids[np.clip(np.round(xy[:, 1]).astype(int), 0, h - 1), np.clip(np.round(xy[:, 0]).astype(int), 0, w - 1)]
+
+
+@dataclass
+class GtView:
+    """What the correctness check needs of one world image."""
+
+    pose: Pose
+    intrinsics: Intrinsics
+    facade_ids: np.ndarray  # filled (see filled_facade_ids)
+
+
+def correct_matches(
+    city: CityMap, query: GtView, reference: GtView, q_xy: np.ndarray, r_xy: np.ndarray, tol_px: float
+) -> np.ndarray:
+    """(K,) bool: matched keypoints on the same facade whose query ray, cut with that facade's plane,
+    reprojects into the reference within ``tol_px`` of the reference keypoint."""
+    if len(q_xy) == 0:
+        return np.zeros(0, bool)
+    fq = _ids_at(query.facade_ids, q_xy)
+    fr = _ids_at(reference.facade_ids, r_xy)
+    ok = (fq >= 0) & (fq == fr)
+    f = np.maximum(fq, 0)
+    fac = city.facades
+    rays = viewing_rays(query.pose, query.intrinsics, q_xy)
+    centre = np.array([query.pose.x_m, query.pose.y_m, query.pose.height_m])
+    normal = fac.normal[f]
+    denom = np.einsum("ij,ij->i", rays[:, :2], normal)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("ij,ij->i", fac.start[f] - centre[:2], normal) / denom
+    ok &= np.isfinite(t) & (t > 0)
+    points = centre + np.where(ok, t, 0.0)[:, None] * rays
+    uv, depth = project(reference.pose, reference.intrinsics, points)
+    err = np.linalg.norm(uv - r_xy, axis=1)
+    return ok & (depth > 0) & (err <= tol_px)
+
+
+# ----------------------------------------------------------------------------------------------
+# Extraction
+
+
+def building_mask(rgb: np.ndarray, gt_labels: np.ndarray | None) -> np.ndarray:
+    """The building mask the features are restricted to: network segmentation, or the given GT labels."""
+    return (gt_labels if gt_labels is not None else segment(rgb)) == classes.BUILDING
+
+
+def parse_method(spec: str) -> tuple[str, tuple[float, ...]]:
+    """"aliked-n16@1,0.5" -> ("aliked-n16", (1.0, 0.5)): a feature type and ALIKED's pyramid scales."""
+    name, _, scales = spec.partition("@")
+    return name, tuple(float(v) for v in scales.split(",")) if scales else (1.0,)
+
+
+def extract(spec: str, rgb: np.ndarray, mask: np.ndarray, max_features: int) -> Features:
+    """Features of one image for a method spec (see :func:`parse_method`)."""
+    name, scales = parse_method(spec)
+    return extract_features(rgb, mask, max_features, method=name, aliked_scales=scales)
+
+
+def extract_all(
+    images: dict[str, np.ndarray], masks: dict[str, np.ndarray], methods: tuple[str, ...], max_features: int
+) -> tuple[dict[str, dict[str, Features]], dict[str, list[float]]]:
+    """Features of every image for every method (methods interleaved per image) and the times (s)."""
+    feats: dict[str, dict[str, Features]] = {m: {} for m in methods}
+    times: dict[str, list[float]] = {m: [] for m in methods}
+    for method in methods:  # warm-up (session creation) outside the timings
+        first = next(iter(images))
+        extract(method, images[first], masks[first], max_features)
+    for name, rgb in images.items():
+        for method in methods:
+            t0 = time.perf_counter()
+            feats[method][name] = extract(method, rgb, masks[name], max_features)
+            times[method].append(time.perf_counter() - t0)
+    return feats, times
+
+
+# ----------------------------------------------------------------------------------------------
+# Simulated world
+
+
+def covisible_shares(
+    city: CityMap, world: World, query: str, references: list[str], step_px: int = 4
+) -> dict[str, float]:
+    """Share of the query image (pixels on a grid of ``step_px``) whose facade point each reference sees
+    on the same facade (module docstring)."""
+    fid = world.gt(query)["facade_id"]
+    grid = fid[::step_px, ::step_px]
+    ys, xs = np.nonzero(grid >= 0)
+    xy = np.column_stack([xs * step_px, ys * step_px]).astype(np.float64)
+    f = grid[ys, xs]
+    q = world.image(query)
+    rays = viewing_rays(q.pose, q.intrinsics, xy)
+    centre = np.array([q.pose.x_m, q.pose.y_m, q.pose.height_m])
+    normal = city.facades.normal[f]
+    t = np.einsum("ij,ij->i", city.facades.start[f] - centre[:2], normal) / np.einsum("ij,ij->i", rays[:, :2], normal)
+    points = centre + t[:, None] * rays
+    out = {}
+    for name in references:
+        r = world.image(name)
+        uv, depth = project(r.pose, r.intrinsics, points)
+        h, w = world.gt(name)["facade_id"].shape
+        u = np.round(uv).astype(np.int64)
+        ok = (depth > 0) & (u[:, 0] >= 0) & (u[:, 0] < w) & (u[:, 1] >= 0) & (u[:, 1] < h)
+        same = np.zeros(len(f), bool)
+        same[ok] = world.gt(name)["facade_id"][u[ok, 1], u[ok, 0]] == f[ok]
+        out[name] = float(same.sum() / grid.size)
+    return out
+
+
+def overlap(world: World, a: str, b: str) -> float:
+    """Sum over buildings of the smaller of the two images' pixel shares."""
+    sa = {x["building_id"]: x["pixel_share"] for x in world.image(a).record["buildings"]}
+    sb = {x["building_id"]: x["pixel_share"] for x in world.image(b).record["buildings"]}
+    return float(sum(min(s, sb.get(k, 0.0)) for k, s in sa.items()))
+
+
+def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
+    world = load_world(args.world)
+    city = world.load_map()
+    refs = [im.name for im in world.references]
+    queries = [im.name for im in world.queries][: args.max_queries or None]
+    names = refs + queries
+    images = {n: world.image(n).rgb() for n in names}
+    masks = {n: building_mask(images[n], world.gt(n)["labels"] if args.mask == "gt" else None) for n in names}
+    views = {
+        n: GtView(world.image(n).pose, world.image(n).intrinsics, filled_facade_ids(world.gt(n)["facade_id"]))
+        for n in names
+    }
+    feats, times = extract_all(images, masks, methods, args.max_features)
+    print(f"world {args.world}: {len(refs)} references, {len(queries)} queries, masks: {args.mask}")
+
+    overlaps = {(q, r): overlap(world, q, r) for q in queries for r in refs}
+    covisible = {(q, r): v for q in queries for r, v in covisible_shares(city, world, q, refs).items()}
+    sharing = [(q, r) for (q, r), v in covisible.items() if v >= args.min_covisible]
+    rng = np.random.default_rng(0)
+    wrong = []
+    for q in queries:
+        unrelated = [r for r in refs if overlaps[(q, r)] == 0.0]
+        picked = rng.choice(len(unrelated), min(args.wrong_per_query, len(unrelated)), replace=False)
+        wrong += [(q, unrelated[i]) for i in sorted(picked)]
+    best = {}
+    for q in queries:
+        r = max(refs, key=lambda r, q=q: covisible[(q, r)])
+        if covisible[(q, r)] >= 0.1:
+            best[q] = r
+    best_sets = {q: _best_overlapping_references(world, q, refs) for q in queries}
+
+    results: dict = {
+        "pairs": {"sharing": len(sharing), "wrong": len(wrong), "queries_with_best_overlap": len(best)},
+        "features": {},
+    }
+    for method in methods:
+        fm = feats[method]
+        t_ms = 1e3 * np.asarray(times[method])
+        per_method: dict = {
+            "extract_ms_median": round(float(np.median(t_ms)), 1),
+            "extract_ms_p90": round(float(np.percentile(t_ms, 90)), 1),
+            "keypoints_median": int(np.median([len(fm[n]) for n in names])),
+            "matchers": {},
+        }
+        vocabulary = default_vocabulary(progress=False, method=parse_method(method)[0])
+        words = {n: vocabulary.words(fm[n].descriptors) for n in names}
+        index = InvertedIndex.from_documents((r, words[r]) for r in refs)
+        for mname in args.matcher_names:
+            match = matcher(mname)
+            rows = []
+            for kind, pairs in (("sharing", sharing), ("wrong", wrong)):
+                for q, r in pairs:
+                    p, inl = verified(fm[q], fm[r], match)
+                    good = p[inl]
+                    n_correct = 0
+                    if kind == "sharing":
+                        q_xy, r_xy = fm[q].xy[good[:, 0]], fm[r].xy[good[:, 1]]
+                        n_correct = int(correct_matches(city, views[q], views[r], q_xy, r_xy, args.tol_px).sum())
+                    rows.append({"kind": kind, "query": q, "reference": r, "overlap": round(overlaps[(q, r)], 4),
+                                 "covisible": round(covisible[(q, r)], 4), "matches": len(p),
+                                 "inliers": int(inl.sum()), "correct": n_correct})
+            by_pair = {(row["query"], row["reference"]): row for row in rows}
+            best_correct = np.array([by_pair[(q, r)]["correct"] for q, r in best.items()])
+            share_rows = [row for row in rows if row["kind"] == "sharing"]
+            wrong_rows = [row for row in rows if row["kind"] == "wrong"]
+            inl_sum = sum(row["inliers"] for row in share_rows)
+            wrong_inl = np.array([row["inliers"] for row in wrong_rows])
+            # Retrieval: SBoW top 20, re-ranked by verified inliers (this matcher) to the top 4.
+            in_top20, in_top4 = [], []
+            for q in queries:
+                if not best_sets[q]:
+                    continue
+                shortlist = index.query(words[q], SHORTLIST)
+                ranked = []
+                for r, score in shortlist:
+                    row = by_pair.get((q, r))
+                    n_inl = row["inliers"] if row else int(verified(fm[q], fm[r], match)[1].sum())
+                    ranked.append((-n_inl, -score, r))
+                ranked.sort()
+                in_top20.append(bool(best_sets[q] & {r for r, _ in shortlist}))
+                in_top4.append(bool(best_sets[q] & {r for _, _, r in ranked[:TOP_K]}))
+            good = [row for row in share_rows if row["inliers"] and row["correct"] >= 0.5 * row["inliers"]]
+            passing = [row for row in rows if row["inliers"] >= DEFAULT_MIN_INLIERS]
+            top_right = top_any = 0
+            for q in queries:
+                top = max((row for row in rows if row["query"] == q), key=lambda row: row["inliers"])
+                if top["inliers"] >= DEFAULT_MIN_INLIERS:
+                    top_any += 1
+                    top_right += top in good
+            per_method["matchers"][mname] = {
+                "best_pair_correct_ge12": round(float(np.mean(best_correct >= DEFAULT_MIN_INLIERS)), 4),
+                "best_pair_correct_ge30": round(float(np.mean(best_correct >= 30)), 4),
+                "best_pair_correct_median": float(np.median(best_correct)),
+                "sharing_pairs_verified": round(float(np.mean([row["inliers"] > 0 for row in share_rows])), 4),
+                "sharing_correct_ratio": round(sum(row["correct"] for row in share_rows) / max(inl_sum, 1), 4),
+                "sharing_inliers_mean": round(inl_sum / max(len(share_rows), 1), 2),
+                "sharing_correct_mean": round(sum(row["correct"] for row in share_rows) / max(len(share_rows), 1), 2),
+                "wrong_pairs_passing": round(float(np.mean(wrong_inl > 0)), 4),
+                "wrong_pairs_passing_count": int((wrong_inl > 0).sum()),
+                "wrong_inliers_max": int(wrong_inl.max(initial=0)),
+                "verified_pairs": len(passing),
+                "verified_pairs_right": sum(row in good for row in passing),
+                "top_by_inliers_verified": top_any,
+                "top_by_inliers_right": top_right,
+                "retrieval_best_in_sbow_top20": round(float(np.mean(in_top20)), 4),
+                "retrieval_best_in_reranked_top4": round(float(np.mean(in_top4)), 4),
+                "pairs": rows,
+            }
+            print(f"  {method:<22} {mname:<14} done", flush=True)
+        results["features"][method] = per_method
+    return results
+
+
+# ----------------------------------------------------------------------------------------------
+# Lund
+
+
+def bench_lund(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
+    paths = sorted(shared_path("data", "lund", "images").glob("*.jpg"))
+    images = {p.stem: cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in paths}
+    masks = {n: building_mask(rgb, None) for n, rgb in images.items()}
+    feats, times = extract_all(images, masks, methods, args.max_features)
+    names = list(images)
+    adjacent = [(names[i], names[i + 1]) for i in range(len(names) - 1)]
+    far = [(names[i], names[j]) for i in range(len(names)) for j in range(i + args.lund_far, len(names))]
+    out: dict = {"photos": len(names), "adjacent_pairs": len(adjacent), "far_pairs": len(far), "features": {}}
+    for method in methods:
+        fm = feats[method]
+        t_ms = 1e3 * np.asarray(times[method])
+        entry: dict = {"extract_ms_median": round(float(np.median(t_ms)), 1), "matchers": {}}
+        for mname in args.matcher_names:
+            match = matcher(mname)
+            adj = np.array([int(verified(fm[a], fm[b], match)[1].sum()) for a, b in adjacent])
+            far_inl = np.array([int(verified(fm[a], fm[b], match)[1].sum()) for a, b in far])
+            entry["matchers"][mname] = {
+                "adjacent_inliers_median": float(np.median(adj)),
+                "adjacent_inliers_mean": round(float(adj.mean()), 1),
+                "adjacent_verified": round(float(np.mean(adj > 0)), 4),
+                "adjacent_ge30": round(float(np.mean(adj >= 30)), 4),
+                "far_passing": round(float(np.mean(far_inl > 0)), 4),
+                "far_inliers_max": int(far_inl.max(initial=0)),
+                "adjacent_inliers": adj.tolist(),
+            }
+        out["features"][method] = entry
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Report
+
+
+def print_tables(world: dict | None, lund: dict | None) -> None:
+    if world:
+        print("\nSimulated world: best co-visible pairs (>= 0.1), co-visible pairs, wrong pairs, retrieval")
+        head = (f"{'feature':<22} {'matcher':<14} {'ms/img':>7} {'>=12 ok':>8} {'>=30 ok':>8} {'med ok':>7} "
+                f"{'ok/inl':>7} {'inl/pair':>8} {'wrong>0':>8} {'wrongmax':>8} {'right/ver':>9} {'top1':>6} "
+                f"{'top20':>6} {'top4':>6}")
+        print(head)
+        for method, entry in world["features"].items():
+            for mname, m in entry["matchers"].items():
+                print(
+                    f"{method:<22} {mname:<14} {entry['extract_ms_median']:>7.0f} {m['best_pair_correct_ge12']:>8.2f} "
+                    f"{m['best_pair_correct_ge30']:>8.2f} {m['best_pair_correct_median']:>7.0f} "
+                    f"{m['sharing_correct_ratio']:>7.2f} {m['sharing_inliers_mean']:>8.1f} "
+                    f"{m['wrong_pairs_passing']:>8.3f} {m['wrong_inliers_max']:>8d} "
+                    f"{m['verified_pairs_right']:>4d}/{m['verified_pairs']:<4d} "
+                    f"{m['top_by_inliers_right']:>3d}/{m['top_by_inliers_verified']:<2d} "
+                    f"{m['retrieval_best_in_sbow_top20']:>6.2f} {m['retrieval_best_in_reranked_top4']:>6.2f}"
+                )
+    if lund:
+        print(f"\nLund: verified inliers, {lund['adjacent_pairs']} adjacent pairs vs {lund['far_pairs']} far pairs")
+        print(f"{'feature':<22} {'matcher':<14} {'ms/img':>7} {'adj med':>8} {'adj mean':>8} {'adj>=30':>8} "
+              f"{'far>0':>6} {'farmax':>6}")
+        for method, entry in lund["features"].items():
+            for mname, m in entry["matchers"].items():
+                print(
+                    f"{method:<22} {mname:<14} {entry['extract_ms_median']:>7.0f} {m['adjacent_inliers_median']:>8.0f} "
+                    f"{m['adjacent_inliers_mean']:>8.1f} {m['adjacent_ge30']:>8.2f} {m['far_passing']:>6.2f} "
+                    f"{m['far_inliers_max']:>6d}"
+                )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("world", nargs="?", help="a world folder from `geoloc sim world` (omit to skip)")
+    parser.add_argument("--json", type=Path, default=Path("bench_features.json"))
+    parser.add_argument("--methods", default=";".join(METHODS), help="feature types, ';'-separated; "
+                        "'aliked-n16@1,0.5' runs ALIKED on a pyramid of those scales")
+    parser.add_argument("--mask", choices=("network", "gt"), default="network")
+    parser.add_argument("--max-features", type=int, default=1500)
+    parser.add_argument("--min-covisible", type=float, default=0.02)
+    parser.add_argument("--tol-px", type=float, default=4.0)
+    parser.add_argument("--max-queries", type=int, default=0)
+    parser.add_argument("--wrong-per-query", type=int, default=15)
+    parser.add_argument("--lund-far", type=int, default=8)
+    parser.add_argument("--skip-lund", action="store_true")
+    parser.add_argument("--matchers", default="", help=f"';'-separated subset of {';'.join(MATCHERS)}")
+    args = parser.parse_args()
+    methods = tuple(m.strip() for m in args.methods.split(";"))
+
+    machine = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}"
+    print(f"machine: {machine}")
+    args.matcher_names = tuple(args.matchers.split(";")) if args.matchers else MATCHERS
+    t0 = time.perf_counter()
+    world = bench_world(args, methods) if args.world else None
+    lund = None if args.skip_lund else bench_lund(args, methods)
+    print_tables(world, lund)
+    report = {
+        "command": "benchmarks/bench_features.py " + " ".join(os.sys.argv[1:]),
+        "machine": machine,
+        "settings": {k: v for k, v in vars(args).items() if k != "json"} | {"json": str(args.json)},
+        "world": world,
+        "lund": lund,
+        "total_s": round(time.perf_counter() - t0, 1),
+    }
+    args.json.write_text(json.dumps(report, indent=1) + "\n")
+    print(f"\nwrote {args.json} ({report['total_s']} s)")
+
+
+if __name__ == "__main__":
+    main()
