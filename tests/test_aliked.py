@@ -5,7 +5,6 @@ keypoints and descriptors on real photos, and ``extract_features(method="aliked"
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,6 +16,8 @@ from geoloc import aliked, config, models
 from geoloc.features import Features, canonical_method, extract_features
 from geoloc.retrieval import vocabulary_path
 from geoloc.transfer import match_and_verify
+
+from .model_fixtures import data_dir_environment
 
 CONFIGS = ("aliked-n16", "aliked-t16")
 DIMS = {"aliked-n16": 128, "aliked-t16": 64}
@@ -43,17 +44,10 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     for name in CONFIGS:
         _shared_or_skip("models", f"{name}.pth")
     folder = tmp_path_factory.mktemp("aliked_data")
-    old = os.environ.get("GEOLOC_DATA_DIR")
-    os.environ["GEOLOC_DATA_DIR"] = str(folder)
-    try:
+    with data_dir_environment(folder):
         for name in CONFIGS:
             models.build_aliked_model(name)
         yield folder
-    finally:
-        if old is None:
-            os.environ.pop("GEOLOC_DATA_DIR", None)
-        else:
-            os.environ["GEOLOC_DATA_DIR"] = old
 
 
 # ----------------------------------------------------------------------------------------------
