@@ -96,7 +96,7 @@ class QueryConfig:
     n_yaws: int = 120
     refine_poses: int = 3
     sharpness: float = DEFAULT_SHARPNESS
-    uncertainty_sharpness: float = 1.0
+    uncertainty_sharpness: float = 0.1
     pnp_threshold_px: float = 4.0
     pnp_min_inliers: int = 20
     anchor_ratio: float = 0.9
@@ -106,7 +106,7 @@ class QueryConfig:
     max_pitch_deg: float = 20.0
     prior_sigmas: float = 3.0
     view_range_m: float = 100.0
-    anchor_sigma_floor_m: float = 1.0
+    anchor_sigma_floor_m: float = 5.0
     refine_anchored: bool = True
 
     def as_dict(self) -> dict[str, float | int | bool]:
