@@ -1,4 +1,5 @@
-"""The FastAPI application: settings, migrations at start, body-size guard, errors, routes."""
+"""The FastAPI application: settings, migrations at start, body-size guard, errors, limits, the job waiter,
+the OpenAPI document of the running configuration, routes."""
 
 from __future__ import annotations
 
@@ -8,13 +9,18 @@ from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
 
 from db import connect, migrate
+from db.jobs import QueueFullError
 from db.stats import stored_file_paths
-from service.errors import error_body, install_error_handlers
+from service.errors import error_body, error_response, install_error_handlers
+from service.limits import queue_full, rate_limiter_for
 from service.settings import Settings, get_settings
+from service.spec import install_openapi
 from service.uploads import clean_orphan_files, clean_stale_temp_files
+from service.waiting import JobWaiter
 
 log = logging.getLogger("geoloc.api")
 
@@ -111,7 +117,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             db.close()
         removed = clean_stale_temp_files(settings.data_dir) + clean_orphan_files(settings.data_dir, referenced)
         log.info("database %s at schema version %d (%d stale files removed)", settings.database_path, version, removed)
-        yield
+        await app.state.job_waiter.start()
+        try:
+            yield
+        finally:
+            await app.state.job_waiter.stop()
 
     app = FastAPI(
         title="geoloc",
@@ -124,12 +134,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "Positions are WGS84 latitude/longitude in degrees; headings are degrees clockwise from north; "
             "times are ISO 8601 in UTC. Uploads are `multipart/form-data`; files are checked by their content, "
             "not their name. Request validation errors (a missing field, a value of the wrong type) are `422` "
-            "with code `invalid_request` and `details.problems`, a list of `{field, problem}`."
+            "with code `invalid_request` and `details.problems`, a list of `{field, problem}`.\n\n"
+            "Under load: new work (references, queries) gets `429` `queue_full` with `Retry-After` while the job "
+            "queue is full, an API key past its rate limit gets `429` `rate_limited` with `Retry-After`, and a "
+            "write on a full disk gets `507` `insufficient_storage` with nothing stored. This document describes "
+            "the running configuration: authentication, `401`/`403` and the rate limit appear only when API keys "
+            "are configured."
         ),
         lifespan=lifespan,
     )
     app.state.settings = settings
+    app.state.rate_limiter = rate_limiter_for(settings)
+    app.state.job_waiter = JobWaiter(settings.database_path)
     install_error_handlers(app)
+    install_openapi(app, settings)
+
+    @app.exception_handler(QueueFullError)
+    async def _queue_full(_: Request, exc: QueueFullError) -> JSONResponse:
+        error = queue_full(exc)
+        return error_response(error.status, error.code, error.message, error.details, headers=error.headers)
 
     def limit_for_path(path: str) -> int:
         path = path.rstrip("/")

@@ -235,3 +235,12 @@ class QueryOut(BaseModel):
     result: QueryResult | None = None
     created_at: datetime | None = None
     updated_at: datetime | None = None
+
+
+def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """``responses=`` for a route: each status answered with :class:`ErrorResponse`.
+
+    Routes list the statuses their own code answers with; :mod:`service.spec` adds the ones that
+    depend on the configuration or the request's form (auth, rate limit, multipart, full disk).
+    """
+    return {status: {"model": ErrorResponse} for status in statuses}

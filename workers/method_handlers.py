@@ -23,13 +23,16 @@ from geoloc.config import data_dir
 from geoloc.features import Features
 from geoloc.osm import CityMap, load_map
 from geoloc.pipeline import Photo, geolocate_query, label_reference_photo, load_photo
-from geoloc.retrieval import Vocabulary, default_vocabulary, tfidf_scores
+from geoloc.retrieval import Vocabulary, default_vocabulary, tfidf_scores, vocabulary_path
+from geoloc.segmentation import ModelNotBuiltError
 from geoloc.transfer import ReferenceEvidence, rerank_by_inliers
 from workers.answers import checked_query_answer, checked_reference_labels
-from workers.handlers import LABEL_REFERENCE, PermanentJobError, register
+from workers.handlers import LABEL_REFERENCE, PermanentJobError, register, treat_as_permanent
 
 SHORTLIST = 20
 """SBoW candidates re-ranked by geometrically verified inliers before the top k are used."""
+
+treat_as_permanent(ModelNotBuiltError)  # a missing model stays missing until `geoloc models build` runs
 
 
 @lru_cache(maxsize=4)
@@ -58,6 +61,8 @@ def vocabulary_for(db: sqlite_utils.Database, map_id: int) -> Vocabulary:
     stored = sbow.load_vocabulary(db, map_id)
     if stored is not None:
         return Vocabulary(stored["centers"])
+    if not vocabulary_path().exists():  # built by `geoloc models build`, never inside a job (minutes of work)
+        raise PermanentJobError(f"SBoW vocabulary not found at {vocabulary_path()}; run `geoloc models build`")
     vocabulary = default_vocabulary(progress=False)
     with transaction(db):
         if sbow.load_vocabulary(db, map_id) is None:
