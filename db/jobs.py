@@ -234,6 +234,20 @@ def fail_job(
     return rows[0][0] if rows else None
 
 
+def deleted_subject(db: sqlite_utils.Database, job: dict[str, Any]) -> str | None:
+    """What of the job's subject was deleted (its map, its reference), or None while both exist.
+
+    A job whose map or reference is gone cannot succeed on a retry, whatever error its attempt hit.
+    """
+    for column, table, what in (("reference_id", "reference_images", "reference"), ("map_id", "maps", "map")):
+        subject_id = job.get(column)
+        if subject_id is None:
+            continue
+        if db.execute(f"SELECT 1 FROM {table} WHERE id = ?", (subject_id,)).fetchone() is None:
+            return f"{what} {subject_id} was deleted"
+    return None
+
+
 def release_job(db: sqlite_utils.Database, job_id: int, worker_id: str) -> bool:
     """Give a running job back to the queue without counting the attempt (graceful shutdown)."""
     now = time.time()

@@ -109,19 +109,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # This connection stays open while the API runs: SQLite deletes the WAL and its index when the last
+        # connection closes, and re-creating them needs disk space; held open, requests can still open the
+        # database (and read) on a full disk.
         db = connect(settings.database_path)
         try:
             version = migrate(db)
             referenced = stored_file_paths(db)
+            removed = clean_stale_temp_files(settings.data_dir) + clean_orphan_files(settings.data_dir, referenced)
+            log.info("database %s at schema %d (%d stale files removed)", settings.database_path, version, removed)
+            await app.state.job_waiter.start()
+            try:
+                yield
+            finally:
+                await app.state.job_waiter.stop()
         finally:
             db.close()
-        removed = clean_stale_temp_files(settings.data_dir) + clean_orphan_files(settings.data_dir, referenced)
-        log.info("database %s at schema version %d (%d stale files removed)", settings.database_path, version, removed)
-        await app.state.job_waiter.start()
-        try:
-            yield
-        finally:
-            await app.state.job_waiter.stop()
 
     app = FastAPI(
         title="geoloc",

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import errno
 import logging
+import os
 import re
 import sqlite3
+from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -95,17 +97,21 @@ def _validation_message(exc: RequestValidationError) -> tuple[str, list[dict[str
 
 OPENAPI_METHODS = ("get", "put", "post", "delete", "options", "head", "patch", "trace")
 DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+NEARLY_FULL_BYTES = 1024 * 1024
+"""Below this much free space an I/O error from SQLite is taken for a full disk."""
 DISK_FULL_MESSAGE = (
     "the server's storage is full: nothing was stored; retry once space has been freed "
     "(reads keep working meanwhile)"
 )
 
 
-def is_disk_full(exc: BaseException) -> bool:
+def is_disk_full(exc: BaseException, data_dir: Path | None = None) -> bool:
     """Whether ``exc`` (or an exception it was raised from) means the disk or quota is full.
 
-    Covers ``OSError`` ENOSPC/EDQUOT (writing an upload, creating a folder) and SQLite's
-    ``SQLITE_FULL`` ("database or disk is full").
+    Covers ``OSError`` ENOSPC/EDQUOT (writing an upload, creating a folder) and SQLite's ``SQLITE_FULL``
+    ("database or disk is full"). SQLite reports some writes that found no space (growing the WAL index,
+    for one) as a generic I/O error; such an error counts as a full disk when the file system of
+    ``data_dir`` has less than :data:`NEARLY_FULL_BYTES` left.
     """
     seen: set[int] = set()
     current: BaseException | None = exc
@@ -113,12 +119,23 @@ def is_disk_full(exc: BaseException) -> bool:
         seen.add(id(current))
         if isinstance(current, OSError) and current.errno in DISK_FULL_ERRNOS:
             return True
-        if isinstance(current, sqlite3.Error) and (
-            getattr(current, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL or "disk is full" in str(current)
-        ):
-            return True
+        if isinstance(current, sqlite3.Error):
+            code = getattr(current, "sqlite_errorcode", None)
+            if code == sqlite3.SQLITE_FULL or "disk is full" in str(current):
+                return True
+            if (code is not None and code & 0xFF == sqlite3.SQLITE_IOERR) or "disk I/O error" in str(current):
+                return data_dir is not None and free_bytes(data_dir) < NEARLY_FULL_BYTES
         current = current.__cause__ or current.__context__
     return False
+
+
+def free_bytes(path: Path) -> int:
+    """Bytes available to this process on the file system of ``path`` (a large number if unknown)."""
+    try:
+        stats = os.statvfs(path)
+    except OSError:
+        return 1 << 62
+    return stats.f_bavail * stats.f_frsize
 
 
 def allowed_methods(app: Any, path: str) -> list[str]:

@@ -7,7 +7,8 @@ the queue (the attempt is not counted) and the process exits. A SIGKILLed worker
 heartbeating: its job is claimed again once the lease expires.
 
 Between jobs (and while idle) the loop also applies the query retention (:mod:`workers.retention`).
-A failure that cannot succeed on retry (:func:`workers.handlers.is_permanent`) fails the job at once.
+A failure that cannot succeed on retry (:func:`workers.handlers.is_permanent`, or any failure once the
+job's map or reference has been deleted) fails the job at once.
 """
 
 from __future__ import annotations
@@ -177,10 +178,11 @@ class Worker:
                 log.warning("job %d finished but its lease was lost; result dropped", job_id)
         else:
             permanent = is_permanent(outcome.error)
+            error = error_summary(outcome.error)
+            if not permanent and (gone := job_store.deleted_subject(db, job)):
+                permanent, error = True, f"{gone} while the job ran (not retried)\n{error}"
             delay = min(self.settings.job_retry_delay_s * 2 ** max(int(job["attempts"]) - 1, 0), MAX_RETRY_DELAY_S)
-            status = job_store.fail_job(
-                db, job_id, self.worker_id, error_summary(outcome.error), retry_delay_s=delay, permanent=permanent
-            )
+            status = job_store.fail_job(db, job_id, self.worker_id, error, retry_delay_s=delay, permanent=permanent)
             log.warning("job %d attempt failed (%s) -> %s", job_id, outcome.error, status)
         job_store.heartbeat_worker(db, self.worker_id, None)
         return True
