@@ -81,7 +81,8 @@ def enqueue_job(
         " created_at, updated_at) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?)",
         (kind, json.dumps(payload), priority, max_attempts, map_id, reference_id, now, now),
     )
-    return int(cursor.lastrowid)
+    assert cursor.lastrowid is not None  # an INSERT always sets it
+    return cursor.lastrowid
 
 
 def queue_depth(db: sqlite_utils.Database) -> int:

@@ -31,7 +31,8 @@ def insert_query(
         " VALUES (?, ?, ?, ?, 'queued', ?, ?)",
         (map_id, image_path, sha256, json.dumps(params), now, now),
     )
-    return int(cursor.lastrowid)
+    assert cursor.lastrowid is not None  # an INSERT always sets it
+    return cursor.lastrowid
 
 
 def set_query_job(db: sqlite_utils.Database, query_id: int, job_id: int) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
@@ -24,6 +24,9 @@ from service.waiting import JobWaiter
 
 log = logging.getLogger("geoloc.api")
 
+Message = dict[str, Any]
+Receive = Callable[[], Awaitable[Message]]
+Send = Callable[[Message], Awaitable[None]]
 FORM_OVERHEAD_BYTES = 64 * 1024
 """Allowance for multipart headers and text fields on top of a file's size limit."""
 
@@ -36,7 +39,7 @@ class BodySizeLimit:
         self.app = app
         self.limit_for_path = limit_for_path
 
-    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+    async def __call__(self, scope: Message, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
@@ -52,7 +55,7 @@ class BodySizeLimit:
         too_large = False
         response_started = False
 
-        async def limited_receive() -> dict:
+        async def limited_receive() -> Message:
             nonlocal received, too_large
             event = await receive()
             if event["type"] == "http.request":
@@ -62,7 +65,7 @@ class BodySizeLimit:
                     return {"type": "http.disconnect"}
             return event
 
-        async def guarded_send(event: dict) -> None:
+        async def guarded_send(event: Message) -> None:
             nonlocal response_started
             if too_large:
                 if not response_started and event["type"] == "http.response.start":
@@ -81,7 +84,7 @@ class BodySizeLimit:
             raise
 
     @staticmethod
-    async def _drain(receive: Callable, declared: int, cap: int = 1 << 30) -> None:
+    async def _drain(receive: Receive, declared: int, cap: int = 1 << 30) -> None:
         """Read and discard a rejected body (up to ``cap``) so the client sees the 413, not a reset."""
         if declared > cap:
             return
@@ -91,7 +94,7 @@ class BodySizeLimit:
                 return
 
     @staticmethod
-    async def _send_413(send: Callable, message: str, limit: int) -> None:
+    async def _send_413(send: Send, message: str, limit: int) -> None:
         body = json.dumps(error_body("payload_too_large", message, {"limit_bytes": limit})).encode()
         await send(
             {

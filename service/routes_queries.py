@@ -5,7 +5,8 @@ for the answer (200 with the result); a slower answer comes back as 202 with the
 (``GET /v1/queries/{id}``). Heavy work (segmentation, matching, the likelihood) runs in workers only.
 
 The wait holds no thread: the request awaits its job on the event loop (:mod:`service.waiting`), so
-any number of clients can wait while reads are served. Storing the photo and the job runs in a worker
+any number of clients can wait while reads are served. ``GET /v1/queries/{id}?wait_s=N`` waits the same
+way (a long poll). Storing the photo and the job runs in a worker
 thread for the few milliseconds it takes. While the job queue is full the request gets ``429`` with
 ``Retry-After`` and nothing is stored (:mod:`service.limits`).
 """
@@ -17,7 +18,7 @@ from typing import Annotated, Any
 
 import numpy as np
 import sqlite_utils
-from fastapi import APIRouter, Depends, File, Form, Request, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
@@ -99,7 +100,7 @@ def _store_query(settings: Settings, map_id: int, image: UploadFile, form: Query
             raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
         with received_upload(image, settings.data_dir, settings.max_image_bytes, "the image") as received:
             info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
-            prior = None
+            prior: dict[str, Any] | None = None
             if form.lat is not None and form.lon is not None:
                 prior = {
                     "lat": form.lat,
@@ -223,16 +224,33 @@ async def create_query(
     responses=error_responses(404),
     dependencies=[Depends(require_read)],
 )
-def get_query(query_id: QueryId, db: sqlite_utils.Database = Depends(get_db)) -> QueryOut:
-    """A query: status (queued, processing, done, failed) and, when done, its answer."""
-    return query_out(*_load(db, query_id))
+async def get_query(
+    request: Request,
+    query_id: QueryId,
+    wait_s: Annotated[
+        float,
+        Query(ge=0, le=300, description="Wait up to this long for the answer if it is not ready (a long poll)"),
+    ] = 0.0,
+    settings: Settings = Depends(get_settings),
+) -> QueryOut:
+    """A query: status (queued, processing, done, failed) and, when done, its answer.
+
+    With ``wait_s`` the request waits (holding no thread) until the answer is ready or ``wait_s`` passed, so a
+    client need not poll in a loop.
+    """
+    out = await run_in_threadpool(_load_query, settings, query_id)
+    if wait_s > 0 and out.status not in ("done", "failed") and out.job_id is not None:
+        waiter: JobWaiter = request.app.state.job_waiter
+        await waiter.wait(out.job_id, wait_s)
+        out = await run_in_threadpool(_load_query, settings, query_id)
+    return out
 
 
 def _done_result(db: sqlite_utils.Database, query_id: int) -> dict[str, Any]:
     row, _ = _load(db, query_id)
     if row["status"] != "done" or not row["result"]:
         raise ApiError(409, "not_ready", f"query {query_id} has no answer yet (status {row['status']})")
-    return row["result"]
+    return dict(row["result"])
 
 
 @router.get(

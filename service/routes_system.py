@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
+from typing import Any
 
 import sqlite_utils
 from fastapi import APIRouter, Depends, Request
@@ -78,7 +79,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
     return readiness
 
 
-def job_out(job: dict) -> JobOut:
+def job_out(job: dict[str, Any]) -> JobOut:
     """A job row as its API model."""
     return JobOut(
         id=job["id"],

@@ -122,6 +122,13 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
         answers = [future.result() for future in waiting]
     assert [r.status_code for r in answers] == [202] * WAITING_QUERIES, "each waited wait_s, then got its query id"
     assert {r.json()["status"] for r in answers} == {"queued"}
+    with queue_service.client(READ_KEY) as reader:  # the same wait on a GET: a long poll
+        query_id = answers[0].json()["id"]
+        t0 = time.perf_counter()
+        polled = reader.get(f"/v1/queries/{query_id}", params={"wait_s": 1.5})
+        assert polled.status_code == 200 and polled.json()["status"] == "queued"
+        assert time.perf_counter() - t0 >= 1.4
+        assert reader.get(f"/v1/queries/{query_id}", params={"wait_s": 301}).status_code == 422
 
     # Room again (a queued job is cancelled with its reference): new work is accepted.
     with queue_service.client(WRITE_KEY) as writer:
