@@ -21,7 +21,7 @@ def serve(
     from service.settings import is_loopback_host
     from workers.supervisor import Supervisor, api_spec, worker_spec
 
-    settings = _start(log_level, check_models=workers > 0)
+    settings = _start(log_level)
     if not settings.auth_enabled and not is_loopback_host(host):
         typer.echo(
             f"error: refusing to listen on {host}: no API keys are configured. Set GEOLOC_API_KEYS "
@@ -29,6 +29,9 @@ def serve(
             err=True,
         )
         raise typer.Exit(2)
+    if workers > 0:
+        _require_models()
+    _prepare_database(settings.database_path)
     typer.echo(f"geoloc: API on http://{host}:{port} with {workers} worker(s); data in {settings.data_dir}", err=True)
     specs = [api_spec(host, port, log_level), *(worker_spec(i, log_level) for i in range(workers))]
     raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
@@ -41,36 +44,38 @@ def worker(
     """Run worker processes alone against the database in GEOLOC_DATA_DIR (the API may run elsewhere)."""
     from workers.supervisor import Supervisor, worker_spec
 
-    settings = _start(log_level, check_models=True)
+    settings = _start(log_level)
+    _require_models()
+    _prepare_database(settings.database_path)
     typer.echo(f"geoloc: {concurrency} worker(s) on {settings.database_path}", err=True)
     specs = [worker_spec(i, log_level) for i in range(concurrency)]
     raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
 
 
-def _start(log_level: str, *, check_models: bool) -> Settings:
-    """Logging, settings (exit 2 with the reason when invalid), the built models when workers will run
-    (exit 2 listing what is missing or stale) and a migrated database.
-
-    The API alone (``serve --workers 0``) never loads the models, so it starts without them; its
-    ``/readyz`` then says what is missing.
-    """
+def _start(log_level: str) -> Settings:
+    """Logging and settings (exit 2 with the reason when a setting is invalid)."""
     from service.settings import SettingsError, get_settings
 
     _setup_logging(log_level)
     try:
-        settings = get_settings()
+        return get_settings()
     except SettingsError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
-    if check_models:
-        from geoloc.models import model_problems
 
-        problems = model_problems()
-        if problems:
-            typer.echo("error: the workers cannot run jobs:\n  " + "\n  ".join(problems), err=True)
-            raise typer.Exit(2)
-    _prepare_database(settings.database_path)
-    return settings
+
+def _require_models() -> None:
+    """Exit 2 listing what is missing or stale when the models the workers need are not built and current.
+
+    Only where workers run: the API alone (``serve --workers 0``) never loads the models, so it starts
+    without them and its ``/readyz`` says what is missing.
+    """
+    from geoloc.models import model_problems
+
+    problems = model_problems()
+    if problems:
+        typer.echo("error: the workers cannot run jobs:\n  " + "\n  ".join(problems), err=True)
+        raise typer.Exit(2)
 
 
 def _setup_logging(level: str) -> None:

@@ -126,7 +126,10 @@ def constraints(schema: Schema, *, required: bool) -> str:
     merged = dict(schema)
     for branch in schema.get("anyOf", []):
         merged.update({k: v for k, v in branch.items() if k not in merged})
-    parts = [*_bounds(merged), *_sizes(merged)]
+    if type_of(schema) == "file":  # a file's minLength counts bytes: 1 means it may not be empty
+        parts = ["not empty"] if merged.get("minLength") == 1 else []
+    else:
+        parts = [*_bounds(merged), *_sizes(merged)]
     if merged.get("pattern"):
         parts.append(f"matches `{merged['pattern']}`")
     if merged.get("enum"):

@@ -40,7 +40,7 @@ def test_reference_shows_constraints_scopes_statuses_and_error_codes() -> None:
         "| `422` Unprocessable Content | `outside_map` |",
         "| `202` | Not answered within wait_s: poll the query | [`QueryOut`](#queryout) |",
         '"error": {',
-        "| `image` | file | yes |  |",
+        "| `image` | file | yes | not empty |",
     ):
         assert expected in text, expected
 
