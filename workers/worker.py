@@ -179,7 +179,7 @@ class Worker:
         else:
             permanent = is_permanent(outcome.error)
             error = error_summary(outcome.error)
-            if not permanent and (gone := job_store.deleted_subject(db, job)):
+            if gone := job_store.deleted_subject(db, job):  # whatever the attempt hit, this is why it cannot succeed
                 permanent, error = True, f"{gone} while the job ran (not retried)\n{error}"
             delay = min(self.settings.job_retry_delay_s * 2 ** max(int(job["attempts"]) - 1, 0), MAX_RETRY_DELAY_S)
             status = job_store.fail_job(db, job_id, self.worker_id, error, retry_delay_s=delay, permanent=permanent)
