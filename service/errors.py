@@ -175,7 +175,7 @@ def install_error_handlers(app: FastAPI) -> None:
         return error_response(422, "invalid_request", message, {"problems": problems})
 
     async def _storage_error(request: Request, exc: Exception) -> JSONResponse:
-        if is_disk_full(exc):
+        if is_disk_full(exc, request.app.state.settings.data_dir):
             log.error("disk full on %s %s: %s", request.method, request.url.path, exc)
             return error_response(507, "insufficient_storage", DISK_FULL_MESSAGE)
         return await _unexpected(request, exc)

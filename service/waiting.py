@@ -55,11 +55,6 @@ class JobWaiter:
             self._db.close()
             self._db = None
 
-    @property
-    def waiting(self) -> int:
-        """How many requests are waiting now."""
-        return sum(len(futures) for futures in self._waiting.values())
-
     async def wait(self, job_id: int, timeout_s: float) -> bool:
         """Wait until job ``job_id`` is done, failed, cancelled or gone; False if ``timeout_s`` passed first."""
         if timeout_s <= 0:
