@@ -65,8 +65,9 @@ def _error(response: httpx.Response) -> dict[str, Any]:
 def queue_service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningProcess]:
     """No workers (jobs stay queued), a queue limit just above the waiting queries, a rate limit out of the way."""
     data_dir = tmp_path_factory.mktemp("limits") / "data"
-    limits = {"GEOLOC_MAX_QUEUED_JOBS": str(QUEUE_LIMIT), "GEOLOC_RATE_LIMIT_PER_MIN": "100000"}
-    with running_service(data_dir, workers=0, **limits) as running:
+    with running_service(
+        data_dir, workers=0, GEOLOC_MAX_QUEUED_JOBS=str(QUEUE_LIMIT), GEOLOC_RATE_LIMIT_PER_MIN="100000"
+    ) as running:
         yield running
 
 

@@ -42,10 +42,11 @@ def purge_expired_queries(
         with transaction(db):
             paths = query_store.delete_expired_queries(db, cutoff, limit=BATCH)
         deleted += len(paths)
-        with transaction(db):  # holds the write lock: no upload can re-place a photo between check and removal
-            for relative in query_store.unreferenced_images(db, paths):
-                with contextlib.suppress(OSError):
-                    (data_dir / relative).unlink(missing_ok=True)
+        if paths:
+            with transaction(db):  # holds the write lock: no upload can re-place a photo between check and removal
+                for relative in query_store.unreferenced_images(db, paths):
+                    with contextlib.suppress(OSError):
+                        (data_dir / relative).unlink(missing_ok=True)
         if len(paths) < BATCH:
             break
     if deleted:
