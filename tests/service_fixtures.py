@@ -281,6 +281,29 @@ def get_job_row(db_path: Path, job_id: int) -> dict[str, Any]:
     return row
 
 
+# --- test data ------------------------------------------------------------------------------------
+
+ONE_BUILDING: dict[str, Any] = {
+    "type": "FeatureCollection",
+    "features": [
+        {
+            "type": "Feature",
+            "id": "way/1",
+            "properties": {"building": "yes", "name": "Hall"},
+            "geometry": {
+                "type": "Polygon",
+                "coordinates": [
+                    [[24.94, 60.17], [24.9404, 60.17], [24.9404, 60.1702], [24.94, 60.1702], [24.94, 60.17]]
+                ],
+            },
+        }
+    ],
+}
+"""A GeoJSON map of one building in Helsinki (loads in milliseconds)."""
+INSIDE_ONE_BUILDING = {"lat": "60.1699", "lon": "24.9402"}
+"""Form fields placing a reference just south of that building."""
+
+
 # --- test images --------------------------------------------------------------------------------
 
 

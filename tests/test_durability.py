@@ -23,6 +23,8 @@ import pytest
 from geoloc.config import shared_path
 
 from .service_fixtures import (
+    INSIDE_ONE_BUILDING,
+    ONE_BUILDING,
     WRITE_KEY,
     RunningProcess,
     get_job_row,
@@ -34,7 +36,6 @@ from .service_fixtures import (
     table_counts,
     wait_for,
 )
-from .test_limits import INSIDE, ONE_BUILDING
 
 pytestmark = pytest.mark.slow
 
@@ -49,7 +50,7 @@ def _upload_map(client: httpx.Client) -> int:
 
 
 def _upload_reference(client: httpx.Client, map_id: int, photo: bytes) -> httpx.Response:
-    return client.post(f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", photo)}, data=INSIDE)
+    return client.post(f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", photo)}, data=INSIDE_ONE_BUILDING)
 
 
 def _final_job(db_path: Path, job_id: int, timeout: float = 180.0) -> dict[str, Any]:
@@ -131,7 +132,7 @@ def _slow_multipart(photo: bytes, chunk: int = 8192, pause_s: float = 0.05) -> t
     boundary = "geoloc-slow-upload"
     head = "".join(
         f'--{boundary}\r\nContent-Disposition: form-data; name="{name}"\r\n\r\n{value}\r\n'
-        for name, value in INSIDE.items()
+        for name, value in INSIDE_ONE_BUILDING.items()
     )
     head += f'--{boundary}\r\nContent-Disposition: form-data; name="image"; filename="slow.jpg"\r\n'
     head += "Content-Type: image/jpeg\r\n\r\n"

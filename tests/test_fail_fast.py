@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 
 from .service_fixtures import (
+    INSIDE_ONE_BUILDING,
+    ONE_BUILDING,
     REPO_ROOT,
     WRITE_KEY,
     geoloc_command,
@@ -21,7 +23,6 @@ from .service_fixtures import (
     service_env,
     wait_for,
 )
-from .test_limits import INSIDE, ONE_BUILDING
 
 
 def _run(args: list[str], data_dir: Path) -> subprocess.CompletedProcess[str]:
@@ -72,7 +73,7 @@ def test_a_model_gone_at_run_time_fails_the_job_at_once(tmp_path: Path, built_mo
         files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
         map_id = client.post("/v1/maps", files=files, data={"name": "hall"}).json()["id"]
         accepted = client.post(
-            f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=1))}, data=INSIDE
+            f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=1))}, data=INSIDE_ONE_BUILDING
         ).json()
         job = wait_for(
             lambda: (row := get_job_row(service.db_path, accepted["job_id"]))["status"] in ("failed", "done") and row,

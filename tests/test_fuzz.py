@@ -20,29 +20,20 @@ from typing import Any
 import httpx
 import pytest
 
-from .service_fixtures import REPO_ROOT, WRITE_KEY, jpeg_bytes, running_service
+from .service_fixtures import (
+    INSIDE_ONE_BUILDING,
+    ONE_BUILDING,
+    REPO_ROOT,
+    WRITE_KEY,
+    jpeg_bytes,
+    running_service,
+)
 
 pytestmark = pytest.mark.slow
 
 MAX_EXAMPLES = 25
 SEED = 1
 RUN_TIMEOUT_S = 600
-ONE_BUILDING = {
-    "type": "FeatureCollection",
-    "features": [
-        {
-            "type": "Feature",
-            "id": "way/1",
-            "properties": {"building": "yes", "name": "Fuzz hall"},
-            "geometry": {
-                "type": "Polygon",
-                "coordinates": [
-                    [[24.94, 60.17], [24.9404, 60.17], [24.9404, 60.1702], [24.94, 60.1702], [24.94, 60.17]]
-                ],
-            },
-        }
-    ],
-}
 
 
 def _seed(client: httpx.Client) -> dict[str, int]:
@@ -52,7 +43,7 @@ def _seed(client: httpx.Client) -> dict[str, int]:
     reference = client.post(
         f"/v1/maps/{map_id}/references",
         files={"image": ("r.jpg", jpeg_bytes(seed=11))},
-        data={"lat": "60.1699", "lon": "24.9402"},
+        data=INSIDE_ONE_BUILDING,
     ).json()
     query = client.post(
         f"/v1/maps/{map_id}/queries",

@@ -14,6 +14,8 @@ import httpx
 import pytest
 
 from .service_fixtures import (
+    INSIDE_ONE_BUILDING,
+    ONE_BUILDING,
     READ_KEY,
     WRITE_KEY,
     RunningProcess,
@@ -31,23 +33,6 @@ WAITING_QUERIES = 60
 """More than the API's thread pool (40): a thread per waiting query would starve every read."""
 QUEUE_LIMIT = WAITING_QUERIES + 4
 WAIT_S = 12.0
-ONE_BUILDING = {
-    "type": "FeatureCollection",
-    "features": [
-        {
-            "type": "Feature",
-            "id": "way/1",
-            "properties": {"building": "yes", "name": "Hall"},
-            "geometry": {
-                "type": "Polygon",
-                "coordinates": [
-                    [[24.94, 60.17], [24.9404, 60.17], [24.9404, 60.1702], [24.94, 60.1702], [24.94, 60.17]]
-                ],
-            },
-        }
-    ],
-}
-INSIDE = {"lat": "60.1699", "lon": "24.9402"}
 
 
 def _upload_map(client: httpx.Client) -> int:
@@ -103,12 +88,14 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
         with queue_service.client(WRITE_KEY) as writer:
             for seed in range(4):
                 photo = {"image": ("r.jpg", jpeg_bytes(seed=100 + seed))}
-                accepted = writer.post(f"/v1/maps/{map_id}/references", files=photo, data=INSIDE)
+                accepted = writer.post(f"/v1/maps/{map_id}/references", files=photo, data=INSIDE_ONE_BUILDING)
                 assert accepted.status_code == 202, accepted.text
             before_counts, before_files = table_counts(queue_service.db_path), stored_files(queue_service.data_dir)
             refused = [
                 writer.post(
-                    f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=200))}, data=INSIDE
+                    f"/v1/maps/{map_id}/references",
+                    files={"image": ("r.jpg", jpeg_bytes(seed=200))},
+                    data=INSIDE_ONE_BUILDING,
                 ),
                 writer.post(f"/v1/maps/{map_id}/queries", files={"image": ("q.jpg", jpeg_bytes(seed=201))}),
             ]
@@ -136,7 +123,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
         reference_id = read_rows(queue_service.db_path, "SELECT id FROM reference_images LIMIT 1")[0]["id"]
         assert writer.delete(f"/v1/references/{reference_id}").status_code == 204
         again = writer.post(
-            f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=200))}, data=INSIDE
+            f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=200))}, data=INSIDE_ONE_BUILDING
         )
         assert again.status_code == 202, again.text
 

@@ -16,8 +16,15 @@ from db import queries as query_store
 from db import references as reference_store
 from workers.retention import purge_expired_queries
 
-from .service_fixtures import WRITE_KEY, jpeg_bytes, read_rows, running_service, wait_for
-from .test_limits import INSIDE, ONE_BUILDING
+from .service_fixtures import (
+    INSIDE_ONE_BUILDING,
+    ONE_BUILDING,
+    WRITE_KEY,
+    jpeg_bytes,
+    read_rows,
+    running_service,
+    wait_for,
+)
 
 PLUGIN = Path(__file__).resolve().parent / "answer_plugin.py"
 DAY_S = 86400.0
@@ -84,7 +91,7 @@ def test_workers_apply_the_retention(tmp_path: Path, built_models: Path) -> None
         files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
         map_id = client.post("/v1/maps", files=files, data={"name": "hall"}).json()["id"]
         reference = client.post(
-            f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=1))}, data=INSIDE
+            f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=1))}, data=INSIDE_ONE_BUILDING
         ).json()
         query = client.post(
             f"/v1/maps/{map_id}/queries",
