@@ -29,6 +29,9 @@ def serve(
             err=True,
         )
         raise typer.Exit(2)
+    if workers > 0:
+        _require_models()
+    _prepare_database(settings.database_path)
     typer.echo(f"geoloc: API on http://{host}:{port} with {workers} worker(s); data in {settings.data_dir}", err=True)
     specs = [api_spec(host, port, log_level), *(worker_spec(i, log_level) for i in range(workers))]
     raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
@@ -42,23 +45,37 @@ def worker(
     from workers.supervisor import Supervisor, worker_spec
 
     settings = _start(log_level)
+    _require_models()
+    _prepare_database(settings.database_path)
     typer.echo(f"geoloc: {concurrency} worker(s) on {settings.database_path}", err=True)
     specs = [worker_spec(i, log_level) for i in range(concurrency)]
     raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
 
 
 def _start(log_level: str) -> Settings:
-    """Logging, settings (exit 2 with the reason when invalid) and a migrated database."""
+    """Logging and settings (exit 2 with the reason when a setting is invalid)."""
     from service.settings import SettingsError, get_settings
 
     _setup_logging(log_level)
     try:
-        settings = get_settings()
+        return get_settings()
     except SettingsError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
-    _prepare_database(settings.database_path)
-    return settings
+
+
+def _require_models() -> None:
+    """Exit 2 listing what is missing or stale when the models the workers need are not built and current.
+
+    Only where workers run: the API alone (``serve --workers 0``) never loads the models, so it starts
+    without them and its ``/readyz`` says what is missing.
+    """
+    from geoloc.models import model_problems
+
+    problems = model_problems()
+    if problems:
+        typer.echo("error: the workers cannot run jobs:\n  " + "\n  ".join(problems), err=True)
+        raise typer.Exit(2)
 
 
 def _setup_logging(level: str) -> None:

@@ -39,11 +39,17 @@ def connect(path: Path | str | None = None, *, busy_timeout_ms: int = BUSY_TIMEO
 
 @contextmanager
 def transaction(db: sqlite_utils.Database) -> Iterator[sqlite_utils.Database]:
-    """``BEGIN IMMEDIATE`` ... ``COMMIT`` (``ROLLBACK`` on any exception). Not re-entrant."""
+    """``BEGIN IMMEDIATE`` ... ``COMMIT`` (``ROLLBACK`` on any exception). Not re-entrant.
+
+    SQLite may already have rolled the transaction back itself (``SQLITE_FULL`` on a full disk, an I/O
+    error); the rollback is then skipped so that the original error, not "no transaction is active",
+    reaches the caller. A failed ``COMMIT`` is rolled back the same way.
+    """
     db.execute("BEGIN IMMEDIATE")
     try:
         yield db
+        db.execute("COMMIT")
     except BaseException:
-        db.execute("ROLLBACK")
+        if db.conn.in_transaction:
+            db.execute("ROLLBACK")
         raise
-    db.execute("COMMIT")

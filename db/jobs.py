@@ -12,6 +12,7 @@ the new owner's outcome.
 from __future__ import annotations
 
 import json
+import math
 import time
 from typing import Any
 
@@ -20,10 +21,31 @@ import sqlite_utils
 from db.connection import transaction
 
 JOB_STATUSES = ("queued", "running", "done", "failed", "cancelled")
+FINAL_STATUSES = ("done", "failed", "cancelled")
+"""A job in one of these states will not change any more."""
 LABEL_REFERENCE = "label_reference"
 LOCALIZE_QUERY = "localize_query"
 """Job kind enqueued for each new reference; payload ``{"reference_id": int, "map_id": int}``."""
 DEFAULT_MAX_ATTEMPTS = 3
+RETRY_AFTER_BOUNDS_S = (1, 120)
+"""Smallest and largest ``Retry-After`` suggested when the queue is full."""
+RETRY_AFTER_UNKNOWN_S = 10
+"""``Retry-After`` when no job finished recently (nothing to estimate the drain rate from)."""
+THROUGHPUT_SAMPLE = 20
+"""How many of the most recently finished jobs estimate the queue's drain rate."""
+
+
+class QueueFullError(Exception):
+    """The queue already holds ``limit`` waiting jobs: new work is refused until it drains.
+
+    ``retry_after_s`` estimates when a slot frees up, from the rate at which recent jobs finished.
+    """
+
+    def __init__(self, depth: int, limit: int, retry_after_s: int) -> None:
+        super().__init__(f"the job queue is full ({depth} jobs waiting, limit {limit}); retry in {retry_after_s} s")
+        self.depth = depth
+        self.limit = limit
+        self.retry_after_s = retry_after_s
 
 
 def _decode(row: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -44,15 +66,67 @@ def enqueue_job(
     priority: int = 0,
     map_id: int | None = None,
     reference_id: int | None = None,
+    max_queued: int | None = None,
 ) -> int:
-    """Add a queued job; returns its id. Joins the caller's transaction if one is open."""
+    """Add a queued job; returns its id. Joins the caller's transaction if one is open.
+
+    With ``max_queued``, raise :class:`QueueFullError` instead when that many jobs already wait
+    (inside the caller's ``BEGIN IMMEDIATE`` transaction the count cannot change before the insert).
+    """
+    if max_queued is not None:
+        check_queue_capacity(db, max_queued)
     now = time.time()
     cursor = db.execute(
         "INSERT INTO jobs (kind, payload, status, priority, max_attempts, map_id, reference_id,"
         " created_at, updated_at) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?)",
         (kind, json.dumps(payload), priority, max_attempts, map_id, reference_id, now, now),
     )
-    return int(cursor.lastrowid)
+    assert cursor.lastrowid is not None  # an INSERT always sets it
+    return cursor.lastrowid
+
+
+def queue_depth(db: sqlite_utils.Database) -> int:
+    """Jobs waiting to run (``queued``, including retries waiting for their delay)."""
+    return int(db.execute("SELECT COUNT(*) FROM jobs WHERE status = 'queued'").fetchone()[0])
+
+
+def check_queue_capacity(db: sqlite_utils.Database, max_queued: int) -> None:
+    """Raise :class:`QueueFullError` when ``max_queued`` or more jobs are waiting.
+
+    Called before accepting new work and again inside the transaction that enqueues it, so the
+    queue never grows past ``max_queued`` however many requests arrive at once.
+    """
+    depth = queue_depth(db)
+    if depth >= max_queued:
+        raise QueueFullError(depth, max_queued, retry_after_s(db, depth - max_queued + 1))
+
+
+def retry_after_s(db: sqlite_utils.Database, excess: int) -> int:
+    """Seconds until ``excess`` queue slots are likely free, from the drain rate of recent jobs.
+
+    The rate is the number of the last :data:`THROUGHPUT_SAMPLE` finished jobs over the time since
+    the oldest of them finished (found by walking back from the newest ids, so no index is needed).
+    """
+    rows = db.execute(
+        "SELECT finished_at FROM jobs WHERE status IN ('done', 'failed') AND finished_at IS NOT NULL"
+        " ORDER BY id DESC LIMIT ?",
+        (THROUGHPUT_SAMPLE,),
+    ).fetchall()
+    low, high = RETRY_AFTER_BOUNDS_S
+    span_s = time.time() - min((row[0] for row in rows), default=time.time())
+    if len(rows) < 2 or span_s <= 0:
+        return RETRY_AFTER_UNKNOWN_S
+    jobs_per_s = len(rows) / span_s
+    return int(min(max(math.ceil(excess / jobs_per_s), low), high))
+
+
+def job_statuses(db: sqlite_utils.Database, job_ids: list[int]) -> dict[int, str]:
+    """The status of each of ``job_ids`` that exists (one query, for the API's waiters)."""
+    if not job_ids:
+        return {}
+    marks = ", ".join("?" for _ in job_ids)
+    rows = db.execute(f"SELECT id, status FROM jobs WHERE id IN ({marks})", list(job_ids)).fetchall()
+    return {int(job_id): str(status) for job_id, status in rows}
 
 
 def get_job(db: sqlite_utils.Database, job_id: int) -> dict[str, Any] | None:
@@ -159,6 +233,20 @@ def fail_job(
         (int(permanent), now + retry_delay_s, error, now, int(permanent), now, job_id, worker_id),
     ).fetchall()
     return rows[0][0] if rows else None
+
+
+def deleted_subject(db: sqlite_utils.Database, job: dict[str, Any]) -> str | None:
+    """What of the job's subject was deleted (its map, its reference), or None while both exist.
+
+    A job whose map or reference is gone cannot succeed on a retry, whatever error its attempt hit.
+    """
+    for column, table, what in (("reference_id", "reference_images", "reference"), ("map_id", "maps", "map")):
+        subject_id = job.get(column)
+        if subject_id is None:
+            continue
+        if db.execute(f"SELECT 1 FROM {table} WHERE id = ?", (subject_id,)).fetchone() is None:
+            return f"{what} {subject_id} was deleted"
+    return None
 
 
 def release_job(db: sqlite_utils.Database, job_id: int, worker_id: str) -> bool:

@@ -31,7 +31,8 @@ def insert_query(
         " VALUES (?, ?, ?, ?, 'queued', ?, ?)",
         (map_id, image_path, sha256, json.dumps(params), now, now),
     )
-    return int(cursor.lastrowid)
+    assert cursor.lastrowid is not None  # an INSERT always sets it
+    return cursor.lastrowid
 
 
 def set_query_job(db: sqlite_utils.Database, query_id: int, job_id: int) -> None:
@@ -67,3 +68,41 @@ def delete_query(db: sqlite_utils.Database, query_id: int) -> dict[str, Any] | N
     if row is not None:
         db.execute("DELETE FROM queries WHERE id = ?", (query_id,))
     return row
+
+
+def delete_expired_queries(db: sqlite_utils.Database, cutoff: float, *, limit: int = 500) -> list[str | None]:
+    """Delete up to ``limit`` finished queries created before ``cutoff`` (Unix s) with their jobs.
+
+    A query is finished when its row says ``done``/``failed`` or its job is ``done``, ``failed`` or
+    ``cancelled``; queries still waiting or running are kept whatever their age. References are not
+    touched. Call inside a transaction; returns the image path of each deleted query (remove the
+    files no row refers to any more after commit, see :func:`unreferenced_images`).
+    """
+    rows = db.execute(
+        "SELECT q.id, q.image_path, q.job_id FROM queries q LEFT JOIN jobs j ON j.id = q.job_id"
+        " WHERE q.created_at < ? AND (q.status IN ('done', 'failed') OR j.status IN ('done', 'failed', 'cancelled')"
+        " OR j.id IS NULL) ORDER BY q.id LIMIT ?",
+        (cutoff, limit),
+    ).fetchall()
+    if not rows:
+        return []
+    query_ids = [row[0] for row in rows]
+    job_ids = [row[2] for row in rows if row[2] is not None]
+    marks = ", ".join("?" for _ in query_ids)
+    db.execute(f"DELETE FROM queries WHERE id IN ({marks})", query_ids)
+    if job_ids:
+        job_marks = ", ".join("?" for _ in job_ids)
+        db.execute(f"DELETE FROM jobs WHERE id IN ({job_marks}) AND status IN ('done', 'failed', 'cancelled')", job_ids)
+    return [row[1] for row in rows]
+
+
+def unreferenced_images(db: sqlite_utils.Database, paths: list[str | None]) -> list[str]:
+    """The paths among ``paths`` that no query refers to (the same photo asked twice shares one file).
+
+    Check and remove inside one ``BEGIN IMMEDIATE`` transaction: an upload moves its file into place
+    inside its own such transaction, so it cannot slip in between the check and the removal.
+    """
+    wanted = sorted({path for path in paths if path})
+    return [
+        path for path in wanted if db.execute("SELECT 1 FROM queries WHERE image_path = ?", (path,)).fetchone() is None
+    ]

@@ -131,6 +131,31 @@ class Settings(BaseSettings):
         description="extra modules or `.py` files with job handlers, comma-separated",
         json_schema_extra=_shown("(none)"),
     )
+    worker_nice: int = Field(
+        default=10,
+        ge=0,
+        le=19,
+        description="CPU niceness added to worker processes, so that the API answers promptly while they are busy",
+    )
+    max_queued_jobs: int = Field(
+        default=100,
+        ge=1,
+        description="most jobs waiting in the queue; beyond it new references and queries get `429` with "
+        "`Retry-After`",
+    )
+    rate_limit_per_min: int = Field(
+        default=600,
+        ge=0,
+        description="requests per minute per API key (`429` with `Retry-After` beyond; 0: no limit); with no keys "
+        "configured there is no limit",
+    )
+    query_retention_s: float = Field(
+        default=30 * 24 * 3600.0,
+        ge=0,
+        description="the workers delete finished queries (photo and answer) older than this; 0 keeps them "
+        "forever; references are never deleted implicitly",
+        json_schema_extra=_shown("2592000 (30 days)"),
+    )
     ready_worker_s: float = Field(default=30.0, ge=0, description="`/readyz` needs a worker heartbeat this recent")
     seg_threads: int | None = Field(
         default=None,
@@ -284,8 +309,12 @@ def settings_table() -> str:
 
 
 def _lower_bound(info: FieldInfo) -> str:
-    bounds = [f"≥ {m.ge:g}" for m in info.metadata if isinstance(getattr(m, "ge", None), int | float)]
-    return bounds[0] if bounds else ""
+    """The valid range of a numeric field: ``≥ low``, or ``low – high`` when it also has an upper bound."""
+    lows = [m.ge for m in info.metadata if isinstance(getattr(m, "ge", None), int | float)]
+    highs = [m.le for m in info.metadata if isinstance(getattr(m, "le", None), int | float)]
+    if lows and highs:
+        return f"{lows[0]:g} – {highs[0]:g}"
+    return f"≥ {lows[0]:g}" if lows else ""
 
 
 def _shown_default(info: FieldInfo) -> str:

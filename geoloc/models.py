@@ -299,3 +299,49 @@ def _export_aliked(
     cfg = net.config
     info = {"descriptor_dim": cfg.dim, "sddh_kernel": cfg.kernel, "sddh_samples": cfg.n_samples}
     return {"torch": torch.__version__}, info
+
+def model_problems(size: tuple[int, int] | None = None) -> list[str]:
+    """What is wrong with the built models the workers need; empty when all are present and current.
+
+    Checked: the segmentation ONNX for network input ``size`` (default ``SEG_DEFAULT_SIZE``) exists;
+    its JSON metadata exists and records this export recipe (``EXPORT_VERSION``) and, when the shared
+    weights are present, their sha256 (a mismatch means the weights changed since the export); the
+    SBoW vocabulary exists and opens. ``geoloc serve``, ``geoloc worker`` and the worker processes
+    refuse to start on any of these, and ``/readyz`` lists them.
+
+    Returns
+    -------
+    list[str]
+        One sentence per problem, each saying how to fix it.
+    """
+    import numpy as np
+
+    from geoloc.retrieval import vocabulary_path
+
+    fix = "run `geoloc models build` (needs the export extra: pip install -e '.[export]')"
+    files = segmentation_files(size)
+    problems = []
+    meta = read_meta(files)
+    if not files.onnx.exists():
+        problems.append(f"segmentation model not found at {files.onnx}; {fix}")
+    elif meta is None or meta.get("export_version") != EXPORT_VERSION:
+        problems.append(f"segmentation model {files.onnx} is stale (export recipe changed); {fix} --force")
+    else:
+        try:
+            weights = weights_path()
+        except FileNotFoundError:
+            weights = None  # nothing to compare with: the recorded export stands
+        if weights is not None and meta.get("weights_sha256") != sha256_file(weights):
+            problems.append(
+                f"segmentation model {files.onnx} is stale: it was exported from other weights than {weights}; "
+                f"{fix} --force"
+            )
+    vocabulary = vocabulary_path()
+    try:
+        with np.load(vocabulary, allow_pickle=False) as npz:
+            npz.files  # noqa: B018 - reads the archive's directory: a truncated file fails here
+    except FileNotFoundError:
+        problems.append(f"SBoW vocabulary not found at {vocabulary}; {fix}")
+    except (OSError, ValueError) as exc:
+        problems.append(f"SBoW vocabulary {vocabulary} is unreadable ({exc}); delete it and {fix}")
+    return problems

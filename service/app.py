@@ -1,23 +1,32 @@
-"""The FastAPI application: settings, migrations at start, body-size guard, errors, routes."""
+"""The FastAPI application: settings, migrations at start, body-size guard, errors, limits, the job waiter,
+the OpenAPI document of the running configuration, routes."""
 
 from __future__ import annotations
 
 import json
 import logging
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
 
 from db import connect, migrate
+from db.jobs import QueueFullError
 from db.stats import stored_file_paths
-from service.errors import error_body, install_error_handlers
+from service.errors import error_body, error_response, install_error_handlers
+from service.limits import queue_full, rate_limiter_for
 from service.settings import Settings, get_settings
+from service.spec import install_openapi
 from service.uploads import clean_orphan_files, clean_stale_temp_files
+from service.waiting import JobWaiter
 
 log = logging.getLogger("geoloc.api")
 
+Message = dict[str, Any]
+Receive = Callable[[], Awaitable[Message]]
+Send = Callable[[Message], Awaitable[None]]
 FORM_OVERHEAD_BYTES = 64 * 1024
 """Allowance for multipart headers and text fields on top of a file's size limit."""
 
@@ -30,7 +39,7 @@ class BodySizeLimit:
         self.app = app
         self.limit_for_path = limit_for_path
 
-    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+    async def __call__(self, scope: Message, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
@@ -46,7 +55,7 @@ class BodySizeLimit:
         too_large = False
         response_started = False
 
-        async def limited_receive() -> dict:
+        async def limited_receive() -> Message:
             nonlocal received, too_large
             event = await receive()
             if event["type"] == "http.request":
@@ -56,7 +65,7 @@ class BodySizeLimit:
                     return {"type": "http.disconnect"}
             return event
 
-        async def guarded_send(event: dict) -> None:
+        async def guarded_send(event: Message) -> None:
             nonlocal response_started
             if too_large:
                 if not response_started and event["type"] == "http.response.start":
@@ -75,7 +84,7 @@ class BodySizeLimit:
             raise
 
     @staticmethod
-    async def _drain(receive: Callable, declared: int, cap: int = 1 << 30) -> None:
+    async def _drain(receive: Receive, declared: int, cap: int = 1 << 30) -> None:
         """Read and discard a rejected body (up to ``cap``) so the client sees the 413, not a reset."""
         if declared > cap:
             return
@@ -85,7 +94,7 @@ class BodySizeLimit:
                 return
 
     @staticmethod
-    async def _send_413(send: Callable, message: str, limit: int) -> None:
+    async def _send_413(send: Send, message: str, limit: int) -> None:
         body = json.dumps(error_body("payload_too_large", message, {"limit_bytes": limit})).encode()
         await send(
             {
@@ -103,15 +112,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # This connection stays open while the API runs: SQLite deletes the WAL and its index when the last
+        # connection closes, and re-creating them needs disk space; held open, requests can still open the
+        # database (and read) on a full disk.
         db = connect(settings.database_path)
         try:
             version = migrate(db)
             referenced = stored_file_paths(db)
+            removed = clean_stale_temp_files(settings.data_dir) + clean_orphan_files(settings.data_dir, referenced)
+            log.info("database %s at schema %d (%d stale files removed)", settings.database_path, version, removed)
+            await app.state.job_waiter.start()
+            try:
+                yield
+            finally:
+                await app.state.job_waiter.stop()
         finally:
             db.close()
-        removed = clean_stale_temp_files(settings.data_dir) + clean_orphan_files(settings.data_dir, referenced)
-        log.info("database %s at schema version %d (%d stale files removed)", settings.database_path, version, removed)
-        yield
 
     app = FastAPI(
         title="geoloc",
@@ -124,12 +140,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "Positions are WGS84 latitude/longitude in degrees; headings are degrees clockwise from north; "
             "times are ISO 8601 in UTC. Uploads are `multipart/form-data`; files are checked by their content, "
             "not their name. Request validation errors (a missing field, a value of the wrong type) are `422` "
-            "with code `invalid_request` and `details.problems`, a list of `{field, problem}`."
+            "with code `invalid_request` and `details.problems`, a list of `{field, problem}`.\n\n"
+            "Under load: new work (references, queries) gets `429` `queue_full` with `Retry-After` while the job "
+            "queue is full, an API key past its rate limit gets `429` `rate_limited` with `Retry-After`, and a "
+            "write on a full disk gets `507` `insufficient_storage` with nothing stored. This document describes "
+            "the running configuration: authentication, `401`/`403` and the rate limit appear only when API keys "
+            "are configured."
         ),
         lifespan=lifespan,
     )
     app.state.settings = settings
+    app.state.rate_limiter = rate_limiter_for(settings)
+    app.state.job_waiter = JobWaiter(settings.database_path)
     install_error_handlers(app)
+    install_openapi(app, settings)
+
+    @app.exception_handler(QueueFullError)
+    async def _queue_full(_: Request, exc: QueueFullError) -> JSONResponse:
+        error = queue_full(exc)
+        return error_response(error.status, error.code, error.message, error.details, headers=error.headers)
 
     def limit_for_path(path: str) -> int:
         path = path.rstrip("/")

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import hmac
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 
 from fastapi import Request, Security
 from fastapi.security import APIKeyHeader
 
 from service.errors import ApiError
+from service.limits import RateLimiter, rate_limited
 from service.settings import Settings
 
 api_key_header = APIKeyHeader(
@@ -30,13 +31,16 @@ def _scopes_of(settings: Settings, presented: str) -> frozenset[str] | None:
     return None
 
 
-def require_scope(scope: str) -> Callable[..., None]:
-    """A dependency that admits requests whose key has ``scope`` (everyone when auth is off).
+def require_scope(scope: str) -> Callable[..., Awaitable[None]]:
+    """A dependency that admits requests whose key has ``scope`` (everyone when auth is off), within the
+    key's rate limit (:mod:`service.limits`).
 
-    The scope is declared on the security requirement, so the OpenAPI schema shows it per operation.
+    The scope is declared on the security requirement, so the OpenAPI schema shows it per operation
+    (and :mod:`service.spec` drops it when no keys are configured). Async: it does no I/O, so it needs
+    no worker thread.
     """
 
-    def dependency(request: Request, api_key: str | None = Security(api_key_header, scopes=[scope])) -> None:
+    async def dependency(request: Request, api_key: str | None = Security(api_key_header, scopes=[scope])) -> None:
         settings: Settings = request.app.state.settings
         if not settings.auth_enabled:
             return
@@ -45,6 +49,9 @@ def require_scope(scope: str) -> Callable[..., None]:
         scopes = _scopes_of(settings, api_key)
         if scopes is None:
             raise ApiError(401, "unauthorized", "invalid API key")
+        limiter: RateLimiter | None = request.app.state.rate_limiter
+        if limiter is not None and (wait_s := limiter.acquire(api_key)) is not None:
+            raise rate_limited(limiter, wait_s)
         if scope not in scopes:
             raise ApiError(403, "forbidden", f"this API key lacks the '{scope}' scope")
 

@@ -1,15 +1,33 @@
-"""Numeric bounds of the form fields: one table that both checks requests and documents them.
+"""Numeric bounds of the form fields and of the ids in paths: one table that both checks requests and
+documents them.
 
 A value outside its bounds (or not finite) is a 422 ``invalid_request`` that names the field, its
 bounds and the value sent; the OpenAPI schema shows the same bounds as ``minimum``/``maximum``.
+Ids are SQLite row ids: 64-bit signed integers from 1 (:data:`MAX_ID`), so a larger number in a path
+is a 422 rather than an overflow deep in the database driver.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Annotated, Any
+
+from fastapi import Path
 
 from service.errors import ApiError
+
+MAX_ID = 2**63 - 1
+"""Largest id: SQLite's INTEGER PRIMARY KEY is a signed 64-bit integer."""
+
+
+def _id_in_path(what: str) -> Any:
+    return Path(ge=1, le=MAX_ID, description=f"The {what}'s id (a 64-bit integer from 1)")
+
+
+MapId = Annotated[int, _id_in_path("map")]
+ReferenceId = Annotated[int, _id_in_path("reference")]
+QueryId = Annotated[int, _id_in_path("query")]
+JobId = Annotated[int, _id_in_path("job")]
 
 BOUNDS: dict[str, tuple[float, float]] = {
     "lat": (-90.0, 90.0),

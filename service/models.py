@@ -272,3 +272,11 @@ class ReferenceList(BaseModel):
     next_after_id: int | None = Field(
         description="Pass as `after_id` for the next page; null on the last page", examples=[100]
     )
+
+def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """``responses=`` for a route: each status answered with :class:`ErrorResponse`.
+
+    Routes list the statuses their own code answers with; :mod:`service.spec` adds the ones that
+    depend on the configuration or the request's form (auth, rate limit, multipart, full disk).
+    """
+    return {status: {"model": ErrorResponse} for status in statuses}

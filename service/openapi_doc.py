@@ -5,8 +5,10 @@ writes nothing and exits 1 with a diff when either is not current (``tests/test_
 runs the check in CI). The Markdown is rendered from the JSON alone (:func:`render_markdown`),
 so it shows exactly what the schema says: auth scopes from each operation's security
 requirement, error codes from ``ErrorDetail.code``'s ``x-error-codes``, and every field's
-constraints (bounds, lengths, enums, defaults). The app is built with default settings, so the
-environment does not leak into the output.
+constraints (bounds, lengths, enums, defaults). The app is built with default settings and one API
+key configured (the served document follows the running configuration, :mod:`service.spec`; the
+reference shows a deployment with keys, whose surface includes authentication, ``401``/``403`` and the
+rate limit), so the environment does not leak into the output.
 """
 
 from __future__ import annotations
@@ -32,17 +34,18 @@ HTTP_PHRASES = {
     200: "OK", 201: "Created", 202: "Accepted", 204: "No Content", 400: "Bad Request", 401: "Unauthorized",
     403: "Forbidden", 404: "Not Found", 405: "Method Not Allowed", 409: "Conflict", 413: "Content Too Large",
     415: "Unsupported Media Type", 422: "Unprocessable Content", 429: "Too Many Requests",
-    500: "Internal Server Error", 503: "Service Unavailable",
+    500: "Internal Server Error", 503: "Service Unavailable", 507: "Insufficient Storage",
 }  # fmt: skip
 Schema = dict[str, Any]
 
 
 def openapi_spec() -> Schema:
-    """The app's OpenAPI document, built with default settings (no database is touched)."""
+    """The app's OpenAPI document with default settings and API keys configured (no database is touched)."""
     from geoloc.config import Settings
     from service.app import create_app
 
-    return create_app(Settings.from_values(data_dir=Path("/nonexistent-geoloc-data"))).openapi()
+    settings = Settings.from_values(data_dir=Path("/nonexistent-geoloc-data"), api_keys="documented-key:read+write")
+    return create_app(settings).openapi()
 
 
 def openapi_json(spec: Schema) -> str:
@@ -77,7 +80,8 @@ def _cell(text: str | None) -> str:
 
 
 def _number(value: float) -> str:
-    return f"{value:g}"
+    """A bound as written: integers exactly (ids reach 2**63 - 1), other numbers short."""
+    return str(value) if isinstance(value, int) else f"{value:g}"
 
 
 def _table(header: list[str], rows: Iterable[list[str]]) -> list[str]:
@@ -117,12 +121,17 @@ def constraints(schema: Schema, *, required: bool) -> str:
     """What a value must satisfy and its default, e.g. ``1 – 50; default `10```.
 
     Reads ``minimum``/``maximum`` (also exclusive), ``minLength``/``maxLength``, ``minItems``/
-    ``maxItems``, ``enum`` and ``default``, on the schema and on the branches of an ``anyOf``.
+    ``maxItems``, ``pattern``, ``enum`` and ``default``, on the schema and on the branches of an ``anyOf``.
     """
     merged = dict(schema)
     for branch in schema.get("anyOf", []):
         merged.update({k: v for k, v in branch.items() if k not in merged})
-    parts = [*_bounds(merged), *_sizes(merged)]
+    if type_of(schema) == "file":  # a file's minLength counts bytes: 1 means it may not be empty
+        parts = ["not empty"] if merged.get("minLength") == 1 else []
+    else:
+        parts = [*_bounds(merged), *_sizes(merged)]
+    if merged.get("pattern"):
+        parts.append(f"matches `{merged['pattern']}`")
     if merged.get("enum"):
         parts.append("one of " + ", ".join(f"`{json.dumps(v)}`" for v in merged["enum"]))
     if not required and merged.get("default") is not None:

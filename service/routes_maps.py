@@ -19,9 +19,10 @@ from fastapi.responses import JSONResponse
 from db import maps as map_store
 from db import transaction
 from service.auth import require_read, require_write
+from service.bounds import MapId
 from service.deps import get_db, get_settings
 from service.errors import ApiError
-from service.models import BoundingBox, ErrorResponse, LatLon, MapList, MapOut, timestamp
+from service.models import BoundingBox, LatLon, MapList, MapOut, error_responses, timestamp
 from service.settings import Settings
 from service.uploads import received_upload, remove_quietly
 
@@ -44,9 +45,6 @@ FILE_DESCRIPTION = (
     "GeoPackage (.gpkg), FlatGeobuf (.fgb) or a zipped Shapefile (.zip). GIS files in any CRS they declare "
     "(GeoJSON without one: WGS84 lon/lat); polygon features are the buildings."
 )
-_ERRORS: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorResponse} for code in (400, 401, 403, 404, 413, 415, 422)
-}
 
 
 def map_out(row: dict[str, Any], *, reference_count: int = 0, duplicate: bool = False) -> MapOut:
@@ -83,12 +81,17 @@ def require_map(db: sqlite_utils.Database, map_id: int) -> dict[str, Any]:
     "",
     response_model=MapOut,
     status_code=status.HTTP_201_CREATED,
-    responses={200: {"model": MapOut, "description": "The same file was already uploaded"}, **_ERRORS},
+    responses={
+        200: {"model": MapOut, "description": "The same file was already uploaded"},
+        **error_responses(413, 422),
+    },
     dependencies=[Depends(require_write)],
 )
 def upload_map(
     file: Annotated[UploadFile, File(description=FILE_DESCRIPTION)],
-    name: Annotated[str, Form(min_length=1, max_length=200, description="A name for the map")],
+    name: Annotated[
+        str, Form(min_length=1, max_length=200, pattern=r"\S", description="A name for the map (not blank)")
+    ],
     layer: Annotated[
         str | None,
         Form(
@@ -129,8 +132,6 @@ def upload_map(
     from geoloc.maps import MapLoadError, load_map, map_cache_dir, map_cache_path, save_city_map
     from geoloc.maps.crs import parse_crs
 
-    if not name.strip():
-        raise ApiError(422, "invalid_request", "name must not be blank")
     options = _read_options(layer, name_attribute, height_attribute, levels_attribute, crs)
     if options.crs is not None:
         try:
@@ -209,7 +210,7 @@ def _reference_total(db: sqlite_utils.Database, map_id: int) -> int:
     return sum(map_store.map_reference_counts(db, map_id).values())
 
 
-@router.get("", response_model=MapList, responses=_ERRORS, dependencies=[Depends(require_read)])
+@router.get("", response_model=MapList, dependencies=[Depends(require_read)])
 def list_maps(db: sqlite_utils.Database = Depends(get_db)) -> MapList:
     """All maps, oldest first."""
     return MapList(
@@ -217,18 +218,21 @@ def list_maps(db: sqlite_utils.Database = Depends(get_db)) -> MapList:
     )
 
 
-@router.get("/{map_id}", response_model=MapOut, responses=_ERRORS, dependencies=[Depends(require_read)])
-def get_map(map_id: int, db: sqlite_utils.Database = Depends(get_db)) -> MapOut:
+@router.get("/{map_id}", response_model=MapOut, responses=error_responses(404), dependencies=[Depends(require_read)])
+def get_map(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) -> MapOut:
     """One map."""
     return map_out(require_map(db, map_id), reference_count=_reference_total(db, map_id))
 
 
 @router.get(
     "/{map_id}/buildings",
-    responses={200: {"content": {"application/geo+json": {}}, "description": "GeoJSON FeatureCollection"}, **_ERRORS},
+    responses={
+        200: {"content": {"application/geo+json": {}}, "description": "GeoJSON FeatureCollection"},
+        **error_responses(404),
+    },
     dependencies=[Depends(require_read)],
 )
-def get_buildings(map_id: int, db: sqlite_utils.Database = Depends(get_db)) -> Response:
+def get_buildings(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) -> Response:
     """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat) with building id, OSM id,
     name and height."""
     require_map(db, map_id)
@@ -243,10 +247,13 @@ def get_buildings(map_id: int, db: sqlite_utils.Database = Depends(get_db)) -> R
 
 
 @router.delete(
-    "/{map_id}", status_code=status.HTTP_204_NO_CONTENT, responses=_ERRORS, dependencies=[Depends(require_write)]
+    "/{map_id}",
+    status_code=status.HTTP_204_NO_CONTENT,
+    responses=error_responses(404),
+    dependencies=[Depends(require_write)],
 )
 def delete_map(
-    map_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    map_id: MapId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
 ) -> Response:
     """Delete a map with its buildings, references, labels, index entries and queries."""
     with transaction(db):

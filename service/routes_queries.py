@@ -3,36 +3,44 @@
 ``POST /v1/maps/{id}/queries`` stores the photo, queues the job and waits up to ``wait_s`` seconds
 for the answer (200 with the result); a slower answer comes back as 202 with the query id to poll
 (``GET /v1/queries/{id}``). Heavy work (segmentation, matching, the likelihood) runs in workers only.
+
+The wait holds no thread: the request awaits its job on the event loop (:mod:`service.waiting`), so
+any number of clients can wait while reads are served. ``GET /v1/queries/{id}?wait_s=N`` waits the same
+way (a long poll). Storing the photo and the job runs in a worker
+thread for the few milliseconds it takes. While the job queue is full the request gets ``429`` with
+``Retry-After`` and nothing is stored (:mod:`service.limits`).
 """
 
 from __future__ import annotations
 
-import time
+from dataclasses import dataclass
 from typing import Annotated, Any
 
 import numpy as np
 import sqlite_utils
-from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
+from db import connect, transaction
 from db import jobs as job_store
 from db import queries as query_store
-from db import transaction
 from service.auth import require_read, require_write
-from service.bounds import check_bounds, documented
+from service.bounds import MapId, QueryId, check_bounds, documented
 from service.deps import get_db, get_settings
 from service.errors import ApiError
 from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
-from service.models import ErrorResponse, QueryOut, timestamp
+from service.limits import require_queue_capacity
+from service.models import QueryOut, error_responses, timestamp
 from service.routes_maps import require_map
 from service.routes_references import READ_ERRORS
 from service.settings import Settings
+from service.spec import QUEUE_FULL_RESPONSE
 from service.uploads import received_upload, remove_quietly
+from service.waiting import JobWaiter
 
 router = APIRouter(tags=["queries"])
-_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 413, 415, 422)}
 DEFAULT_PRIOR_RADIUS_M = 50.0
-POLL_S = 0.2
 
 
 def query_out(row: dict[str, Any], job: dict[str, Any] | None) -> QueryOut:
@@ -64,14 +72,105 @@ def _load(db: sqlite_utils.Database, query_id: int) -> tuple[dict[str, Any], dic
     return row, job
 
 
+@dataclass
+class QueryForm:
+    """The form fields of a query (checked by :func:`_store_query`)."""
+
+    lat: float | None
+    lon: float | None
+    radius_m: float | None
+    heading_deg: float | None
+    use_exif_gps: bool
+    focal_length_35mm: float | None
+    top_n: int
+    k: int
+    wait_s: float
+
+
+def _store_query(settings: Settings, map_id: int, image: UploadFile, form: QueryForm) -> tuple[int, int]:
+    """Check the request, store the photo, the query and its job in one transaction; returns their ids.
+
+    Blocking (file and database work): run it in a worker thread.
+    """
+    db = connect(settings.database_path)
+    try:
+        map_row = require_map(db, map_id)
+        for name in ("lat", "lon", "radius_m", "heading_deg", "focal_length_35mm", "top_n", "k", "wait_s"):
+            check_bounds(name, getattr(form, name))
+        if (form.lat is None) != (form.lon is None):
+            raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
+        with received_upload(image, settings.data_dir, settings.max_image_bytes, "the image") as received:
+            info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
+            prior: dict[str, Any] | None = None
+            if form.lat is not None and form.lon is not None:
+                prior = {
+                    "lat": form.lat,
+                    "lon": form.lon,
+                    "radius_m": form.radius_m or DEFAULT_PRIOR_RADIUS_M,
+                    "source": "request",
+                }
+            elif form.use_exif_gps and info.gps_lat is not None and info.gps_lon is not None:
+                prior = {"lat": info.gps_lat, "lon": info.gps_lon, "radius_m": form.radius_m or DEFAULT_PRIOR_RADIUS_M}
+                prior["source"] = "exif"
+            if prior is not None:
+                distance = distance_outside_bbox_m(prior["lat"], prior["lon"], map_row["bbox_wgs84"])
+                if distance > settings.position_margin_m:
+                    raise ApiError(
+                        422,
+                        "outside_map",
+                        f"the prior position ({prior['lat']:.6f}, {prior['lon']:.6f}, from {prior['source']}) is "
+                        f"{distance:.0f} m outside map {map_id}'s bounding box; send use_exif_gps=false to ignore it",
+                        {"distance_m": round(distance, 1), "margin_m": settings.position_margin_m},
+                    )
+            params = {
+                "top_n": form.top_n,
+                "k": form.k,
+                "prior": prior,
+                "prior_heading_deg": form.heading_deg if form.heading_deg is not None else info.heading_deg,
+                "focal_length_35mm": form.focal_length_35mm,
+                "original_filename": received.filename,
+            }
+            relative = f"queries/{map_id}/{received.sha256}.{info.extension}"
+            with transaction(db):
+                received.move_to(settings.data_dir / relative)
+                query_id = query_store.insert_query(
+                    db, map_id=map_id, params=params, image_path=relative, sha256=received.sha256
+                )
+                job_id = job_store.enqueue_job(
+                    db,
+                    job_store.LOCALIZE_QUERY,
+                    {"query_id": query_id, "map_id": map_id},
+                    max_attempts=settings.job_max_attempts,
+                    map_id=map_id,
+                    max_queued=settings.max_queued_jobs,
+                )
+                query_store.set_query_job(db, query_id, job_id)
+        return query_id, job_id
+    finally:
+        db.close()
+
+
+def _load_query(settings: Settings, query_id: int) -> QueryOut:
+    db = connect(settings.database_path)
+    try:
+        return query_out(*_load(db, query_id))
+    finally:
+        db.close()
+
+
 @router.post(
     "/v1/maps/{map_id}/queries",
     response_model=QueryOut,
-    responses={202: {"model": QueryOut, "description": "Not answered within wait_s: poll the query"}, **_ERRORS},
-    dependencies=[Depends(require_read)],
+    responses={
+        202: {"model": QueryOut, "description": "Not answered within wait_s: poll the query"},
+        **error_responses(404, 413, 415, 422),
+        **QUEUE_FULL_RESPONSE,
+    },
+    dependencies=[Depends(require_read), Depends(require_queue_capacity)],
 )
-def create_query(
-    map_id: int,
+async def create_query(
+    request: Request,
+    map_id: MapId,
     image: Annotated[UploadFile, File(description="The photo to geolocate (JPEG, PNG, WEBP or TIFF)")],
     lat: Annotated[
         float | None, Form(description="Prior position latitude (WGS84)", json_schema_extra=documented("lat"))
@@ -101,105 +200,67 @@ def create_query(
     wait_s: Annotated[
         float, Form(description="How long to wait for the answer before 202", json_schema_extra=documented("wait_s"))
     ] = 60.0,
-    db: sqlite_utils.Database = Depends(get_db),
     settings: Settings = Depends(get_settings),
 ) -> QueryOut | JSONResponse:
     """Geolocate a photo on a map: ranked locations with headings, the heatmap, the buildings in the photo.
 
     A prior position (``lat``/``lon`` with ``radius_m``, or the photo's EXIF GPS unless
     ``use_exif_gps`` is false) and a prior heading (``heading_deg`` or EXIF GPSImgDirection) are used as
-    priors and reported in ``result.search``. 200 with the answer, or 202 if it took longer than ``wait_s``.
+    priors and reported in ``result.search``. 200 with the answer, or 202 if it took longer than ``wait_s``;
+    429 while the job queue is full (retry after ``Retry-After`` seconds).
     """
-    map_row = require_map(db, map_id)
-    for name, value in (
-        ("lat", lat),
-        ("lon", lon),
-        ("radius_m", radius_m),
-        ("heading_deg", heading_deg),
-        ("focal_length_35mm", focal_length_35mm),
-        ("top_n", top_n),
-        ("k", k),
-        ("wait_s", wait_s),
-    ):
-        check_bounds(name, value)
-    if (lat is None) != (lon is None):
-        raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
-    with received_upload(image, settings.data_dir, settings.max_image_bytes, "the image") as received:
-        info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
-        prior = None
-        if lat is not None and lon is not None:
-            prior = {"lat": lat, "lon": lon, "radius_m": radius_m or DEFAULT_PRIOR_RADIUS_M, "source": "request"}
-        elif use_exif_gps and info.gps_lat is not None and info.gps_lon is not None:
-            prior = {"lat": info.gps_lat, "lon": info.gps_lon, "radius_m": radius_m or DEFAULT_PRIOR_RADIUS_M}
-            prior["source"] = "exif"
-        if prior is not None:
-            distance = distance_outside_bbox_m(prior["lat"], prior["lon"], map_row["bbox_wgs84"])
-            if distance > settings.position_margin_m:
-                raise ApiError(
-                    422,
-                    "outside_map",
-                    f"the prior position ({prior['lat']:.6f}, {prior['lon']:.6f}, from {prior['source']}) is "
-                    f"{distance:.0f} m outside map {map_id}'s bounding box; send use_exif_gps=false to ignore it",
-                    {"distance_m": round(distance, 1), "margin_m": settings.position_margin_m},
-                )
-        prior_heading = heading_deg if heading_deg is not None else info.heading_deg
-        params = {
-            "top_n": top_n,
-            "k": k,
-            "prior": prior,
-            "prior_heading_deg": prior_heading,
-            "focal_length_35mm": focal_length_35mm,
-            "original_filename": received.filename,
-        }
-        relative = f"queries/{map_id}/{received.sha256}.{info.extension}"
-        final_path = settings.data_dir / relative
-        with transaction(db):
-            received.move_to(final_path)
-            query_id = query_store.insert_query(
-                db, map_id=map_id, params=params, image_path=relative, sha256=received.sha256
-            )
-            job_id = job_store.enqueue_job(
-                db,
-                job_store.LOCALIZE_QUERY,
-                {"query_id": query_id, "map_id": map_id},
-                max_attempts=settings.job_max_attempts,
-                map_id=map_id,
-            )
-            query_store.set_query_job(db, query_id, job_id)
-
-    deadline = time.monotonic() + wait_s
-    row, job = _load(db, query_id)
-    while row["status"] not in ("done", "failed") and time.monotonic() < deadline:
-        if job is not None and job["status"] in ("failed", "cancelled"):
-            break
-        time.sleep(POLL_S)
-        row, job = _load(db, query_id)
-    out = query_out(row, job)
+    form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, focal_length_35mm, top_n, k, wait_s)
+    query_id, job_id = await run_in_threadpool(_store_query, settings, map_id, image, form)
+    waiter: JobWaiter = request.app.state.job_waiter
+    await waiter.wait(job_id, wait_s)
+    out = await run_in_threadpool(_load_query, settings, query_id)
     if out.status in ("done", "failed"):
         return out
     return JSONResponse(out.model_dump(mode="json"), status_code=status.HTTP_202_ACCEPTED)
 
 
-@router.get("/v1/queries/{query_id}", response_model=QueryOut, responses=_ERRORS, dependencies=[Depends(require_read)])
-def get_query(query_id: int, db: sqlite_utils.Database = Depends(get_db)) -> QueryOut:
-    """A query: status (queued, processing, done, failed) and, when done, its answer."""
-    return query_out(*_load(db, query_id))
+@router.get(
+    "/v1/queries/{query_id}",
+    response_model=QueryOut,
+    responses=error_responses(404),
+    dependencies=[Depends(require_read)],
+)
+async def get_query(
+    request: Request,
+    query_id: QueryId,
+    wait_s: Annotated[
+        float,
+        Query(ge=0, le=300, description="Wait up to this long for the answer if it is not ready (a long poll)"),
+    ] = 0.0,
+    settings: Settings = Depends(get_settings),
+) -> QueryOut:
+    """A query: status (queued, processing, done, failed) and, when done, its answer.
+
+    With ``wait_s`` the request waits (holding no thread) until the answer is ready or ``wait_s`` passed, so a
+    client need not poll in a loop.
+    """
+    out = await run_in_threadpool(_load_query, settings, query_id)
+    if wait_s > 0 and out.status not in ("done", "failed") and out.job_id is not None:
+        waiter: JobWaiter = request.app.state.job_waiter
+        await waiter.wait(out.job_id, wait_s)
+        out = await run_in_threadpool(_load_query, settings, query_id)
+    return out
 
 
 def _done_result(db: sqlite_utils.Database, query_id: int) -> dict[str, Any]:
     row, _ = _load(db, query_id)
     if row["status"] != "done" or not row["result"]:
         raise ApiError(409, "not_ready", f"query {query_id} has no answer yet (status {row['status']})")
-    return row["result"]
+    return dict(row["result"])
 
 
 @router.get(
     "/v1/queries/{query_id}/heatmap.png",
-    responses={200: {"content": {"image/png": {}}}, 409: {"model": ErrorResponse}, **_ERRORS},
+    responses={200: {"content": {"image/png": {}}}, **error_responses(404, 409)},
     response_class=Response,
     dependencies=[Depends(require_read)],
 )
-def get_heatmap_png(query_id: int, db: sqlite_utils.Database = Depends(get_db)) -> Response:
+def get_heatmap_png(query_id: QueryId, db: sqlite_utils.Database = Depends(get_db)) -> Response:
     """The probability map as a PNG (north up, one pixel block per grid cell, the best location marked)."""
     import cv2
 
@@ -214,10 +275,10 @@ def get_heatmap_png(query_id: int, db: sqlite_utils.Database = Depends(get_db)) 
 
 @router.get(
     "/v1/queries/{query_id}/answer.geojson",
-    responses={200: {"content": {"application/geo+json": {}}}, 409: {"model": ErrorResponse}, **_ERRORS},
+    responses={200: {"content": {"application/geo+json": {}}}, **error_responses(404, 409)},
     dependencies=[Depends(require_read)],
 )
-def get_answer_geojson(query_id: int, db: sqlite_utils.Database = Depends(get_db)) -> JSONResponse:
+def get_answer_geojson(query_id: QueryId, db: sqlite_utils.Database = Depends(get_db)) -> JSONResponse:
     """The ranked locations as GeoJSON points (properties: rank, heading, probabilities)."""
     result = _done_result(db, query_id)
     features = [
@@ -235,19 +296,19 @@ def get_answer_geojson(query_id: int, db: sqlite_utils.Database = Depends(get_db
 @router.delete(
     "/v1/queries/{query_id}",
     status_code=status.HTTP_204_NO_CONTENT,
-    responses=_ERRORS,
+    responses=error_responses(404),
     dependencies=[Depends(require_write)],
 )
 def delete_query(
-    query_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    query_id: QueryId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
 ) -> Response:
     """Delete a query and its stored photo."""
     with transaction(db):
         deleted = query_store.delete_query(db, query_id)
     if deleted is None:
         raise ApiError(404, "not_found", f"query {query_id} not found")
-    if deleted.get("image_path"):
-        remove_quietly(settings.data_dir / deleted["image_path"])
+    with transaction(db):  # the same photo asked again shares the file: remove it only when unreferenced
+        remove_quietly(*(settings.data_dir / p for p in query_store.unreferenced_images(db, [deleted["image_path"]])))
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
@@ -258,7 +319,7 @@ def delete_query(
     dependencies=[Depends(require_read)],
 )
 def get_query_image(
-    query_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    query_id: QueryId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
 ) -> FileResponse:
     """The query photo as uploaded (its stored bytes, with the media type of its format)."""
     row, _ = _load(db, query_id)

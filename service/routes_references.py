@@ -13,28 +13,29 @@ from db import jobs as job_store
 from db import references as reference_store
 from db import transaction
 from service.auth import require_read, require_write
-from service.bounds import check_bounds, documented
+from service.bounds import MapId, ReferenceId, check_bounds, documented
 from service.deps import get_db, get_settings
 from service.errors import ApiError
 from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
+from service.limits import require_queue_capacity
 from service.models import (
-    ErrorResponse,
     EstimatedPose,
     Position,
     ReferenceAccepted,
     ReferenceList,
     ReferenceOut,
+    error_responses,
     timestamp,
 )
 from service.routes_maps import require_map
 from service.settings import Settings
+from service.spec import QUEUE_FULL_RESPONSE
 from service.uploads import received_upload, remove_quietly
 
 log = logging.getLogger("geoloc.api")
 router = APIRouter(tags=["references"])
-_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 413, 415, 422)}
-READ_ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorResponse} for code in (401, 403, 404, 422)}
-"""Errors of a read (no body to reject)."""
+READ_ERRORS = error_responses(404)
+"""Errors a read answers itself (the specification adds auth, rate-limit and validation statuses)."""
 
 
 def resolve_position(
@@ -60,11 +61,15 @@ def resolve_position(
     "/v1/maps/{map_id}/references",
     response_model=ReferenceAccepted,
     status_code=status.HTTP_202_ACCEPTED,
-    responses={200: {"model": ReferenceAccepted, "description": "Already a reference of this map"}, **_ERRORS},
-    dependencies=[Depends(require_write)],
+    responses={
+        200: {"model": ReferenceAccepted, "description": "Already a reference of this map"},
+        **error_responses(404, 413, 415, 422),
+        **QUEUE_FULL_RESPONSE,
+    },
+    dependencies=[Depends(require_write), Depends(require_queue_capacity)],
 )
 def upload_reference(
-    map_id: int,
+    map_id: MapId,
     image: Annotated[UploadFile, File(description="The photo (JPEG, PNG, WEBP or TIFF; checked by content)")],
     lat: Annotated[
         float | None, Form(description="Latitude (WGS84); overrides EXIF GPS", json_schema_extra=documented("lat"))
@@ -91,7 +96,8 @@ def upload_reference(
     202 with the reference and its job; 200 with the existing reference when the same photo
     (sha256) is already a reference of this map (``duplicate: true``, nothing queued).
     Errors: 404 unknown map, 413 too large (bytes or pixels), 415 not an image, 422 corrupt or
-    truncated image, no position, or a position outside the map (with the distance).
+    truncated image, no position, or a position outside the map (with the distance), 429 while the
+    job queue is full (retry after ``Retry-After`` seconds).
     """
     map_row = require_map(db, map_id)
     check_bounds("heading_deg", heading_deg)
@@ -142,6 +148,7 @@ def upload_reference(
                     max_attempts=settings.job_max_attempts,
                     map_id=map_id,
                     reference_id=reference_id,
+                    max_queued=settings.max_queued_jobs,
                 )
                 reference_store.set_reference_job(db, reference_id, job_id)
     if existing is not None:
@@ -190,10 +197,10 @@ def reference_out(row: dict[str, Any], job: dict[str, Any] | None) -> ReferenceO
 @router.get(
     "/v1/references/{reference_id}",
     response_model=ReferenceOut,
-    responses=_ERRORS,
+    responses=error_responses(404),
     dependencies=[Depends(require_read)],
 )
-def get_reference(reference_id: int, db: sqlite_utils.Database = Depends(get_db)) -> ReferenceOut:
+def get_reference(reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db)) -> ReferenceOut:
     """A reference: status (queued, processing, done, failed) and, when done, the estimated pose,
     the buildings seen and timings."""
     row = reference_store.get_reference(db, reference_id)
@@ -206,11 +213,11 @@ def get_reference(reference_id: int, db: sqlite_utils.Database = Depends(get_db)
 @router.delete(
     "/v1/references/{reference_id}",
     status_code=status.HTTP_204_NO_CONTENT,
-    responses=_ERRORS,
+    responses=error_responses(404),
     dependencies=[Depends(require_write)],
 )
 def delete_reference(
-    reference_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
 ) -> Response:
     """Delete a reference with its labels, keypoints and index entries (its queued job is cancelled)."""
     with transaction(db):
@@ -223,12 +230,12 @@ def delete_reference(
 
 @router.get(
     "/v1/references/{reference_id}/labels.png",
-    responses={200: {"content": {"image/png": {}}}, 409: {"model": ErrorResponse}, **_ERRORS},
+    responses={200: {"content": {"image/png": {}}}, **error_responses(404, 409)},
     response_class=Response,
     dependencies=[Depends(require_read)],
 )
 def get_labels_png(
-    reference_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
 ) -> Response:
     """The photo with its building pixels coloured by identity (one colour per building, as in the
     paper's Fig. 5); uncertain columns are drawn paler. 409 until the reference is labelled."""
@@ -251,8 +258,10 @@ def get_labels_png(
     dependencies=[Depends(require_read)],
 )
 def list_map_references(
-    map_id: int,
-    after_id: Annotated[int, Query(ge=0, description="Return references with ids above this (paging cursor)")] = 0,
+    map_id: MapId,
+    after_id: Annotated[
+        int, Query(ge=0, le=2**63 - 1, description="Return references with ids above this (paging cursor)")
+    ] = 0,
     limit: Annotated[int, Query(ge=1, le=500, description="Most references in this page")] = 100,
     db: sqlite_utils.Database = Depends(get_db),
 ) -> ReferenceList:
@@ -281,7 +290,7 @@ def list_map_references(
     dependencies=[Depends(require_read)],
 )
 def get_reference_image(
-    reference_id: int, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
 ) -> FileResponse:
     """The reference photo as uploaded (its stored bytes, with the media type of its format)."""
     row = reference_store.get_reference(db, reference_id)

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import threading
+import time
+from typing import Any
+
 import sqlite_utils
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
@@ -9,13 +13,30 @@ from fastapi.responses import JSONResponse
 from db import LATEST_VERSION, connect, schema_version
 from db import jobs as job_store
 from service.auth import require_read
+from service.bounds import JobId
 from service.deps import get_db
 from service.errors import ApiError, error_body
-from service.models import ErrorResponse, Health, JobOut, Readiness, timestamp
+from service.models import ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
 from service.settings import Settings
 
 router = APIRouter()
-ERRORS = {404: {"model": ErrorResponse}, 401: {"model": ErrorResponse}, 403: {"model": ErrorResponse}}
+MODEL_CHECK_TTL_S = 10.0
+"""``/readyz`` re-checks the built models (which hashes the weights) at most this often."""
+_model_check: dict[str, tuple[float, list[str]]] = {}
+_model_check_lock = threading.Lock()
+
+
+def model_problems_cached(settings: Settings) -> list[str]:
+    """:func:`geoloc.models.model_problems` for the app's data folder, cached for :data:`MODEL_CHECK_TTL_S`."""
+    from geoloc.models import model_problems
+
+    key = str(settings.data_dir)
+    with _model_check_lock:
+        checked_at, problems = _model_check.get(key, (-MODEL_CHECK_TTL_S, []))
+        if time.monotonic() - checked_at >= MODEL_CHECK_TTL_S:
+            problems = model_problems()
+            _model_check[key] = (time.monotonic(), problems)
+    return problems
 
 
 @router.get("/healthz", response_model=Health, tags=["system"])
@@ -26,7 +47,8 @@ def healthz() -> Health:
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": ErrorResponse}}, tags=["system"])
 def readyz(request: Request) -> Readiness | JSONResponse:
-    """Ready when the database answers at the current schema version and a worker heartbeat is recent."""
+    """Ready when the database answers at the current schema version, the models the workers need are built
+    and current, and a worker heartbeat is recent; else 503 with every reason in ``problems``."""
     settings: Settings = request.app.state.settings
     problems: list[str] = []
     version, workers = -1, 0
@@ -42,6 +64,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
         problems.append(f"database unreachable: {exc}")
     if version != LATEST_VERSION and version >= 0:
         problems.append(f"database schema version {version}, expected {LATEST_VERSION}")
+    problems += model_problems_cached(settings)
     if workers == 0:
         problems.append(f"no worker heartbeat in the last {settings.ready_worker_s:.0f} s")
     readiness = Readiness(
@@ -56,7 +79,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
     return readiness
 
 
-def job_out(job: dict) -> JobOut:
+def job_out(job: dict[str, Any]) -> JobOut:
     """A job row as its API model."""
     return JobOut(
         id=job["id"],
@@ -77,11 +100,11 @@ def job_out(job: dict) -> JobOut:
 @router.get(
     "/v1/jobs/{job_id}",
     response_model=JobOut,
-    responses=ERRORS,
+    responses=error_responses(404),
     tags=["jobs"],
     dependencies=[Depends(require_read)],
 )
-def get_job(job_id: int, db: sqlite_utils.Database = Depends(get_db)) -> JobOut:
+def get_job(job_id: JobId, db: sqlite_utils.Database = Depends(get_db)) -> JobOut:
     """A background job: status, attempts, result or last error."""
     job = job_store.get_job(db, job_id)
     if job is None:

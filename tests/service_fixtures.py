@@ -166,11 +166,38 @@ def wait_for(predicate: Any, timeout: float, interval: float = 0.1, what: Any = 
     raise TimeoutError(f"timed out after {timeout:.0f} s waiting for {what() if callable(what) else what}")
 
 
+API_KEYS = f"{WRITE_KEY}:write,{READ_KEY}:read"
+
+
+def _link_models(data_dir: Path, models: Path) -> None:
+    # Imported here: this file is also loaded on its own, as a worker plugin, where relative imports fail.
+    from tests.model_fixtures import link_models
+
+    link_models(data_dir, models)
+
+
 @contextlib.contextmanager
-def running_service(data_dir: Path, *, workers: int = 1, **env_overrides: str) -> Iterator[RunningProcess]:
-    """``geoloc serve`` on a free loopback port with API keys; yields once /healthz answers."""
+def running_service(
+    data_dir: Path,
+    *,
+    workers: int = 1,
+    models: Path | None = None,
+    api_keys: str | None = API_KEYS,
+    **env_overrides: str,
+) -> Iterator[RunningProcess]:
+    """``geoloc serve`` on a free loopback port (with ``api_keys``, none if None); yields once /healthz answers.
+
+    Workers need the built models: pass ``models`` (the ``built_models`` fixture) to link them into
+    ``data_dir`` when ``workers`` > 0.
+    """
     port = free_port()
-    env = service_env(data_dir, GEOLOC_API_KEYS=f"{WRITE_KEY}:write,{READ_KEY}:read", **env_overrides)
+    if models is not None:
+        _link_models(data_dir, models)
+    env = service_env(data_dir, **env_overrides)
+    if api_keys is not None:
+        env["GEOLOC_API_KEYS"] = api_keys
+    else:
+        env.pop("GEOLOC_API_KEYS", None)
     running = start_process(
         ["serve", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers), "--log-level", "warning"],
         data_dir,
@@ -194,8 +221,12 @@ def running_service(data_dir: Path, *, workers: int = 1, **env_overrides: str) -
 
 
 @contextlib.contextmanager
-def running_workers(data_dir: Path, *, concurrency: int = 1, **env_overrides: str) -> Iterator[RunningProcess]:
-    """``geoloc worker --concurrency N`` against ``data_dir``."""
+def running_workers(
+    data_dir: Path, *, concurrency: int = 1, models: Path | None = None, **env_overrides: str
+) -> Iterator[RunningProcess]:
+    """``geoloc worker --concurrency N`` against ``data_dir`` (``models`` linked in, as for :func:`running_service`)."""
+    if models is not None:
+        _link_models(data_dir, models)
     running = start_process(
         ["worker", "--concurrency", str(concurrency), "--log-level", "info"],
         data_dir,
@@ -248,6 +279,29 @@ def get_job_row(db_path: Path, job_id: int) -> dict[str, Any]:
     row = read_rows(db_path, "SELECT * FROM jobs WHERE id = ?", (job_id,))[0]
     row["payload"] = json.loads(row["payload"])
     return row
+
+
+# --- test data ------------------------------------------------------------------------------------
+
+ONE_BUILDING: dict[str, Any] = {
+    "type": "FeatureCollection",
+    "features": [
+        {
+            "type": "Feature",
+            "id": "way/1",
+            "properties": {"building": "yes", "name": "Hall"},
+            "geometry": {
+                "type": "Polygon",
+                "coordinates": [
+                    [[24.94, 60.17], [24.9404, 60.17], [24.9404, 60.1702], [24.94, 60.1702], [24.94, 60.17]]
+                ],
+            },
+        }
+    ],
+}
+"""A GeoJSON map of one building in Helsinki (loads in milliseconds)."""
+INSIDE_ONE_BUILDING = {"lat": "60.1699", "lon": "24.9402"}
+"""Form fields placing a reference just south of that building."""
 
 
 # --- test images --------------------------------------------------------------------------------

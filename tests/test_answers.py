@@ -78,8 +78,9 @@ def test_reference_labels_are_checked_too() -> None:
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningProcess]:
-    with running_service(tmp_path_factory.mktemp("answers") / "data", GEOLOC_WORKER_PLUGINS=str(PLUGIN)) as running:
+def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path) -> Iterator[RunningProcess]:
+    data_dir = tmp_path_factory.mktemp("answers") / "data"
+    with running_service(data_dir, models=built_models, GEOLOC_WORKER_PLUGINS=str(PLUGIN)) as running:
         yield running
 
 

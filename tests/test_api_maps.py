@@ -42,10 +42,11 @@ LUND = (55.7047, 13.1910)
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningProcess]:
+def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path) -> Iterator[RunningProcess]:
     with running_service(
         tmp_path_factory.mktemp("api") / "data",
         workers=1,
+        models=built_models,
         GEOLOC_MAX_MAP_BYTES=str(MAX_MAP_BYTES),
         GEOLOC_MAX_IMAGE_BYTES=str(MAX_IMAGE_BYTES),
         GEOLOC_MAX_IMAGE_PIXELS=str(MAX_IMAGE_PIXELS),

@@ -15,6 +15,7 @@ import pytest
 from db import connect, migrate
 from db import jobs as job_store
 
+from .model_fixtures import link_models
 from .service_fixtures import (
     REPO_ROOT,
     get_job_row,
@@ -39,7 +40,7 @@ def statuses(db_path: Path) -> dict[str, int]:
     return {row["status"]: row["n"] for row in rows}
 
 
-def test_two_competing_workers_never_run_a_job_twice(tmp_path: Path) -> None:
+def test_two_competing_workers_never_run_a_job_twice(tmp_path: Path, built_models: Path) -> None:
     data_dir = tmp_path / "data"
     db = new_database(data_dir)
     log = tmp_path / "runs.log"
@@ -47,7 +48,7 @@ def test_two_competing_workers_never_run_a_job_twice(tmp_path: Path) -> None:
     for token in range(n_jobs):
         job_store.enqueue_job(db, "test_record", {"token": token, "log": str(log), "seconds": 0.01})
     db.close()
-    with running_workers(data_dir, concurrency=2) as workers:
+    with running_workers(data_dir, concurrency=2, models=built_models) as workers:
         wait_for(
             lambda: statuses(workers.db_path).get("done", 0) == n_jobs,
             timeout=120,
@@ -62,13 +63,13 @@ def test_two_competing_workers_never_run_a_job_twice(tmp_path: Path) -> None:
     assert [row["attempts"] for row in attempts] == [1]
 
 
-def test_sigkilled_worker_loses_nothing(tmp_path: Path) -> None:
+def test_sigkilled_worker_loses_nothing(tmp_path: Path, built_models: Path) -> None:
     data_dir = tmp_path / "data"
     db = new_database(data_dir)
     log = tmp_path / "sleep.log"
     job_id = job_store.enqueue_job(db, "test_sleep", {"seconds": 3, "log": str(log)}, max_attempts=3)
     db.close()
-    with running_workers(data_dir, concurrency=1, GEOLOC_JOB_LEASE_S="1.5") as workers:
+    with running_workers(data_dir, concurrency=1, models=built_models, GEOLOC_JOB_LEASE_S="1.5") as workers:
         wait_for(lambda: log.exists() and "start" in log.read_text(), timeout=60, what="the job to start")
         victim = int(log.read_text().split()[1])
         owner = get_job_row(workers.db_path, job_id)["lease_owner"]
@@ -86,13 +87,13 @@ def test_sigkilled_worker_loses_nothing(tmp_path: Path) -> None:
     assert events[0].split()[1] == str(victim) and events[2].split()[1] != str(victim)
 
 
-def test_retries_stop_at_the_limit_and_keep_the_error(tmp_path: Path) -> None:
+def test_retries_stop_at_the_limit_and_keep_the_error(tmp_path: Path, built_models: Path) -> None:
     data_dir = tmp_path / "data"
     db = new_database(data_dir)
     failing = job_store.enqueue_job(db, "test_fail", {"reason": "disk on fire"}, max_attempts=3)
     unknown = job_store.enqueue_job(db, "no_such_kind", {}, max_attempts=3)
     db.close()
-    with running_workers(data_dir, concurrency=1) as workers:
+    with running_workers(data_dir, concurrency=1, models=built_models) as workers:
         wait_for(
             lambda: statuses(workers.db_path).get("failed", 0) == 2,
             timeout=60,
@@ -108,12 +109,13 @@ def test_retries_stop_at_the_limit_and_keep_the_error(tmp_path: Path) -> None:
     assert "no handler registered for job kind 'no_such_kind'" in other["error"]
 
 
-def test_sigterm_releases_a_long_job_back_to_the_queue(tmp_path: Path) -> None:
+def test_sigterm_releases_a_long_job_back_to_the_queue(tmp_path: Path, built_models: Path) -> None:
     data_dir = tmp_path / "data"
     db = new_database(data_dir)
     log = tmp_path / "sleep.log"
     job_id = job_store.enqueue_job(db, "test_sleep", {"seconds": 60, "log": str(log)})
     db.close()
+    link_models(data_dir, built_models)
     env = service_env(data_dir, GEOLOC_WORKER_GRACE_S="0.5")
     process = subprocess.Popen([sys.executable, "-m", "workers"], cwd=REPO_ROOT, env=env)
     try:

@@ -33,14 +33,14 @@ def test_reference_shows_constraints_scopes_statuses_and_error_codes() -> None:
         "### GET /v1/jobs/{job_id}",
         "Auth: `X-API-Key` with scope `write`.",
         "| `top_n` | integer | no | 1 – 50; default `10` | How many distinct locations to return |",
-        "| `lat` | number \\| null | no | -90 – 90 | Prior position latitude (WGS84) |",
-        "| `name` | string | yes | 1 – 200 characters | A name for the map |",
+        "| `lat` | number | no | -90 – 90 | Prior position latitude (WGS84) |",
+        "| `name` | string | yes | 1 – 200 characters; matches `\\S` | A name for the map (not blank) |",
         'one of `"queued"`, `"running"`, `"done"`, `"failed"`, `"cancelled"`',
         "| `409` Conflict | `not_ready` |",
         "| `422` Unprocessable Content | `outside_map` |",
         "| `202` | Not answered within wait_s: poll the query | [`QueryOut`](#queryout) |",
         '"error": {',
-        "| `image` | file | yes |  |",
+        "| `image` | file | yes | not empty |",
     ):
         assert expected in text, expected
 

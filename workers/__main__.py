@@ -1,4 +1,9 @@
-"""``python -m workers``: run one worker process (the supervisor starts these)."""
+"""``python -m workers``: run one worker process (the supervisor starts these).
+
+It refuses to start (exit code 2, the reason on stderr) on an invalid setting or when the models the
+method needs are missing or stale, and runs at the CPU niceness ``GEOLOC_WORKER_NICE`` so that the
+API on the same machine keeps answering while the workers are busy.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +13,7 @@ import os
 import sys
 
 from geoloc.config import SettingsError, get_settings
+from geoloc.models import model_problems
 from workers.handlers import load_builtin_handlers, load_plugins
 from workers.worker import Worker, install_signal_handlers
 
@@ -27,6 +33,12 @@ def main(argv: list[str] | None = None) -> int:
         level=(args.log_level or settings.log_level).upper(),
         format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s",
     )
+    problems = model_problems()
+    if problems:
+        print("error: the worker cannot run jobs:\n  " + "\n  ".join(problems), file=sys.stderr)
+        return 2
+    if settings.worker_nice:
+        os.nice(settings.worker_nice)
     load_builtin_handlers()
     load_plugins(settings.worker_plugins)
     worker = Worker(settings)

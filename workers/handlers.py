@@ -4,7 +4,9 @@ A handler is ``handler(db, payload) -> dict``: ``db`` is a ``sqlite_utils.Databa
 this job (autocommit; wrap writes in ``db.connection.transaction``), ``payload`` is the job's JSON
 payload, and the returned dict (JSON-serialisable) becomes the job's ``result``. Raise any
 exception to fail the attempt (retried up to the job's ``max_attempts``, with the error and a
-traceback summary kept); raise :class:`PermanentJobError` for a failure that a retry cannot fix.
+traceback summary kept); raise :class:`PermanentJobError` for a failure that a retry cannot fix
+(exception types that always mean that, such as a model that is not built, are registered once with
+:func:`treat_as_permanent`).
 
 Handlers must be idempotent: after a worker crash the same job runs again from the start, so
 write results with replace semantics (``save_labels``, ``index_reference`` ...) inside one
@@ -45,6 +47,21 @@ LABEL_REFERENCE = job_store.LABEL_REFERENCE
 
 class PermanentJobError(Exception):
     """A job failure that retrying cannot fix (missing input, invalid data): fail at once."""
+
+
+PERMANENT_ERRORS: list[type[BaseException]] = [PermanentJobError]
+"""Exception types that fail a job at once, without retries (see :func:`treat_as_permanent`)."""
+
+
+def treat_as_permanent(*error_types: type[BaseException]) -> None:
+    """Fail jobs at once on these exception types (and their subclasses), e.g. a model that is not built:
+    the same attempt would fail again until an operator acts."""
+    PERMANENT_ERRORS.extend(t for t in error_types if t not in PERMANENT_ERRORS)
+
+
+def is_permanent(error: BaseException) -> bool:
+    """Whether ``error`` fails its job without retries."""
+    return isinstance(error, tuple(PERMANENT_ERRORS))
 
 
 def register(kind: str) -> Callable[[JobHandler], JobHandler]:

@@ -26,10 +26,13 @@ from geoloc.maps import MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.osm import CityMap
 from geoloc.pipeline import Photo, analyze_photo, label_reference_photo, load_photo
 from geoloc.query import QueryAnswer, QueryConfig, geolocate
-from geoloc.retrieval import Vocabulary, default_vocabulary
+from geoloc.retrieval import Vocabulary, default_vocabulary, vocabulary_path
+from geoloc.segmentation import ModelNotBuiltError
 from workers.answers import checked_query_answer, checked_reference_labels
-from workers.handlers import LABEL_REFERENCE, PermanentJobError, register
+from workers.handlers import LABEL_REFERENCE, PermanentJobError, register, treat_as_permanent
 from workers.reference_store import DatabaseReferenceStore
+
+treat_as_permanent(ModelNotBuiltError)  # a missing model stays missing until `geoloc models build` runs
 
 
 @lru_cache(maxsize=4)
@@ -64,6 +67,8 @@ def vocabulary_for(db: sqlite_utils.Database, map_id: int) -> Vocabulary:
     stored = sbow.load_vocabulary(db, map_id)
     if stored is not None:
         return Vocabulary(stored["centers"])
+    if not vocabulary_path().exists():  # built by `geoloc models build`, never inside a job (minutes of work)
+        raise PermanentJobError(f"SBoW vocabulary not found at {vocabulary_path()}; run `geoloc models build`")
     vocabulary = default_vocabulary(progress=False)
     with transaction(db):
         if sbow.load_vocabulary(db, map_id) is None:

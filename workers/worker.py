@@ -5,6 +5,10 @@ The handler runs in a thread with its own database connection; the main thread e
 signal the current job may finish within ``worker_grace_s``; past that it is released back to
 the queue (the attempt is not counted) and the process exits. A SIGKILLed worker simply stops
 heartbeating: its job is claimed again once the lease expires.
+
+Between jobs (and while idle) the loop also applies the query retention (:mod:`workers.retention`).
+A failure that cannot succeed on retry (:func:`workers.handlers.is_permanent`, or any failure once the
+job's map or reference has been deleted) fails the job at once.
 """
 
 from __future__ import annotations
@@ -24,7 +28,8 @@ from typing import Any
 from db import connect, migrate
 from db import jobs as job_store
 from geoloc.config import Settings
-from workers.handlers import HANDLERS, JobHandler, PermanentJobError
+from workers.handlers import HANDLERS, JobHandler, PermanentJobError, is_permanent
+from workers.retention import purge_expired_queries, purge_interval_s
 
 log = logging.getLogger("geoloc.worker")
 
@@ -82,6 +87,7 @@ class Worker:
         jobs_run = 0
         sleep_s = MIN_POLL_S
         last_beat = 0.0
+        next_purge = 0.0
         try:
             while not self.stop_event.is_set():
                 if self._parent_gone():
@@ -91,6 +97,9 @@ class Worker:
                 if now - last_beat >= self.heartbeat_interval_s:
                     job_store.heartbeat_worker(db, self.worker_id, None)
                     last_beat = now
+                if self.settings.query_retention_s > 0 and now >= next_purge:
+                    self._apply_retention(db)
+                    next_purge = now + purge_interval_s(self.settings.query_retention_s)
                 job = job_store.claim_job(db, self.worker_id, self.settings.job_lease_s)
                 if job is None:
                     self.stop_event.wait(sleep_s)
@@ -110,6 +119,13 @@ class Worker:
             db.close()
             log.info("worker %s stopped after %d jobs", self.worker_id, jobs_run)
         return jobs_run
+
+    def _apply_retention(self, db: Any) -> None:
+        """Delete expired queries; a failure (a busy or full disk) is logged and tried again next time."""
+        try:
+            purge_expired_queries(db, self.settings.data_dir, self.settings.query_retention_s)
+        except Exception:
+            log.exception("retention: deleting expired queries failed; will try again")
 
     def _execute(self, job: dict[str, Any], outcome: _Outcome) -> None:
         handler = self.handlers.get(job["kind"])
@@ -161,11 +177,12 @@ class Worker:
             else:
                 log.warning("job %d finished but its lease was lost; result dropped", job_id)
         else:
-            permanent = isinstance(outcome.error, PermanentJobError)
+            permanent = is_permanent(outcome.error)
+            error = error_summary(outcome.error)
+            if gone := job_store.deleted_subject(db, job):  # whatever the attempt hit, this is why it cannot succeed
+                permanent, error = True, f"{gone} while the job ran (not retried)\n{error}"
             delay = min(self.settings.job_retry_delay_s * 2 ** max(int(job["attempts"]) - 1, 0), MAX_RETRY_DELAY_S)
-            status = job_store.fail_job(
-                db, job_id, self.worker_id, error_summary(outcome.error), retry_delay_s=delay, permanent=permanent
-            )
+            status = job_store.fail_job(db, job_id, self.worker_id, error, retry_delay_s=delay, permanent=permanent)
             log.warning("job %d attempt failed (%s) -> %s", job_id, outcome.error, status)
         job_store.heartbeat_worker(db, self.worker_id, None)
         return True

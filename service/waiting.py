@@ -1,0 +1,103 @@
+"""Waiting for jobs without a thread per waiting request.
+
+A request that waits for its job (``POST /v1/maps/{id}/queries`` with ``wait_s``) awaits a future
+on the event loop. One background task of the API (:class:`JobWaiter`, started with the app) looks
+up the status of every awaited job in one query per poll, in one worker thread, and resolves the
+futures of the jobs that reached a final state. Sixty waiting clients cost sixty futures and one
+``SELECT ... WHERE id IN (...)`` every :data:`POLL_S`, not sixty threads sleeping in a loop, so
+reads keep their threads however many clients wait.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from pathlib import Path
+
+import anyio.to_thread
+import sqlite_utils
+
+from db import connect
+from db import jobs as job_store
+
+log = logging.getLogger("geoloc.api")
+
+POLL_S = 0.1
+"""How often awaited jobs are looked up (at most this much is added to an answer's latency)."""
+ERROR_BACKOFF_S = 1.0
+"""Pause after a failed lookup (database busy or unreachable) before the next."""
+
+
+class JobWaiter:
+    """Resolves ``await wait(job_id, timeout_s)`` calls when their jobs finish."""
+
+    def __init__(self, database_path: Path, poll_s: float = POLL_S) -> None:
+        self.database_path = database_path
+        self.poll_s = poll_s
+        self._waiting: dict[int, list[asyncio.Future[None]]] = {}
+        self._wakeup: asyncio.Event | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._db: sqlite_utils.Database | None = None
+
+    async def start(self) -> None:
+        """Start the polling task (call from the app's lifespan)."""
+        self._wakeup = asyncio.Event()
+        self._task = asyncio.create_task(self._run(), name="job-waiter")
+
+    async def stop(self) -> None:
+        """Stop polling; requests still waiting get their timeout."""
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+        if self._db is not None:
+            self._db.close()
+            self._db = None
+
+    async def wait(self, job_id: int, timeout_s: float) -> bool:
+        """Wait until job ``job_id`` is done, failed, cancelled or gone; False if ``timeout_s`` passed first."""
+        if timeout_s <= 0:
+            return False
+        future: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._waiting.setdefault(job_id, []).append(future)
+        if self._wakeup is not None:
+            self._wakeup.set()
+        try:
+            await asyncio.wait_for(future, timeout_s)
+            return True
+        except TimeoutError:
+            return False
+        finally:
+            futures = self._waiting.get(job_id, [])
+            if future in futures:
+                futures.remove(future)
+            if not futures:
+                self._waiting.pop(job_id, None)
+
+    def _statuses(self, job_ids: list[int]) -> dict[int, str]:
+        if self._db is None:
+            self._db = connect(self.database_path, busy_timeout_ms=2000)
+        return job_store.job_statuses(self._db, job_ids)
+
+    async def _run(self) -> None:
+        assert self._wakeup is not None
+        while True:
+            if not self._waiting:
+                self._wakeup.clear()
+                await self._wakeup.wait()
+                continue
+            job_ids = list(self._waiting)
+            try:
+                statuses = await anyio.to_thread.run_sync(self._statuses, job_ids)
+            except Exception:  # a busy or unreachable database: waiters keep waiting, up to their timeout
+                log.exception("looking up awaited jobs failed; retrying in %.0f s", ERROR_BACKOFF_S)
+                await asyncio.sleep(ERROR_BACKOFF_S)
+                continue
+            for job_id in job_ids:
+                status = statuses.get(job_id)
+                if status is None or status in job_store.FINAL_STATUSES:
+                    for future in self._waiting.get(job_id, []):
+                        if not future.done():
+                            future.set_result(None)
+            await asyncio.sleep(self.poll_s)

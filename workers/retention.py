@@ -1,0 +1,54 @@
+"""Retention: the workers delete finished queries (photo, answer, job) older than ``GEOLOC_QUERY_RETENTION_S``.
+
+Every worker runs :func:`purge_expired_queries` from its loop every :func:`purge_interval_s`; the
+deletes are transactional, so workers running it at the same time never delete a row twice, and a
+photo file is removed only when no remaining query refers to it. Queries still waiting or running
+are kept whatever their age. References (photos, labels, index) are never deleted implicitly: only
+``DELETE /v1/references/{id}`` or deleting their map removes them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from pathlib import Path
+
+import sqlite_utils
+
+from db import queries as query_store
+from db import transaction
+
+log = logging.getLogger("geoloc.worker")
+
+BATCH = 500
+"""Queries deleted per transaction (short write locks, so the API and other workers are not held up)."""
+MAX_INTERVAL_S = 60.0
+
+
+def purge_interval_s(retention_s: float) -> float:
+    """How often a worker looks for expired queries: a tenth of the retention, between 1 s and a minute."""
+    return min(MAX_INTERVAL_S, max(1.0, retention_s / 10.0))
+
+
+def purge_expired_queries(
+    db: sqlite_utils.Database, data_dir: Path, retention_s: float, *, now: float | None = None
+) -> int:
+    """Delete finished queries created more than ``retention_s`` seconds before ``now`` (Unix s, default
+    the current time) with their jobs and photos; returns how many queries were deleted."""
+    cutoff = (time.time() if now is None else now) - retention_s
+    deleted = 0
+    while True:
+        with transaction(db):
+            paths = query_store.delete_expired_queries(db, cutoff, limit=BATCH)
+        deleted += len(paths)
+        if paths:
+            with transaction(db):  # holds the write lock: no upload can re-place a photo between check and removal
+                for relative in query_store.unreferenced_images(db, paths):
+                    with contextlib.suppress(OSError):
+                        (data_dir / relative).unlink(missing_ok=True)
+        if len(paths) < BATCH:
+            break
+    if deleted:
+        log.info("retention: deleted %d queries older than %.0f s", deleted, retention_s)
+    return deleted
