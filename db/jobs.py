@@ -220,9 +220,11 @@ def fail_job(
     retry_delay_s: float = 1.0,
     permanent: bool = False,
 ) -> str | None:
-    """Record a failed attempt: back to ``queued`` (due after ``retry_delay_s``) while attempts
-    remain and the error is not ``permanent``, else ``failed``. The error text is kept either way.
-    Returns the new status, or None when the lease was lost."""
+    """Record a failed attempt; returns the new status, or None when the lease was lost.
+
+    The job goes back to ``queued`` (due after ``retry_delay_s``) while attempts remain and the error
+    is not ``permanent``, else to ``failed``. The error text is kept either way.
+    """
     now = time.time()
     retry = "(? = 0 AND attempts < max_attempts)"
     rows = db.execute(

@@ -176,9 +176,11 @@ def effective_status(reference: dict[str, Any], job: dict[str, Any] | None) -> t
 
 
 def delete_reference(db: sqlite_utils.Database, reference_id: int) -> dict[str, Any] | None:
-    """Delete a reference with its labels, keypoints and index postings (cascade) and cancel its
-    queued jobs. Returns the deleted row (its ``image_path`` is to be removed after commit), or
-    None. Call inside a transaction."""
+    """Delete a reference and cancel its queued jobs; call inside a transaction.
+
+    Its labels, keypoints and index postings cascade. Returns the deleted row (its ``image_path`` is
+    to be removed after commit), or None.
+    """
     row = get_reference(db, reference_id)
     if row is None:
         return None

@@ -46,9 +46,11 @@ class ExifInfo:
 
     @property
     def has_gps(self) -> bool:
+        """Whether both latitude and longitude were read."""
         return self.lat is not None and self.lon is not None
 
     def as_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict."""
         return asdict(self)
 
 

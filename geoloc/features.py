@@ -117,6 +117,7 @@ class Features:
     method: str = "rootsift"
 
     def __post_init__(self) -> None:
+        """Coerce the arrays to their dtypes and shapes; ValueError if their lengths differ."""
         self.xy = np.asarray(self.xy, dtype=np.float32).reshape(-1, 2)
         desc = np.asarray(self.descriptors, dtype=np.float32)
         if desc.ndim != 2:
@@ -132,6 +133,7 @@ class Features:
             raise ValueError("xy, descriptors, sizes, angles and responses must have the same length")
 
     def __len__(self) -> int:
+        """Number of keypoints."""
         return len(self.xy)
 
     @property
@@ -175,8 +177,10 @@ class Features:
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray]) -> Features:
-        """Inverse of :meth:`to_arrays` (accepts an ``np.load`` result; arrays stored without ``method``
-        are RootSIFT, the only type before it existed)."""
+        """Inverse of :meth:`to_arrays` (accepts an ``np.load`` result).
+
+        Arrays stored without ``method`` are RootSIFT, the only type before it existed.
+        """
         return cls(
             arrays["xy"],
             np.asarray(arrays["descriptors"], np.float32),
@@ -194,6 +198,7 @@ class Features:
 
     @classmethod
     def load(cls, path: str | Path) -> Features:
+        """Features saved by :meth:`save`."""
         with np.load(path) as data:
             return cls.from_arrays(dict(data))
 

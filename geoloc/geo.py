@@ -1,5 +1,6 @@
-"""WGS84 <-> local metric frame of a map, and compass heading <-> local bearing. The only place that
-converts between geographic and local coordinates.
+"""WGS84 <-> local metric frame of a map, and compass heading <-> local bearing.
+
+The only place that converts between geographic and local coordinates.
 
 The local frame is an azimuthal equidistant projection centred on the map's origin (pyproj,
 ``always_xy=True``): x = east (m), y = north (m). Distances and bearings from the origin are exact;
@@ -29,6 +30,7 @@ class LocalFrame:
     _inverse: Transformer = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        """Check the origin (degrees) and build the pyproj transformers."""
         if not (-90.0 < self.origin_lat < 90.0 and -180.0 <= self.origin_lon <= 180.0):
             raise ValueError(f"invalid origin ({self.origin_lat}, {self.origin_lon})")
         object.__setattr__(self, "origin_lat", float(self.origin_lat))

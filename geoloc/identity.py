@@ -27,6 +27,7 @@ class IdentityMap:
     building_mask: np.ndarray
 
     def __post_init__(self) -> None:
+        """Coerce the arrays to their dtypes; ValueError if ``column_prob``'s shape does not fit."""
         self.building_ids = np.asarray(self.building_ids, dtype=np.int64)
         self.column_prob = np.asarray(self.column_prob, dtype=np.float32)
         if self.column_prob.shape != (self.building_mask.shape[1], len(self.building_ids)):
@@ -34,6 +35,7 @@ class IdentityMap:
 
     @property
     def width(self) -> int:
+        """Image width (px)."""
         return self.building_mask.shape[1]
 
     def column_best(self, min_probability: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

@@ -45,6 +45,7 @@ class ImageModel:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        """Check that every per-bin array has one value per bin; ValueError if not."""
         k = len(self.offsets_deg)
         if self.facade_present.shape != (k,) or self.orientation_deg.shape != (k,):
             raise ValueError("facade_present and orientation_deg must have one value per bin")
@@ -62,14 +63,16 @@ class ImageModel:
 
     @property
     def n_bins(self) -> int:
+        """Number of bearing bins."""
         return len(self.offsets_deg)
 
     @property
     def has_identity(self) -> bool:
+        """Whether the model carries building identity probabilities."""
         return self.identity_prob is not None
 
     def without_identity(self) -> ImageModel:
-        """This model without building identities (facade geometry and distances only)."""
+        """The same model without building identities (facade geometry and distances only)."""
         return ImageModel(
             self.offsets_deg,
             self.facade_present,

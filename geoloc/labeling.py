@@ -1,5 +1,7 @@
-"""Reference labelling: the heading (and corrected position) of a geo-tagged photo, and a building
-identity for each of its building pixels, from the map (paper: "Assigning Building Identity to Pixels").
+"""Reference labelling: a geo-tagged photo's pose and its building pixels' identities, from the map.
+
+The heading (and corrected position) of the photo, and a building identity for each of its building
+pixels (paper: "Assigning Building Identity to Pixels").
 
 Poses are sampled around the GPS tag (paper: 3 x 3 positions 10 m apart x 120 yaws; here the grid
 spacing and half-size are parameters), each is scored with the pose likelihood, and:

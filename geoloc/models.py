@@ -110,11 +110,17 @@ def is_current(files: SegModelFiles, weights_sha256: str) -> bool:
 def build_segmentation_model(force: bool = False, size: tuple[int, int] | None = None) -> Path:
     """Export ESPNetv2 (s=2.0, Cityscapes) to ONNX in the cache unless an up-to-date export exists.
 
-    Args:
-        force: re-export even if the cached file matches the weights.
-        size: network input (W, H), multiples of 16; default ``SEG_DEFAULT_SIZE``.
-    Returns:
-        Path of the ONNX file.
+    Parameters
+    ----------
+    force
+        Re-export even if the cached file matches the weights.
+    size
+        Network input (W, H), multiples of 16; default ``SEG_DEFAULT_SIZE``.
+
+    Returns
+    -------
+    Path
+        The ONNX file.
     """
     size = size or SEG_DEFAULT_SIZE
     check_size(size)
@@ -225,11 +231,17 @@ def aliked_is_current(files: AlikedModelFiles, weights_sha256: str) -> bool:
 def build_aliked_model(config_name: str = "aliked-n16", force: bool = False) -> AlikedModelFiles:
     """Export ALIKED ``config_name`` to the cache (ONNX dense graph + head weights) unless up to date.
 
-    Args:
-        config_name: "aliked-n16" (128-D descriptors) or "aliked-t16" (64-D).
-        force: re-export even if the cached files match the weights.
-    Returns:
-        The :class:`AlikedModelFiles`.
+    Parameters
+    ----------
+    config_name
+        "aliked-n16" (128-D descriptors) or "aliked-t16" (64-D).
+    force
+        Re-export even if the cached files match the weights.
+
+    Returns
+    -------
+    AlikedModelFiles
+        The exported files.
     """
     files = aliked_files(config_name)
     weights = aliked_weights_path(config_name)

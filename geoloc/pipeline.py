@@ -54,6 +54,7 @@ class Photo:
 
     @property
     def gps(self) -> tuple[float, float] | None:
+        """(lat, lon) degrees from EXIF, or None when the photo carries no GPS."""
         return (self.exif.lat, self.exif.lon) if self.exif.has_gps else None
 
 
@@ -112,6 +113,7 @@ class PhotoEvidence:
 
     @property
     def building_mask(self) -> np.ndarray:
+        """(H, W) bool: pixels labelled building."""
         return self.labels == classes.BUILDING
 
 

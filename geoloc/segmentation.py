@@ -113,11 +113,17 @@ def _cached_session(path: str, threads: int) -> ort.InferenceSession:
 def load_session(size: tuple[int, int] | None = None, threads: int | None = None) -> ort.InferenceSession:
     """The onnxruntime CPU session for network input ``size`` (W, H), cached per process.
 
-    Args:
-        size: network input (W, H); default ``geoloc.models.SEG_DEFAULT_SIZE``.
-        threads: intra-op threads; default ``$GEOLOC_SEG_THREADS`` or min(4, cpu count).
-    Raises:
-        ModelNotBuiltError: the ONNX file is not in the cache.
+    Parameters
+    ----------
+    size
+        Network input (W, H); default ``geoloc.models.SEG_DEFAULT_SIZE``.
+    threads
+        Intra-op threads; default ``$GEOLOC_SEG_THREADS`` or min(4, cpu count).
+
+    Raises
+    ------
+    ModelNotBuiltError
+        The ONNX file is not in the cache.
     """
     size = size or SEG_DEFAULT_SIZE
     path = segmentation_files(size).onnx
@@ -174,11 +180,18 @@ def class_probabilities(
 ) -> np.ndarray:
     """Per-pixel probabilities of our classes at the image's resolution.
 
-    Args:
-        image_rgb: (H, W, 3) uint8 RGB photo, any size.
-        session: an onnxruntime session from ``load_session`` (default: the cached default one).
-        mapping: (20,) Cityscapes trainId -> our class code, or ``DROP`` to leave a class out.
-    Returns:
+    Parameters
+    ----------
+    image_rgb
+        (H, W, 3) uint8 RGB photo, any size.
+    session
+        An onnxruntime session from ``load_session`` (default: the cached default one).
+    mapping
+        (20,) Cityscapes trainId -> our class code, or ``DROP`` to leave a class out.
+
+    Returns
+    -------
+    numpy.ndarray
         (H, W, 6) float32, summing to 1 over the last axis (class order ``labels.CLASS_NAMES``).
     """
     probs = _group_probabilities(cityscapes_logits(image_rgb, session=session), mapping)
@@ -189,10 +202,16 @@ def class_probabilities(
 def segment(image_rgb: np.ndarray, *, session: Any = None) -> np.ndarray:
     """Label every pixel of an RGB photo with our classes.
 
-    Args:
-        image_rgb: (H, W, 3) uint8 RGB.
-        session: optional onnxruntime session (``load_session(size)``) to pick another net size.
-    Returns:
+    Parameters
+    ----------
+    image_rgb
+        (H, W, 3) uint8 RGB.
+    session
+        Optional onnxruntime session (``load_session(size)``) to pick another net size.
+
+    Returns
+    -------
+    numpy.ndarray
         (H, W) uint8 class codes (``geoloc.labels``).
     """
     return class_probabilities(image_rgb, session=session).argmax(axis=2).astype(np.uint8)

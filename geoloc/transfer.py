@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -65,6 +66,7 @@ class ReferenceEvidence:
     match: ReferenceMatch | None = None
 
     def __post_init__(self) -> None:
+        """Coerce ``building_ids`` to (M,) int64 and ``keypoint_prob`` to (N, M) float32."""
         self.building_ids = np.asarray(self.building_ids, dtype=np.int64).reshape(-1)
         self.keypoint_prob = np.asarray(self.keypoint_prob, dtype=np.float32).reshape(
             len(self.features), len(self.building_ids)
@@ -102,7 +104,8 @@ class ReferenceMatch:
     pairs: np.ndarray = field(repr=False)  # (n_inliers, 2) int (query index, reference index)
     putative: np.ndarray | None = field(default=None, repr=False)  # (n_matches, 2) all ratio-test pairs
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
+        """The match's figures as a JSON-ready dict (no arrays)."""
         return {
             "reference_id": self.reference_id,
             "score": self.score,

@@ -20,6 +20,8 @@ def timestamp(value: float | None) -> datetime | None:
 
 
 class ErrorDetail(BaseModel):
+    """What went wrong: a machine-readable code, a message for people, and details."""
+
     code: str = Field(
         description="Machine-readable error code",
         examples=["outside_map"],
@@ -90,6 +92,8 @@ class MapOut(BaseModel):
 
 
 class MapList(BaseModel):
+    """The maps, oldest first."""
+
     maps: list[MapOut]
 
 
@@ -153,6 +157,8 @@ class ReferenceAccepted(BaseModel):
 
 
 class Position(BaseModel):
+    """A WGS84 position (degrees) and where it came from."""
+
     lat: float = Field(examples=[60.1699])
     lon: float = Field(examples=[24.9384])
     source: Literal["exif", "request"] = Field(description="Where the position came from")
@@ -223,10 +229,14 @@ class ReferenceOut(BaseModel):
 
 
 class Health(BaseModel):
+    """Liveness: the process answers."""
+
     status: str = Field(examples=["ok"])
 
 
 class Readiness(BaseModel):
+    """Readiness: whether the service can answer, and every reason when it cannot."""
+
     status: Literal["ready", "not_ready"]
     schema_version: int
     expected_schema_version: int

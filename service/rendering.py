@@ -17,8 +17,11 @@ def building_colors(building_ids: np.ndarray) -> np.ndarray:
 
 
 def identity_overlay_png(photo_path: Path, arrays: dict[str, np.ndarray]) -> bytes:
-    """PNG of the photo (at the labels' working size) with building pixels tinted by their most probable
-    building; the tint's strength is that building's probability in the column."""
+    """PNG of the photo (at the labels' working size) with building pixels tinted by their building.
+
+    Each pixel takes its most probable building's colour; the tint's strength is that building's
+    probability in the column.
+    """
     width = int(arrays["mask_width"][0])
     mask = np.unpackbits(arrays["building_mask"], axis=1, count=width).astype(bool)
     image = ImageOps.exif_transpose(Image.open(photo_path)).convert("RGB").resize((width, mask.shape[0]))

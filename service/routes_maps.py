@@ -233,8 +233,10 @@ def get_map(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) -> MapOu
     dependencies=[Depends(require_read)],
 )
 def get_buildings(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) -> Response:
-    """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat) with building id, OSM id,
-    name and height."""
+    """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat).
+
+    Each feature has its building id, OSM id, name and height.
+    """
     require_map(db, map_id)
     # The stored geometry text goes out as it is: no decoding and re-encoding of a city's footprints.
     features = ",".join(

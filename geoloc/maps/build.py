@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 from shapely.geometry import LineString, MultiPolygon, Polygon
+from shapely.geometry.base import BaseGeometry
 from shapely.ops import linemerge, polygonize, unary_union
 
 from geoloc.geo import LocalFrame, bearing_deg, frame_for_bbox
@@ -222,11 +223,13 @@ def _relation_footprint(
     if not outers:
         return None
     repaired = False
-    fixed = []
+    fixed: list[BaseGeometry] = []
     for poly in outers:
-        if not poly.is_valid:
-            poly, repaired = shapely.make_valid(poly), True
-        fixed.append(poly)
+        if poly.is_valid:
+            fixed.append(poly)
+        else:
+            fixed.append(shapely.make_valid(poly))
+            repaired = True
     shape = unary_union(fixed)
     if inners:
         shape = shape.difference(unary_union([p if p.is_valid else shapely.make_valid(p) for p in inners]))

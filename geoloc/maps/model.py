@@ -1,5 +1,7 @@
-"""What a loaded map is: :class:`CityMap` with its :class:`Building` list, :class:`Facades` arrays and
-:class:`LoadReport`; how a file is read (:class:`MapReadOptions`); the error :class:`MapLoadError`.
+"""What a loaded map is, how a file is read, and the error a bad file raises.
+
+:class:`CityMap` with its :class:`Building` list, :class:`Facades` arrays and :class:`LoadReport`;
+how a file is read (:class:`MapReadOptions`); the error :class:`MapLoadError`.
 
 Everything geometric is in the map's local East-North frame (metres, :class:`geoloc.geo.LocalFrame`).
 Spatial lookups that grow with the map go through lazily built, cached indexes (an STRtree of the
@@ -96,6 +98,7 @@ class LoadReport:
     short_facades_dropped: int = 0
 
     def as_dict(self) -> dict[str, int | str]:
+        """The counts as a JSON-ready dict."""
         return asdict(self)
 
 
@@ -131,6 +134,7 @@ class Facades:
     building_id: np.ndarray
 
     def __len__(self) -> int:
+        """Number of facades."""
         return len(self.length_m)
 
 
@@ -189,8 +193,11 @@ class CityMap:
 
     @cached_property
     def building_union(self) -> Polygon | MultiPolygon:
-        """Union of all footprints (cached). Costs time and memory in the map's size: prefer
-        :meth:`inside_buildings` and :meth:`buildings_near` for local questions."""
+        """Union of all footprints (cached).
+
+        Costs time and memory in the map's size: prefer :meth:`inside_buildings` and
+        :meth:`buildings_near` for local questions.
+        """
         return unary_union(self.footprints)
 
     def inside_buildings(self, xy: np.ndarray) -> np.ndarray:

@@ -70,6 +70,7 @@ class Pose:
     height_m: float = CAMERA_HEIGHT_M
 
     def as_dict(self) -> dict[str, float]:
+        """The pose as a JSON-ready dict (metres, degrees)."""
         return {k: float(v) for k, v in asdict(self).items()}
 
 
@@ -460,6 +461,58 @@ def _car_geometry(c: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, list[tuple[
     return np.concatenate(pts), polys
 
 
+_CAR_FACE_KINDS = ("front", "back", "side", "top")  # a face kind is one of these + "0" (body) or "1" (cabin)
+
+
+def _fill_car_polygon(img: np.ndarray, local_px: np.ndarray, idx: np.ndarray, colour: tuple[float, ...] | int) -> None:
+    """Fill one convex polygon of a car (point indices ``idx`` into ``local_px``, patch pixels) into ``img``."""
+    cv2.fillConvexPoly(img, np.round(local_px[idx] * 16).astype(np.int32), colour, cv2.LINE_8, 4)
+
+
+def _visible_car_faces(
+    polys: list[tuple[str, np.ndarray]], pts: np.ndarray, cam: np.ndarray, d: np.ndarray
+) -> tuple[list[tuple[float, str, np.ndarray, np.ndarray]], set[int]]:
+    """The car's box faces that face the camera and which long sides of the body are seen.
+
+    Returns [(distance to the camera m, kind, corner indices, outward normal)] and the set of visible
+    body sides (+1: the side along +n, the left normal of direction ``d``; -1 the other).
+    """
+    faces = []
+    visible_sides = set()
+    for kind, idx in polys:
+        if kind[:-1] in _CAR_FACE_KINDS:
+            quad, normal = pts[idx[:-1]], pts[idx[-1]]
+            centre = quad.mean(axis=0)
+            if np.dot(cam - centre, normal) > 0:
+                faces.append((float(np.linalg.norm(cam - centre)), kind, idx[:-1], normal))
+                if kind == "side0":
+                    visible_sides.add(round(float(np.dot(normal[:2], [d[1], -d[0]]))))  # +1: the +n side
+    return faces, visible_sides
+
+
+def _draw_car_details(
+    polys: list[tuple[str, np.ndarray]],
+    faces: list[tuple[float, str, np.ndarray, np.ndarray]],
+    visible_sides: set[int],
+    local_px: np.ndarray,
+    patch: np.ndarray,
+    mask: np.ndarray,
+) -> None:
+    """Wheels on the visible sides and lamps on the visible front/back, into the car's patch and mask."""
+    wheel_i = 0
+    for kind, idx in polys:
+        if kind == "wheel":
+            side = -1 if wheel_i < 2 else 1  # the first two wheels are on the -n side
+            wheel_i += 1
+            if side in visible_sides:
+                _fill_car_polygon(patch, local_px, idx, (0.04, 0.04, 0.04))
+                _fill_car_polygon(mask, local_px, idx, 1)
+        elif kind in ("lamp_f", "lamp_b"):
+            face = "front0" if kind == "lamp_f" else "back0"
+            if any(f[1] == face for f in faces):
+                _fill_car_polygon(patch, local_px, idx, (0.92, 0.92, 0.86) if kind == "lamp_f" else (0.75, 0.08, 0.06))
+
+
 def _draw_car(
     k: int,
     scene: Scene,
@@ -472,6 +525,7 @@ def _draw_car(
     zbuf: np.ndarray,
     light: tuple[float, float],
 ) -> None:
+    """Draw car ``k`` (its shadow, faces, wheels, lamps) into the canvas layers where it is nearest."""
     cars = scene.cars
     c, d, body = cars.xy[k], cars.direction[k], cars.rgb[k]
     cam = np.array([pose.x_m, pose.y_m, pose.height_m])
@@ -479,7 +533,7 @@ def _draw_car(
     px, z = _project(pts, pose, canvas)
     is_normal = np.zeros(len(pts), bool)
     for kind, idx in polys:
-        if kind[:-1] in ("front", "back", "side", "top"):
+        if kind[:-1] in _CAR_FACE_KINDS:
             is_normal[idx[-1]] = True
     if np.any(z[~is_normal] < 0.5):
         return
@@ -497,46 +551,24 @@ def _draw_car(
     ambient, direct = light
     sun = scene.sun.vector
     glass = np.array([0.07, 0.08, 0.10])
-    offset = np.array([x0, y0])
+    local_px = px - np.array([x0, y0])
 
-    def fill(img: np.ndarray, idx: np.ndarray, colour: tuple[float, ...] | int) -> None:
-        cv2.fillConvexPoly(img, np.round((px[idx] - offset) * 16).astype(np.int32), colour, cv2.LINE_8, 4)
-
-    faces = []
-    visible_sides = set()
     for kind, idx in polys:
         if kind == "shadow":
             shadow = np.zeros_like(mask)
-            fill(shadow, idx, 1)
+            _fill_car_polygon(shadow, local_px, idx, 1)
             sel = (shadow > 0) & (lab[y0:y1, x0:x1] == labels.ROAD)
             rgb[y0:y1, x0:x1][sel] *= 0.45
-        elif kind[:-1] in ("front", "back", "side", "top"):
-            quad, normal = pts[idx[:-1]], pts[idx[-1]]
-            centre = quad.mean(axis=0)
-            if np.dot(cam - centre, normal) > 0:
-                faces.append((float(np.linalg.norm(cam - centre)), kind, idx[:-1], normal))
-                if kind == "side0":
-                    visible_sides.add(round(float(np.dot(normal[:2], [d[1], -d[0]]))))  # +1: the +n side
+    faces, visible_sides = _visible_car_faces(polys, pts, cam, d)
     for _, kind, idx, normal in sorted(faces, key=lambda item: -item[0]):
         lam = max(0.0, float(normal @ sun))
         colour = body * (ambient + direct * lam)
         if kind in ("side1", "front1", "back1"):
             colour = glass + 0.1 * (ambient + direct * lam)
-        fill(patch, idx, tuple(float(x) for x in colour))
-        fill(mask, idx, 1)
+        _fill_car_polygon(patch, local_px, idx, tuple(float(x) for x in colour))
+        _fill_car_polygon(mask, local_px, idx, 1)
     if detailed:
-        wheel_i = 0
-        for kind, idx in polys:
-            if kind == "wheel":
-                side = -1 if wheel_i < 2 else 1  # the first two wheels are on the -n side
-                wheel_i += 1
-                if side in visible_sides:
-                    fill(patch, idx, (0.04, 0.04, 0.04))
-                    fill(mask, idx, 1)
-            elif kind in ("lamp_f", "lamp_b"):
-                face = "front0" if kind == "lamp_f" else "back0"
-                if any(f[1] == face for f in faces):
-                    fill(patch, idx, (0.92, 0.92, 0.86) if kind == "lamp_f" else (0.75, 0.08, 0.06))
+        _draw_car_details(polys, faces, visible_sides, local_px, patch, mask)
     sel = (mask > 0) & (zbuf[y0:y1, x0:x1] > depth)
     rgb[y0:y1, x0:x1][sel] = patch[sel]
     lab[y0:y1, x0:x1][sel] = labels.CAR
