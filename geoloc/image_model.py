@@ -9,6 +9,7 @@ optical axis, see :mod:`geoloc.camera`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -42,7 +43,7 @@ class ImageModel:
     distance_m: np.ndarray | None = None
     top_tan_elevation: np.ndarray | None = None
     bin_deg: float = DEFAULT_BIN_DEG
-    meta: dict = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         """Check that every per-bin array has one value per bin; ValueError if not."""
@@ -51,9 +52,10 @@ class ImageModel:
             raise ValueError("facade_present and orientation_deg must have one value per bin")
         if (self.identity_prob is None) != (self.identity_building_ids is None):
             raise ValueError("identity_prob and identity_building_ids go together")
-        if self.identity_prob is not None and self.identity_prob.shape != (
-            k,
-            len(self.identity_building_ids),
+        if (
+            self.identity_prob is not None
+            and self.identity_building_ids is not None
+            and self.identity_prob.shape != (k, len(self.identity_building_ids))
         ):
             raise ValueError("identity_prob must be (bins, buildings)")
         if self.distance_m is not None and self.distance_m.shape != (k,):
@@ -96,7 +98,7 @@ def bin_offsets_deg(intrinsics: Intrinsics, bin_deg: float = DEFAULT_BIN_DEG) ->
 def column_bins(intrinsics: Intrinsics, offsets_deg: np.ndarray, bin_deg: float = DEFAULT_BIN_DEG) -> np.ndarray:
     """For each pixel column, the index of its angular bin in ``offsets_deg`` (-1 if outside)."""
     angles = intrinsics.column_angle_deg(np.arange(intrinsics.width) + 0.5)
-    index = np.round((angles - offsets_deg[0]) / bin_deg).astype(int)
+    index: np.ndarray = np.round((angles - offsets_deg[0]) / bin_deg).astype(int)
     index[(index < 0) | (index >= len(offsets_deg))] = -1
     return index
 

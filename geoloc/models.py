@@ -25,6 +25,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from geoloc import config
 
@@ -88,12 +89,13 @@ def sha256_file(path: Path) -> str:
     return digest.hexdigest()
 
 
-def read_meta(files: SegModelFiles) -> dict | None:
+def read_meta(files: SegModelFiles) -> dict[str, Any] | None:
     """The export's JSON metadata, or None if missing/unreadable."""
     try:
-        return json.loads(files.meta.read_text())
+        meta = json.loads(files.meta.read_text())
     except (OSError, ValueError):
         return None
+    return meta if isinstance(meta, dict) else None
 
 
 def is_current(files: SegModelFiles, weights_sha256: str) -> bool:
@@ -172,7 +174,8 @@ def _export(weights: Path, out: Path, size: tuple[int, int]) -> dict[str, str]:
     dummy = torch.zeros(1, 3, size[1], size[0])
     with torch.no_grad(), warnings.catch_warnings():
         # Shapes are Python ints on purpose: the graph has a fixed input size.
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        # torch.jit re-exports TracerWarning (from torch.jit._trace) without listing it in __all__.
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)  # type: ignore[attr-defined]
         warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter is what we want
         torch.onnx.export(
             model,
@@ -292,7 +295,8 @@ def _export_aliked(
     outputs = ["score", "level1", "level2", "level3", "level4"]
     dynamic = {"image": {2: "height", 3: "width"}, **{name: {2: f"{name}_h", 3: f"{name}_w"} for name in outputs}}
     with torch.no_grad(), warnings.catch_warnings():
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        # torch.jit re-exports TracerWarning (from torch.jit._trace) without listing it in __all__.
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)  # type: ignore[attr-defined]
         warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter is what we want
         torch.onnx.export(
             model,

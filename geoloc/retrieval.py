@@ -320,6 +320,10 @@ def tfidf_scores(
 # In-memory inverted index
 
 
+_CompiledPostings = tuple[list[Hashable], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""An index's postings for queries: doc ids, then word-sorted words, doc positions and counts, and doc lengths."""
+
+
 class InvertedIndex:
     """In-memory SBoW inverted index (documents = reference images, terms = visual words).
 
@@ -331,7 +335,7 @@ class InvertedIndex:
 
     def __init__(self) -> None:
         self._docs: dict[Hashable, tuple[np.ndarray, np.ndarray]] = {}
-        self._compiled: tuple | None = None
+        self._compiled: _CompiledPostings | None = None
 
     def __len__(self) -> int:
         """Number of documents."""
@@ -360,7 +364,7 @@ class InvertedIndex:
         """The document's distinct words and their counts (what a database would store as postings rows)."""
         return self._docs[doc_id]
 
-    def _compile(self) -> tuple:
+    def _compile(self) -> _CompiledPostings:
         if self._compiled is None:
             keys = list(self._docs)
             bags = [self._docs[k] for k in keys]

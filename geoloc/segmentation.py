@@ -156,7 +156,8 @@ def cityscapes_logits(image_rgb: np.ndarray, *, session: Any = None) -> np.ndarr
     """Raw network output: (20, h, w) float32 Cityscapes logits at half the network input size."""
     session = session or load_session()
     x = _prepare(image_rgb, network_size(session))
-    return session.run(None, {session.get_inputs()[0].name: x})[0][0]
+    logits: np.ndarray = session.run(None, {session.get_inputs()[0].name: x})[0][0]
+    return logits
 
 
 def _group_probabilities(logits: np.ndarray, mapping: np.ndarray) -> np.ndarray:
@@ -172,7 +173,8 @@ def _group_probabilities(logits: np.ndarray, mapping: np.ndarray) -> np.ndarray:
     z /= z.sum(axis=0, keepdims=True)
     onehot = (mapping[keep][None, :] == np.arange(len(labels.CLASS_NAMES))[:, None]).astype(np.float32)
     groups = onehot @ z.reshape(z.shape[0], -1)  # (6, h*w)
-    return groups.T.reshape(*z.shape[1:], len(labels.CLASS_NAMES))
+    probabilities: np.ndarray = groups.T.reshape(*z.shape[1:], len(labels.CLASS_NAMES))
+    return probabilities
 
 
 def class_probabilities(
@@ -214,7 +216,8 @@ def segment(image_rgb: np.ndarray, *, session: Any = None) -> np.ndarray:
     numpy.ndarray
         (H, W) uint8 class codes (``geoloc.labels``).
     """
-    return class_probabilities(image_rgb, session=session).argmax(axis=2).astype(np.uint8)
+    codes: np.ndarray = class_probabilities(image_rgb, session=session).argmax(axis=2).astype(np.uint8)
+    return codes
 
 
 def model_path(size: tuple[int, int] | None = None) -> Path:

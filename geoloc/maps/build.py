@@ -198,7 +198,9 @@ def _distinct_points(xy: np.ndarray, n: np.ndarray) -> np.ndarray:
     return np.bincount(r[new], minlength=len(n))
 
 
-def _relation_footprints(relations: list[RawRelation], frame: LocalFrame, report: LoadReport) -> list[object]:
+def _relation_footprints(
+    relations: list[RawRelation], frame: LocalFrame, report: LoadReport
+) -> list[Polygon | MultiPolygon | None]:
     """Footprints of all relations (their rings transformed to the local frame in one go)."""
     rings = [ring for r in relations for ring in (*r.outers, *r.inners)]
     if not rings:
@@ -206,7 +208,7 @@ def _relation_footprints(relations: list[RawRelation], frame: LocalFrame, report
     bounds = np.r_[0, np.cumsum([len(ring) for ring in rings])].tolist()
     xy = _local(frame, np.concatenate(rings))
     local = iter([xy[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)])
-    out = []
+    out: list[Polygon | MultiPolygon | None] = []
     for relation in relations:
         outers = [next(local) for _ in relation.outers]
         inners = [next(local) for _ in relation.inners]

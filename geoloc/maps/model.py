@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import shapely
 from shapely.geometry import MultiPolygon, Polygon
+from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
 
 from geoloc.geo import LocalFrame
@@ -192,7 +193,7 @@ class CityMap:
         return FacadeIndex(self.facades)
 
     @cached_property
-    def building_union(self) -> Polygon | MultiPolygon:
+    def building_union(self) -> BaseGeometry:
         """Union of all footprints (cached).
 
         Costs time and memory in the map's size: prefer :meth:`inside_buildings` and

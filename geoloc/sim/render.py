@@ -34,6 +34,7 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from geoloc import labels
 from geoloc.camera import Intrinsics, wrap_orientation_deg
@@ -114,12 +115,16 @@ def rotation_matrix(pitch_deg: float, roll_deg: float) -> np.ndarray:
     p, r = math.radians(pitch_deg), math.radians(roll_deg)
     rx = np.array([[1, 0, 0], [0, math.cos(-p), -math.sin(-p)], [0, math.sin(-p), math.cos(-p)]])
     rz = np.array([[math.cos(-r), -math.sin(-r), 0], [math.sin(-r), math.cos(-r), 0], [0, 0, 1]])
-    return rz @ rx
+    rotation: np.ndarray = rz @ rx
+    return rotation
 
 
 def upright_to_image_homography(pose: Pose, intrinsics: Intrinsics, upright: Intrinsics) -> np.ndarray:
     """3x3 H mapping upright-canvas pixel coordinates to image pixel coordinates (same pixel convention)."""
-    return intrinsics.matrix @ rotation_matrix(pose.pitch_deg, pose.roll_deg) @ np.linalg.inv(upright.matrix)
+    homography: np.ndarray = (
+        intrinsics.matrix @ rotation_matrix(pose.pitch_deg, pose.roll_deg) @ np.linalg.inv(upright.matrix)
+    )
+    return homography
 
 
 def _upright_canvas(pose: Pose, intr: Intrinsics) -> Intrinsics:
@@ -204,7 +209,7 @@ def _cast_layers(scene: Scene, pose: Pose, canvas: Intrinsics, max_range_m: floa
     n_layers = int(nv.max())
 
     def padded(values: np.ndarray, fill: float, dtype: type = np.float64) -> np.ndarray:
-        out = np.full((w, n_layers), fill, dtype=dtype)
+        out: np.ndarray = np.full((w, n_layers), fill, dtype=dtype)
         out[ray_v, rank_v] = values[visible]
         return out
 
@@ -251,7 +256,8 @@ def _bilinear(tex: np.ndarray, var: np.ndarray, fx: np.ndarray, fy: np.ndarray, 
     c11 = flat[base + y1 * tw + x1].astype(np.float32)
     top = c00 + (c01 - c00) * ax
     bot = c10 + (c11 - c10) * ax
-    return (top + (bot - top) * ay) * np.float32(1.0 / 255.0)
+    colour: np.ndarray = (top + (bot - top) * ay) * np.float32(1.0 / 255.0)
+    return colour
 
 
 def _sample_mip(
@@ -282,7 +288,7 @@ def _sample_mip(
     return out
 
 
-def _hash(*keys: np.ndarray) -> np.ndarray:
+def _hash(*keys: npt.ArrayLike) -> np.ndarray:
     """Deterministic integer hash of integer arrays -> uint64."""
     h = np.full(np.broadcast(*keys).shape, 1469598103934665603, dtype=np.uint64)
     for k in keys:
@@ -661,8 +667,8 @@ def render(
     flat_layer = kk + (np.arange(wc) * n_layers)[None, :]
     covered = (k0 < layers.n[None, :]) & (y32 <= layers.bottom.ravel()[flat_layer])
 
-    rgb = np.zeros((hc, wc, 3), np.float32)
-    lab = np.full((hc, wc), labels.SKY, np.uint8)
+    rgb: np.ndarray = np.zeros((hc, wc, 3), np.float32)
+    lab: np.ndarray = np.full((hc, wc), labels.SKY, np.uint8)
     bld = np.full((hc, wc), -1, np.int32)
     fcd = np.full((hc, wc), -1, np.int32)
     zbuf = np.full((hc, wc), np.inf, np.float32)
@@ -831,7 +837,7 @@ def _photometric(rng: np.random.Generator, rgb: np.ndarray) -> np.ndarray:
     """Exposure and white balance jitter, vignetting, slight blur, sensor noise (float RGB in [0, 1])."""
     h, w = rgb.shape[:2]
     gain = (rng.uniform(0.9, 1.1) * (1.0 + rng.normal(0, 0.02, 3))).astype(np.float32)
-    img = rgb * (_vignette(h, w) * gain)
+    img: np.ndarray = rgb * (_vignette(h, w) * gain)
     img = cv2.GaussianBlur(img, (0, 0), float(rng.uniform(0.5, 0.8)))
     noise = rng.standard_normal((h, w, 3), dtype=np.float32)
     noise *= np.float32(0.006)
@@ -843,4 +849,5 @@ def _photometric(rng: np.random.Generator, rgb: np.ndarray) -> np.ndarray:
 def _vignette(h: int, w: int) -> np.ndarray:
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     r2 = ((xx - w / 2) / (w / 2)) ** 2 + ((yy - h / 2) / (w / 2)) ** 2
-    return (1.0 - 0.18 * r2)[..., None].astype(np.float32)
+    vignette: np.ndarray = (1.0 - 0.18 * r2)[..., None].astype(np.float32)
+    return vignette

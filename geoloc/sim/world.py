@@ -91,7 +91,8 @@ class _Candidates:
 
 def _world_centre(city_map: CityMap) -> np.ndarray:
     cent = np.array([b.polygon.centroid.coords[0] for b in city_map.buildings])
-    return np.median(cent, axis=0)
+    centre: np.ndarray = np.median(cent, axis=0)
+    return centre
 
 
 def _street_points(
