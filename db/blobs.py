@@ -15,7 +15,8 @@ def pack_arrays(arrays: dict[str, np.ndarray], compress: bool = True) -> bytes:
     """
     buffer = io.BytesIO()
     save = np.savez_compressed if compress else np.savez
-    save(buffer, **{name: np.asarray(value) for name, value in arrays.items()})
+    # allow_pickle is numpy's default, named so that the arrays are not matched against it (mypy).
+    save(buffer, allow_pickle=True, **{name: np.asarray(value) for name, value in arrays.items()})
     return buffer.getvalue()
 
 

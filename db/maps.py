@@ -79,8 +79,9 @@ def map_content_from_city_map(city_map: Any) -> MapContent:
     facades = city_map.facades
     facade_arrays = {f.name: np.asarray(getattr(facades, f.name)) for f in fields(facades)}
     report = city_map.report.as_dict() if hasattr(city_map.report, "as_dict") else dict(city_map.report)
+    min_lat, min_lon, max_lat, max_lon = city_map.bbox_wgs84
     return MapContent(
-        bbox_wgs84=tuple(float(v) for v in city_map.bbox_wgs84),  # type: ignore[arg-type]
+        bbox_wgs84=(float(min_lat), float(min_lon), float(max_lat), float(max_lon)),
         origin_lat=float(frame.origin_lat),
         origin_lon=float(frame.origin_lon),
         buildings=buildings,
