@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Mapping, Sequence
 from functools import lru_cache
 from typing import Any
 
@@ -157,7 +158,9 @@ def label_reference(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[
     return {"reference_id": reference_id, "heading_deg": round(heading, 2), "buildings": len(buildings)}
 
 
-def _describe_buildings(city: CityMap, extents: list[dict], column_scale: float) -> list[dict]:
+def _describe_buildings(
+    city: CityMap, extents: Sequence[Mapping[str, Any]], column_scale: float
+) -> list[dict[str, Any]]:
     """Add OSM ids and names to building extents and express columns in the uploaded photo's pixels."""
     out = []
     for entry in extents:
