@@ -6,7 +6,7 @@ The parts that workers compute (query answers, reference labels) are in :mod:`se
 from __future__ import annotations
 
 from datetime import UTC, datetime
-from typing import Any, Literal
+from typing import Any, Literal, overload
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -14,6 +14,10 @@ from service.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon,
 from service.errors import ERROR_CODES
 
 
+@overload
+def timestamp(value: float) -> datetime: ...
+@overload
+def timestamp(value: None) -> None: ...
 def timestamp(value: float | None) -> datetime | None:
     """Unix seconds -> aware UTC datetime (None stays None)."""
     return datetime.fromtimestamp(value, tz=UTC) if value is not None else None
@@ -26,7 +30,8 @@ class ErrorDetail(BaseModel):
         description="Machine-readable error code",
         examples=["outside_map"],
         json_schema_extra={
-            "enum": sorted({code for _, code in ERROR_CODES}),
+            # A list display (not sorted()'s list[str]) so that it types as a list of JSON values.
+            "enum": [*sorted({code for _, code in ERROR_CODES})],
             "x-error-codes": [{"status": status, "code": code} for status, code in sorted(ERROR_CODES)],
         },
     )

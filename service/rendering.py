@@ -13,7 +13,8 @@ def building_colors(building_ids: np.ndarray) -> np.ndarray:
     """A stable, distinct RGB colour per building id (golden-ratio hues), (M, 3) uint8."""
     hue = (np.asarray(building_ids, dtype=float) * 0.618033988749895) % 1.0
     hsv = np.stack([hue * 179, np.full_like(hue, 200), np.full_like(hue, 255)], axis=-1).astype(np.uint8)
-    return cv2.cvtColor(hsv[None], cv2.COLOR_HSV2RGB)[0]
+    rgb: np.ndarray = cv2.cvtColor(hsv[None], cv2.COLOR_HSV2RGB)[0]
+    return rgb
 
 
 def identity_overlay_png(photo_path: Path, arrays: dict[str, np.ndarray]) -> bytes:

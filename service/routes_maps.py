@@ -18,11 +18,12 @@ from fastapi.responses import JSONResponse
 
 from db import maps as map_store
 from db import transaction
+from service.answers import BoundingBox, LatLon
 from service.auth import require_read, require_write
 from service.bounds import MapId
 from service.deps import get_db, get_settings
 from service.errors import ApiError
-from service.models import BoundingBox, LatLon, MapList, MapOut, error_responses, timestamp
+from service.models import MapList, MapOut, error_responses, timestamp
 from service.settings import Settings
 from service.uploads import received_upload, remove_quietly
 

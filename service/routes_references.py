@@ -12,6 +12,7 @@ from fastapi.responses import FileResponse, JSONResponse
 from db import jobs as job_store
 from db import references as reference_store
 from db import transaction
+from service.answers import EstimatedPose
 from service.auth import require_read, require_write
 from service.bounds import MapId, ReferenceId, check_bounds, documented
 from service.deps import get_db, get_settings
@@ -19,7 +20,6 @@ from service.errors import ApiError
 from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
 from service.limits import require_queue_capacity
 from service.models import (
-    EstimatedPose,
     Position,
     ReferenceAccepted,
     ReferenceList,
