@@ -91,7 +91,7 @@ def _tiled(helsinki: CityMap, tiles_per_side: int, gap_m: float = 30.0) -> CityM
     geoms, ids = [], []
     for i in range(-half, tiles_per_side - half):
         for j in range(-half, tiles_per_side - half):
-            geoms.append(shapely.transform(helsinki.footprints, lambda xy, d=step * (i, j): xy + d))  # noqa: B023
+            geoms.append(shapely.transform(helsinki.footprints, lambda xy, d=step * (i, j): xy + d))
             ids += [f"tile{i},{j}/{b.osm_id}" for b in helsinki.buildings]
 
     def to_lonlat(xy: np.ndarray) -> np.ndarray:
