@@ -242,5 +242,5 @@ def cast_all_hits(
 
 
 def _cross(r: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Z of the 2D cross product of vector ``r`` (2,) with each row of ``p`` (N, 2)."""
+    """The z component of the 2D cross product of vector ``r`` (2,) with each row of ``p`` (N, 2)."""
     return np.asarray(r[0] * p[:, 1] - r[1] * p[:, 0])

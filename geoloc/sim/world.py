@@ -98,7 +98,7 @@ def _world_centre(city_map: CityMap) -> np.ndarray:
 def _street_points(
     city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray, radius_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """N random points on streets inside the disk (uniform by length): (n, 2) xy, (n, 2) unit directions."""
+    """``n`` random points on streets inside the disk (uniform by length): (n, 2) xy, (n, 2) unit directions."""
     segs_a, segs_b = [], []
     for line in city_map.streets:
         if len(line) >= 2:
