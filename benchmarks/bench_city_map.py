@@ -60,17 +60,11 @@ TARGET_LATENCY_RATIO = 1.2
 
 
 def write_tiled_osm(source: Path, target: Path, tiles_per_side: int, gap_m: float = TILE_GAP_M) -> int:
-    """Write ``tiles_per_side``^2 copies of every object of ``source`` to ``target`` (.osm.pbf); the
-    original tile keeps its coordinates and ids. Returns the number of tiles."""
-    nodes, ways, relations = [], [], []
-    obj: Any  # pyosmium's objects (typed as a union of all kinds)
-    for obj in osmium.FileProcessor(str(source)):
-        if obj.is_node():
-            nodes.append((obj.id, obj.location.lon, obj.location.lat, dict(obj.tags)))
-        elif obj.is_way():
-            ways.append((obj.id, [n.ref for n in obj.nodes], dict(obj.tags)))
-        elif obj.is_relation():
-            relations.append((obj.id, [(m.type, m.ref, m.role) for m in obj.members], dict(obj.tags)))
+    """Write ``tiles_per_side``^2 copies of every object of ``source`` to ``target`` (.osm.pbf).
+
+    The original tile keeps its coordinates and ids. Returns the number of tiles.
+    """
+    nodes, ways, relations = _read_osm_objects(source)
     lon = np.array([n[1] for n in nodes])
     lat = np.array([n[2] for n in nodes])
     frame = frame_for_bbox(lat.min(), lon.min(), lat.max(), lon.max())
@@ -101,9 +95,25 @@ def write_tiled_osm(source: Path, target: Path, tiles_per_side: int, gap_m: floa
     return len(tiles)
 
 
+def _read_osm_objects(source: Path) -> tuple[list[Any], list[Any], list[Any]]:
+    """Every node (id, lon, lat, tags), way (id, node ids, tags) and relation (id, members, tags) of a file."""
+    nodes, ways, relations = [], [], []
+    obj: Any  # pyosmium's objects (typed as a union of all kinds)
+    for obj in osmium.FileProcessor(str(source)):
+        if obj.is_node():
+            nodes.append((obj.id, obj.location.lon, obj.location.lat, dict(obj.tags)))
+        elif obj.is_way():
+            ways.append((obj.id, [n.ref for n in obj.nodes], dict(obj.tags)))
+        elif obj.is_relation():
+            relations.append((obj.id, [(m.type, m.ref, m.role) for m in obj.members], dict(obj.tags)))
+    return nodes, ways, relations
+
+
 def load_in_fresh_process(path: Path, function: str = "load_map") -> dict[str, Any]:
-    """``geoloc.maps.<function>(path)`` in a new interpreter (then its spatial indexes built, as the first
-    query does): seconds for each, peak memory, counts."""
+    """Time ``geoloc.maps.<function>(path)`` in a new interpreter, then its spatial indexes.
+
+    The indexes are built as the first query does. Returns seconds for each, peak memory, counts.
+    """
     code = (
         "import json, resource, sys, time\n"
         f"from geoloc.maps import {function} as load\n"
@@ -261,8 +271,10 @@ def upload_map(service: Service, path: Path, name: str) -> dict[str, Any]:
 
 
 def ingest(service: Service, map_ids: dict[str, int], photos: list[Path]) -> dict[str, dict[str, Any]]:
-    """Post every photo as a reference of each map, alternating maps (the worker labels them in that order,
-    so a drift of the machine's load touches both alike), and wait until all are labelled."""
+    """Post every photo as a reference of each map, alternating maps, and wait until all are labelled.
+
+    The worker labels them in that order, so a drift of the machine's load touches both maps alike.
+    """
     ids: dict[str, list[int]] = {name: [] for name in map_ids}
     for photo in photos:
         for name, map_id in map_ids.items():
@@ -314,6 +326,32 @@ def _median(values: list[float]) -> float:
     return round(float(statistics.median(values)), 1)
 
 
+def _make_world(world_dir: Path, map_path: Path) -> Path:
+    """A small simulated world (20 references, 5 queries, seed 1) of the map in ``world_dir``, unless there."""
+    from geoloc.sim.world import WorldOptions, generate_world
+
+    if not (world_dir / "manifest.json").exists():
+        t0 = time.perf_counter()
+        generate_world(map_path, world_dir, WorldOptions(n_references=20, n_queries=5, seed=1))
+        print(f"world: 20 references, 5 queries rendered in {time.perf_counter() - t0:.0f} s")
+    return world_dir
+
+
+def _latency_figures(runs: list[dict[str, Any]], warm_up: dict[str, Any]) -> dict[str, Any]:
+    """Wall-clock (client) and worker (per stage) latency figures of one map's query runs, in ms."""
+    walls = [r["wall_ms"] for r in runs]
+    return {
+        "queries": len(walls),
+        "wall_ms_median": _median(walls),
+        "wall_ms_p90": round(float(np.percentile(walls, 90)), 1),
+        "worker_total_ms_median": _median([r["timings_ms"]["total"] for r in runs]),
+        "worker_ms_median_by_stage": {
+            stage: _median([r["timings_ms"].get(stage, 0.0) for r in runs]) for stage in runs[0]["timings_ms"]
+        },
+        "first_query_wall_ms": round(warm_up["wall_ms"], 1),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tiles-per-side", type=int, default=15)
@@ -333,15 +371,7 @@ def main() -> None:
     }
     print(f"machine: {figures['machine']}; work folder {workdir}")
 
-    world_dir = args.world
-    if world_dir is None:
-        from geoloc.sim.world import WorldOptions, generate_world
-
-        world_dir = workdir / "world"
-        if not (world_dir / "manifest.json").exists():
-            t0 = time.perf_counter()
-            generate_world(helsinki, world_dir, WorldOptions(n_references=20, n_queries=5, seed=1))
-            print(f"world: 20 references, 5 queries rendered in {time.perf_counter() - t0:.0f} s")
+    world_dir = args.world or _make_world(workdir / "world", helsinki)
     from geoloc.sim.world import load_world
 
     world = load_world(world_dir)
@@ -386,20 +416,7 @@ def main() -> None:
                 order = list(maps) if round_index % 2 == 0 else list(reversed(maps))
                 for name in order:
                     runs[name].append({"photo": photo.name, **query(service, uploads[name]["map_id"], photo)})
-        latency = {}
-        for name in maps:
-            walls = [r["wall_ms"] for r in runs[name]]
-            latency[name] = {
-                "queries": len(walls),
-                "wall_ms_median": _median(walls),
-                "wall_ms_p90": round(float(np.percentile(walls, 90)), 1),
-                "worker_total_ms_median": _median([r["timings_ms"]["total"] for r in runs[name]]),
-                "worker_ms_median_by_stage": {
-                    stage: _median([r["timings_ms"].get(stage, 0.0) for r in runs[name]])
-                    for stage in runs[name][0]["timings_ms"]
-                },
-                "first_query_wall_ms": round(warm_up[name]["wall_ms"], 1),
-            }
+        latency = {name: _latency_figures(runs[name], warm_up[name]) for name in maps}
         # Grids are snapped to whole cells of each map's own local frame, whose origins differ: answers
         # on the two maps may differ by up to a cell even where the maps agree.
         gaps = [_distance_m(a["best"], b["best"]) for a, b in zip(runs["helsinki"], runs["tiled"], strict=True)]

@@ -1,6 +1,6 @@
-"""RootSIFT against ALIKED (n16, t16) for matching across viewpoints (prints tables, writes JSON; not a test).
+r"""RootSIFT against ALIKED (n16, t16) for matching across viewpoints (prints tables, writes JSON; not a test).
 
-    .venv/bin/geoloc sim world --map ../shared/data/osm/helsinki.osm.pbf --out /tmp/aliked_w1 \\
+    .venv/bin/geoloc sim world --map ../shared/data/osm/helsinki.osm.pbf --out /tmp/aliked_w1 \
         --references 60 --queries 30 --seed 1
     .venv/bin/python benchmarks/bench_features.py /tmp/aliked_w1 --json bench_features.json
 
@@ -57,6 +57,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -170,8 +171,11 @@ class GtView:
 def correct_matches(
     city: CityMap, query: GtView, reference: GtView, q_xy: np.ndarray, r_xy: np.ndarray, tol_px: float
 ) -> np.ndarray:
-    """(K,) bool: matched keypoints on the same facade whose query ray, cut with that facade's plane,
-    reprojects into the reference within ``tol_px`` of the reference keypoint."""
+    """(K,) bool: which matches are correct.
+
+    A match is correct when both keypoints are on the same facade and the query ray, cut with that
+    facade's plane, reprojects into the reference within ``tol_px`` of the reference keypoint.
+    """
     if len(q_xy) == 0:
         return np.zeros(0, bool)
     fq = _ids_at(query.facade_ids, q_xy)
@@ -237,8 +241,10 @@ def extract_all(
 def covisible_shares(
     city: CityMap, world: World, query: str, references: list[str], step_px: int = 4
 ) -> dict[str, float]:
-    """Share of the query image (pixels on a grid of ``step_px``) whose facade point each reference sees
-    on the same facade (module docstring)."""
+    """Share of the query image whose facade point each reference sees on the same facade.
+
+    Pixels are sampled on a grid of ``step_px`` (see the module docstring).
+    """
     fid = world.gt(query)["facade_id"]
     grid = fid[::step_px, ::step_px]
     ys, xs = np.nonzero(grid >= 0)
@@ -319,38 +325,14 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
         index = InvertedIndex.from_documents((r, words[r]) for r in refs)
         for mname in args.matcher_names:
             match = matcher(mname)
-            rows = []
-            for kind, pairs in (("sharing", sharing), ("wrong", wrong)):
-                for q, r in pairs:
-                    p, inl = verified(fm[q], fm[r], match)
-                    good = p[inl]
-                    n_correct = 0
-                    if kind == "sharing":
-                        q_xy, r_xy = fm[q].xy[good[:, 0]], fm[r].xy[good[:, 1]]
-                        n_correct = int(correct_matches(city, views[q], views[r], q_xy, r_xy, args.tol_px).sum())
-                    rows.append({"kind": kind, "query": q, "reference": r, "overlap": round(overlaps[(q, r)], 4),
-                                 "covisible": round(covisible[(q, r)], 4), "matches": len(p),
-                                 "inliers": int(inl.sum()), "correct": n_correct})
+            rows = _pair_rows(city, fm, views, match, {"sharing": sharing, "wrong": wrong}, overlaps, covisible, args)
             by_pair = {(row["query"], row["reference"]): row for row in rows}
             best_correct = np.array([by_pair[(q, r)]["correct"] for q, r in best.items()])
             share_rows = [row for row in rows if row["kind"] == "sharing"]
             wrong_rows = [row for row in rows if row["kind"] == "wrong"]
             inl_sum = sum(row["inliers"] for row in share_rows)
             wrong_inl = np.array([row["inliers"] for row in wrong_rows])
-            # Retrieval: SBoW top 20, re-ranked by verified inliers (this matcher) to the top 4.
-            in_top20, in_top4 = [], []
-            for q in queries:
-                if not best_sets[q]:
-                    continue
-                shortlist = index.query(words[q], SHORTLIST)
-                ranked = []
-                for r, score in shortlist:
-                    row = by_pair.get((q, r))
-                    n_inl = row["inliers"] if row else int(verified(fm[q], fm[r], match)[1].sum())
-                    ranked.append((-n_inl, -score, r))
-                ranked.sort()
-                in_top20.append(bool(best_sets[q] & {r for r, _ in shortlist}))
-                in_top4.append(bool(best_sets[q] & {r for _, _, r in ranked[:TOP_K]}))
+            in_top20, in_top4 = _retrieval_hits(queries, best_sets, index, words, by_pair, fm, match)
             good = [row for row in share_rows if row["inliers"] and row["correct"] >= 0.5 * row["inliers"]]
             passing = [row for row in rows if row["inliers"] >= DEFAULT_MIN_INLIERS]
             top_right = top_any = 0
@@ -381,6 +363,62 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
             print(f"  {method:<22} {mname:<14} done", flush=True)
         results["features"][method] = per_method
     return results
+
+
+def _pair_rows(
+    city: CityMap,
+    fm: dict[str, Features],
+    views: dict[str, GtView],
+    match: Callable[[Features, Features], np.ndarray],
+    pairs_by_kind: dict[str, list[tuple[str, str]]],
+    overlaps: dict[tuple[str, str], float],
+    covisible: dict[tuple[str, str], float],
+    args: argparse.Namespace,
+) -> list[dict[str, Any]]:
+    """One row per (query, reference) pair of each kind: matches, inliers and (sharing pairs) correct ones."""
+    rows = []
+    for kind, pairs in pairs_by_kind.items():
+        for q, r in pairs:
+            p, inl = verified(fm[q], fm[r], match)
+            good = p[inl]
+            n_correct = 0
+            if kind == "sharing":
+                q_xy, r_xy = fm[q].xy[good[:, 0]], fm[r].xy[good[:, 1]]
+                n_correct = int(correct_matches(city, views[q], views[r], q_xy, r_xy, args.tol_px).sum())
+            rows.append({"kind": kind, "query": q, "reference": r, "overlap": round(overlaps[(q, r)], 4),
+                         "covisible": round(covisible[(q, r)], 4), "matches": len(p),
+                         "inliers": int(inl.sum()), "correct": n_correct})  # fmt: skip
+    return rows
+
+
+def _retrieval_hits(
+    queries: list[str],
+    best_sets: dict[str, set[str]],
+    index: InvertedIndex,
+    words: dict[str, np.ndarray],
+    by_pair: dict[tuple[str, str], dict[str, Any]],
+    fm: dict[str, Features],
+    match: Callable[[Features, Features], np.ndarray],
+) -> tuple[list[bool], list[bool]]:
+    """Retrieval: SBoW top 20, re-ranked by verified inliers (this matcher) to the top 4.
+
+    For each query with a best-overlapping reference set: whether one of them is in the SBoW top 20, and in
+    the re-ranked top 4.
+    """
+    in_top20, in_top4 = [], []
+    for q in queries:
+        if not best_sets[q]:
+            continue
+        shortlist = index.query(words[q], SHORTLIST)
+        ranked = []
+        for r, score in shortlist:
+            row = by_pair.get((q, r))
+            n_inl = row["inliers"] if row else int(verified(fm[q], fm[r], match)[1].sum())
+            ranked.append((-n_inl, -score, r))
+        ranked.sort()
+        in_top20.append(bool(best_sets[q] & {r for r, _ in shortlist}))
+        in_top4.append(bool(best_sets[q] & {r for _, _, r in ranked[:TOP_K]}))
+    return in_top20, in_top4
 
 
 # ----------------------------------------------------------------------------------------------

@@ -180,8 +180,11 @@ class Client:
                 self.mine["job"].append(body["job_id"])
 
     async def ask(self) -> None:
-        """Post a query and wait up to ``wait_s``; an answer not ready by then is polled in the background
-        while the client goes on (as an app would), until it comes."""
+        """Post a query and wait up to ``wait_s`` for its answer.
+
+        An answer not ready by then is polled in the background while the client goes on (as an app
+        would), until it comes.
+        """
         path = self.rng.choice(self.queries)
         started = time.monotonic()
         response = await self._request(

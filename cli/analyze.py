@@ -1,5 +1,6 @@
-"""``geoloc analyze IMAGE --out DIR``: run the image side of the method on one photo and write
-overlays a person can check (paper Fig. 4 and 6) plus a JSON summary.
+"""``geoloc analyze IMAGE --out DIR``: the image side of the method on one photo, as overlays.
+
+Writes overlays a person can check (paper Fig. 4 and 6) plus a JSON summary.
 
 Files written to DIR (``<stem>`` = the image's file stem):
 

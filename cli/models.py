@@ -24,10 +24,10 @@ def build(
         "(repeatable; default: the default feature type).",
     ),
 ) -> None:
-    """Export the segmentation network (and ALIKED when its features are asked for) to ONNX and build the SBoW
-    vocabulary, into the cache.
+    """Export the networks to ONNX and build the SBoW vocabulary, into the cache.
 
-    Everything the service needs at run time, so that nothing is built on a first request.
+    The segmentation network always, ALIKED when its features are asked for: everything the service
+    needs at run time, so that nothing is built on a first request.
     """
     from geoloc.features import canonical_method
     from geoloc.models import (

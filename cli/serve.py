@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING
 import typer
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from geoloc.config import Settings
 
 
@@ -82,11 +84,11 @@ def _setup_logging(level: str) -> None:
     logging.basicConfig(level=level.upper(), format="%(asctime)s %(levelname)s [supervisor] %(message)s")
 
 
-def _prepare_database(path: object) -> None:
+def _prepare_database(path: Path) -> None:
     """Apply migrations once before the children start (they re-check, idempotently)."""
     from db import connect, migrate
 
-    db = connect(path)  # type: ignore[arg-type]
+    db = connect(path)
     try:
         migrate(db)
     finally:

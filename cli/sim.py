@@ -44,8 +44,10 @@ def world(
     pitch_std_deg: float = typer.Option(1.0, "--pitch-std-deg", min=0.0, help="Camera pitch std (deg)."),
     roll_std_deg: float = typer.Option(0.3, "--roll-std-deg", min=0.0, help="Camera roll std (deg)."),
 ) -> None:
-    """Sample references along streets and queries elsewhere, render them, write photos, ground truth,
-    manifest.json and contact_sheet.jpg."""
+    """Sample references along streets and queries elsewhere, and render them.
+
+    Writes the photos, their ground truth, manifest.json and contact_sheet.jpg.
+    """
     from geoloc.osm import MapLoadError
     from geoloc.sim.world import WorldOptions, generate_world
 

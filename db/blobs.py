@@ -8,11 +8,15 @@ import numpy as np
 
 
 def pack_arrays(arrays: dict[str, np.ndarray], compress: bool = True) -> bytes:
-    """A dict of arrays as one ``.npz`` blob (compressed unless ``compress=False``: floats hardly
-    compress, and zlib costs seconds on a city's facades)."""
+    """A dict of arrays as one ``.npz`` blob.
+
+    Compressed unless ``compress=False``: floats hardly compress, and zlib costs seconds on a city's
+    facades.
+    """
     buffer = io.BytesIO()
     save = np.savez_compressed if compress else np.savez
-    save(buffer, **{name: np.asarray(value) for name, value in arrays.items()})
+    # allow_pickle is numpy's default, named so that the arrays are not matched against it (mypy).
+    save(buffer, allow_pickle=True, **{name: np.asarray(value) for name, value in arrays.items()})
     return buffer.getvalue()
 
 

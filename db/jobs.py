@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from typing import Any
+from typing import Any, overload
 
 import sqlite_utils
 
@@ -48,6 +48,10 @@ class QueueFullError(Exception):
         self.retry_after_s = retry_after_s
 
 
+@overload
+def _decode(row: dict[str, Any]) -> dict[str, Any]: ...
+@overload
+def _decode(row: None) -> None: ...
 def _decode(row: dict[str, Any] | None) -> dict[str, Any] | None:
     if row is None:
         return None
@@ -141,7 +145,7 @@ def list_jobs(db: sqlite_utils.Database, *, status: str | None = None, limit: in
         rows = db.query("SELECT * FROM jobs ORDER BY id DESC LIMIT ?", (limit,))
     else:
         rows = db.query("SELECT * FROM jobs WHERE status = ? ORDER BY id DESC LIMIT ?", (status, limit))
-    return [_decode(row) for row in rows]  # type: ignore[misc]
+    return [_decode(row) for row in rows]
 
 
 def claim_job(
@@ -220,9 +224,11 @@ def fail_job(
     retry_delay_s: float = 1.0,
     permanent: bool = False,
 ) -> str | None:
-    """Record a failed attempt: back to ``queued`` (due after ``retry_delay_s``) while attempts
-    remain and the error is not ``permanent``, else ``failed``. The error text is kept either way.
-    Returns the new status, or None when the lease was lost."""
+    """Record a failed attempt; returns the new status, or None when the lease was lost.
+
+    The job goes back to ``queued`` (due after ``retry_delay_s``) while attempts remain and the error
+    is not ``permanent``, else to ``failed``. The error text is kept either way.
+    """
     now = time.time()
     retry = "(? = 0 AND attempts < max_attempts)"
     rows = db.execute(

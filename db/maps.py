@@ -79,8 +79,9 @@ def map_content_from_city_map(city_map: Any) -> MapContent:
     facades = city_map.facades
     facade_arrays = {f.name: np.asarray(getattr(facades, f.name)) for f in fields(facades)}
     report = city_map.report.as_dict() if hasattr(city_map.report, "as_dict") else dict(city_map.report)
+    min_lat, min_lon, max_lat, max_lon = city_map.bbox_wgs84
     return MapContent(
-        bbox_wgs84=tuple(float(v) for v in city_map.bbox_wgs84),  # type: ignore[arg-type]
+        bbox_wgs84=(float(min_lat), float(min_lon), float(max_lat), float(max_lon)),
         origin_lat=float(frame.origin_lat),
         origin_lon=float(frame.origin_lon),
         buildings=buildings,
@@ -111,7 +112,8 @@ def insert_map(
 ) -> int:
     """Insert a map with its buildings and facades; returns the map id. Call inside a transaction.
 
-    read_options: how the file was read (``MapReadOptions.as_dict()``; default ``{}``)."""
+    read_options: how the file was read (``MapReadOptions.as_dict()``; default ``{}``).
+    """
     min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
     facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
     cursor = db.execute(
@@ -198,8 +200,10 @@ def map_reference_counts(db: sqlite_utils.Database, map_id: int) -> dict[str, in
 
 
 def list_buildings(db: sqlite_utils.Database, map_id: int, decode: bool = True) -> list[dict[str, Any]]:
-    """Buildings of a map (no WKB), by building id; ``footprint_geojson`` decoded, or its JSON text
-    with ``decode=False``."""
+    """Buildings of a map (no WKB), by building id.
+
+    ``footprint_geojson`` is decoded, or left as its JSON text with ``decode=False``.
+    """
     rows = db.query(
         "SELECT building_id, osm_id, name, height_m, footprint_geojson FROM buildings"
         " WHERE map_id = ? ORDER BY building_id",
@@ -207,10 +211,10 @@ def list_buildings(db: sqlite_utils.Database, map_id: int, decode: bool = True) 
     )
     out = []
     for row in rows:
-        row = dict(row)
+        building = dict(row)
         if decode:
-            row["footprint_geojson"] = json.loads(row["footprint_geojson"])
-        out.append(row)
+            building["footprint_geojson"] = json.loads(building["footprint_geojson"])
+        out.append(building)
     return out
 
 
@@ -221,10 +225,13 @@ def get_facade_arrays(db: sqlite_utils.Database, map_id: int) -> dict[str, np.nd
 
 
 def delete_map(db: sqlite_utils.Database, map_id: int) -> dict[str, Any] | None:
-    """Delete a map and everything under it (buildings, facades, references, labels, index,
-    queries cascade; queued jobs are cancelled). Returns the deleted map row with the image paths
-    to remove from disk after commit (``image_paths``) and whether another map still reads the same
-    source file (``source_shared``), or None. Call inside a transaction."""
+    """Delete a map and everything under it; call inside a transaction.
+
+    Buildings, facades, references, labels, index and queries cascade; queued jobs are cancelled.
+    Returns the deleted map row with the image paths to remove from disk after commit
+    (``image_paths``) and whether another map still reads the same source file (``source_shared``),
+    or None.
+    """
     map_row = get_map(db, map_id)
     if map_row is None:
         return None

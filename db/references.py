@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import time
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import sqlite_utils
@@ -71,7 +71,8 @@ def insert_reference(
             now,
         ),
     )
-    return int(cursor.lastrowid)
+    assert cursor.lastrowid is not None  # an INSERT always sets it
+    return cursor.lastrowid
 
 
 def set_reference_job(db: sqlite_utils.Database, reference_id: int, job_id: int) -> None:
@@ -162,7 +163,11 @@ def update_reference_result(
     return cursor.rowcount == 1
 
 
-def effective_status(reference: dict[str, Any], job: dict[str, Any] | None) -> tuple[str, str | None]:
+ReferenceStatus = Literal["queued", "processing", "done", "failed"]
+"""The status the API reports for a reference."""
+
+
+def effective_status(reference: dict[str, Any], job: dict[str, Any] | None) -> tuple[ReferenceStatus, str | None]:
     """The status to report for a reference, from its row and its job: (status, error)."""
     if reference["status"] in ("done", "failed") or job is None:
         return reference["status"], reference.get("error")
@@ -176,9 +181,11 @@ def effective_status(reference: dict[str, Any], job: dict[str, Any] | None) -> t
 
 
 def delete_reference(db: sqlite_utils.Database, reference_id: int) -> dict[str, Any] | None:
-    """Delete a reference with its labels, keypoints and index postings (cascade) and cancel its
-    queued jobs. Returns the deleted row (its ``image_path`` is to be removed after commit), or
-    None. Call inside a transaction."""
+    """Delete a reference and cancel its queued jobs; call inside a transaction.
+
+    Its labels, keypoints and index postings cascade. Returns the deleted row (its ``image_path`` is
+    to be removed after commit), or None.
+    """
     row = get_reference(db, reference_id)
     if row is None:
         return None

@@ -42,8 +42,10 @@ def load_vocabulary(db: sqlite_utils.Database, map_id: int) -> dict[str, np.ndar
 def index_reference(
     db: sqlite_utils.Database, map_id: int, reference_id: int, word_ids: np.ndarray, weights: np.ndarray
 ) -> int:
-    """Replace a reference's postings with (word_id, weight) pairs (duplicates summed); returns the
-    number of distinct words. Call inside a transaction."""
+    """Replace a reference's postings with (word_id, weight) pairs; call inside a transaction.
+
+    Duplicate words are summed. Returns the number of distinct words.
+    """
     word_ids = np.asarray(word_ids, dtype=np.int64).ravel()
     weights = np.asarray(weights, dtype=float).ravel()
     if word_ids.shape != weights.shape:

@@ -25,8 +25,10 @@ def table_counts(db: sqlite_utils.Database) -> dict[str, int]:
 
 
 def stored_file_paths(db: sqlite_utils.Database) -> set[str]:
-    """Every file path (relative to the data dir) that a row refers to: map sources, reference and
-    query images."""
+    """Every file path (relative to the data dir) that a row refers to.
+
+    Map sources, reference images and query images.
+    """
     rows = db.execute(
         "SELECT source_path FROM maps UNION SELECT image_path FROM reference_images"
         " UNION SELECT image_path FROM queries WHERE image_path IS NOT NULL"

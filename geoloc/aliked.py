@@ -389,9 +389,11 @@ def describe(maps: DenseMaps, head: SddhWeights, xy: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Keypoints:
-    """ALIKED keypoints of one image: (N, 2) float32 positions (x, y) in its pixels, (N,) float32 scores,
-    (N, D) float32 unit descriptors and (N,) float32 the pyramid scale each was detected at (1 = full size);
-    strongest first."""
+    """ALIKED keypoints of one image, strongest first.
+
+    Returns (N, 2) float32 positions (x, y) in its pixels, (N,) float32 scores, (N, D) float32 unit
+    descriptors and (N,) float32 the pyramid scale each was detected at (1 = full size).
+    """
 
     xy: np.ndarray
     scores: np.ndarray
@@ -399,6 +401,7 @@ class Keypoints:
     scales: np.ndarray
 
     def __len__(self) -> int:
+        """Number of keypoints."""
         return len(self.xy)
 
 

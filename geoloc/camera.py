@@ -68,7 +68,8 @@ class Intrinsics:
 
     def column_of_angle(self, alpha_deg: np.ndarray | float) -> np.ndarray:
         """Pixel column (float) seen at column angle ``alpha_deg``; inverse of ``column_angle_deg``."""
-        return self.cx + self.focal_px * np.tan(np.radians(np.asarray(alpha_deg, dtype=float)))
+        column: np.ndarray = self.cx + self.focal_px * np.tan(np.radians(np.asarray(alpha_deg, dtype=float)))
+        return column
 
     def scaled(self, width: int, height: int) -> Intrinsics:
         """The same camera for an image resized to ``width`` x ``height``."""
@@ -138,4 +139,5 @@ def vanishing_column_of_orientation(theta_deg: np.ndarray | float, intrinsics: I
     """
     t = np.tan(np.radians(np.asarray(theta_deg, dtype=float)))
     with np.errstate(divide="ignore"):
-        return intrinsics.cx - intrinsics.focal_px / t
+        column: np.ndarray = intrinsics.cx - intrinsics.focal_px / t
+    return column

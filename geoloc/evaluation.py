@@ -63,8 +63,11 @@ SHOWN_MIN_SHARE = 0.1
 
 @dataclass(frozen=True)
 class EvalRun:
-    """One way of answering the queries: prior ("gps" or "none"), segmentation ("model" or "gt"),
-    identities ("transferred" or "gt") and the query configuration."""
+    """One way of answering the queries.
+
+    Prior ("gps" or "none"), segmentation ("model" or "gt"), identities ("transferred" or "gt") and
+    the query configuration.
+    """
 
     name: str
     prior: str

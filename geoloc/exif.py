@@ -46,9 +46,11 @@ class ExifInfo:
 
     @property
     def has_gps(self) -> bool:
+        """Whether both latitude and longitude were read."""
         return self.lat is not None and self.lon is not None
 
     def as_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict."""
         return asdict(self)
 
 
@@ -71,9 +73,12 @@ def _dms(value: Any, ref: Any, negative: bytes) -> float | None:
         parts = [_rational(v) for v in value]
     except TypeError:
         return None
-    if len(parts) != 3 or any(p is None for p in parts):
+    if len(parts) != 3:
         return None
-    deg = parts[0] + parts[1] / 60.0 + parts[2] / 3600.0
+    degrees, minutes, seconds = parts
+    if degrees is None or minutes is None or seconds is None:
+        return None
+    deg = degrees + minutes / 60.0 + seconds / 3600.0
     if isinstance(ref, str):
         ref = ref.encode()
     if isinstance(ref, bytes) and ref.strip(b"\x00 ").upper() == negative:
@@ -208,7 +213,8 @@ def exif_bytes(
     if heading_deg is not None:
         gps[piexif.GPSIFD.GPSImgDirectionRef] = b"T"
         gps[piexif.GPSIFD.GPSImgDirection] = _to_rational(float(heading_deg) % 360.0, 100)
-    return piexif.dump({"0th": zeroth, "Exif": exif, "GPS": gps, "1st": {}, "thumbnail": None})
+    block: bytes = piexif.dump({"0th": zeroth, "Exif": exif, "GPS": gps, "1st": {}, "thumbnail": None})
+    return block
 
 
 def write_jpeg(

@@ -117,6 +117,7 @@ class Features:
     method: str = "rootsift"
 
     def __post_init__(self) -> None:
+        """Coerce the arrays to their dtypes and shapes; ValueError if their lengths differ."""
         self.xy = np.asarray(self.xy, dtype=np.float32).reshape(-1, 2)
         desc = np.asarray(self.descriptors, dtype=np.float32)
         if desc.ndim != 2:
@@ -132,6 +133,7 @@ class Features:
             raise ValueError("xy, descriptors, sizes, angles and responses must have the same length")
 
     def __len__(self) -> int:
+        """Number of keypoints."""
         return len(self.xy)
 
     @property
@@ -175,8 +177,10 @@ class Features:
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray]) -> Features:
-        """Inverse of :meth:`to_arrays` (accepts an ``np.load`` result; arrays stored without ``method``
-        are RootSIFT, the only type before it existed)."""
+        """Inverse of :meth:`to_arrays` (accepts an ``np.load`` result).
+
+        Arrays stored without ``method`` are RootSIFT, the only type before it existed.
+        """
         return cls(
             arrays["xy"],
             np.asarray(arrays["descriptors"], np.float32),
@@ -190,10 +194,12 @@ class Features:
 
     def save(self, path: str | Path) -> None:
         """Write to ``path`` (.npz, compressed)."""
-        np.savez_compressed(path, **self.to_arrays())
+        # allow_pickle is numpy's default, named so that the arrays are not matched against it (mypy).
+        np.savez_compressed(path, allow_pickle=True, **self.to_arrays())
 
     @classmethod
     def load(cls, path: str | Path) -> Features:
+        """Features saved by :meth:`save`."""
         with np.load(path) as data:
             return cls.from_arrays(dict(data))
 
@@ -233,7 +239,7 @@ def _to_rgb_u8(image_rgb: np.ndarray) -> np.ndarray:
 
 def detection_mask(building_mask: np.ndarray, size_wh: tuple[int, int], dilate_px: int) -> np.ndarray:
     """(h, w) uint8 mask (0/255) where keypoints may be detected: the building mask at working size, dilated."""
-    mask = (np.asarray(building_mask) > 0).astype(np.uint8)
+    mask: np.ndarray = (np.asarray(building_mask) > 0).astype(np.uint8)
     if (mask.shape[1], mask.shape[0]) != size_wh:
         mask = cv2.resize(mask, size_wh, interpolation=cv2.INTER_NEAREST)
     if dilate_px > 0:
@@ -309,7 +315,7 @@ def _rootsift(
     gray: np.ndarray, mask: np.ndarray, max_features: int, contrast_threshold: float, edge_threshold: float
 ) -> _Found | None:
     """SIFT on a working-size gray image inside ``mask``: positions, RootSIFT, sizes, angles, responses."""
-    sift = cv2.SIFT_create(
+    sift = cv2.SIFT.create(
         nfeatures=int(max_features), contrastThreshold=contrast_threshold, edgeThreshold=edge_threshold
     )
     keypoints, desc = sift.detectAndCompute(gray, mask)

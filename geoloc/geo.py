@@ -1,5 +1,6 @@
-"""WGS84 <-> local metric frame of a map, and compass heading <-> local bearing. The only place that
-converts between geographic and local coordinates.
+"""WGS84 <-> local metric frame of a map, and compass heading <-> local bearing.
+
+The only place that converts between geographic and local coordinates.
 
 The local frame is an azimuthal equidistant projection centred on the map's origin (pyproj,
 ``always_xy=True``): x = east (m), y = north (m). Distances and bearings from the origin are exact;
@@ -29,6 +30,7 @@ class LocalFrame:
     _inverse: Transformer = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        """Check the origin (degrees) and build the pyproj transformers."""
         if not (-90.0 < self.origin_lat < 90.0 and -180.0 <= self.origin_lon <= 180.0):
             raise ValueError(f"invalid origin ({self.origin_lat}, {self.origin_lon})")
         object.__setattr__(self, "origin_lat", float(self.origin_lat))
@@ -55,19 +57,24 @@ class LocalFrame:
         lat, lon = self.to_wgs84(east_m, north_m)
         step_deg = 1.0 / 111_320.0
         e2, n2 = self.to_local(lat + step_deg, lon)
-        return np.degrees(np.arctan2(e2 - np.asarray(east_m, float), n2 - np.asarray(north_m, float)))
+        convergence_deg: np.ndarray = np.degrees(
+            np.arctan2(e2 - np.asarray(east_m, float), n2 - np.asarray(north_m, float))
+        )
+        return convergence_deg
 
     def heading_to_bearing(
         self, heading_deg: np.ndarray | float, east_m: np.ndarray | float = 0.0, north_m: np.ndarray | float = 0.0
     ) -> np.ndarray:
         """Compass heading (deg clockwise from true north) at a local point -> local bearing (deg, [0, 360))."""
-        return (np.asarray(heading_deg, float) + self.meridian_convergence_deg(east_m, north_m)) % 360.0
+        bearing: np.ndarray = (np.asarray(heading_deg, float) + self.meridian_convergence_deg(east_m, north_m)) % 360.0
+        return bearing
 
     def bearing_to_heading(
         self, bearing_deg: np.ndarray | float, east_m: np.ndarray | float = 0.0, north_m: np.ndarray | float = 0.0
     ) -> np.ndarray:
         """Local bearing (deg) at a local point -> compass heading (deg clockwise from true north, [0, 360))."""
-        return (np.asarray(bearing_deg, float) - self.meridian_convergence_deg(east_m, north_m)) % 360.0
+        heading: np.ndarray = (np.asarray(bearing_deg, float) - self.meridian_convergence_deg(east_m, north_m)) % 360.0
+        return heading
 
 
 def frame_for_bbox(min_lat: float, min_lon: float, max_lat: float, max_lon: float) -> LocalFrame:

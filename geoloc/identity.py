@@ -9,8 +9,24 @@ less than 1 (the rest is "unknown").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypedDict
 
 import numpy as np
+
+
+class BuildingExtent(TypedDict):
+    """A building seen in an image (:meth:`IdentityMap.building_extents`).
+
+    building_id: map building id. pixel_share: share of the image's building pixels whose most probable
+    identity it is. x_start, x_end: its first and last pixel column (inclusive). probability: its mean
+    identity probability over those columns.
+    """
+
+    building_id: int
+    pixel_share: float
+    x_start: int
+    x_end: int
+    probability: float
 
 
 @dataclass
@@ -27,6 +43,7 @@ class IdentityMap:
     building_mask: np.ndarray
 
     def __post_init__(self) -> None:
+        """Coerce the arrays to their dtypes; ValueError if ``column_prob``'s shape does not fit."""
         self.building_ids = np.asarray(self.building_ids, dtype=np.int64)
         self.column_prob = np.asarray(self.column_prob, dtype=np.float32)
         if self.column_prob.shape != (self.building_mask.shape[1], len(self.building_ids)):
@@ -34,7 +51,8 @@ class IdentityMap:
 
     @property
     def width(self) -> int:
-        return self.building_mask.shape[1]
+        """Image width (px)."""
+        return int(self.building_mask.shape[1])
 
     def column_best(self, min_probability: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Most probable building id per column (-1 where none reaches ``min_probability``) and its probability."""
@@ -54,9 +72,10 @@ class IdentityMap:
         """(N, M) identity probabilities at pixel positions ``xy`` (N, 2); zero off building pixels."""
         x = np.clip(np.round(xy[:, 0]).astype(int), 0, self.width - 1)
         y = np.clip(np.round(xy[:, 1]).astype(int), 0, self.building_mask.shape[0] - 1)
-        return self.column_prob[x] * self.building_mask[y, x][:, None]
+        probabilities: np.ndarray = self.column_prob[x] * self.building_mask[y, x][:, None]
+        return probabilities
 
-    def building_extents(self, min_share: float = 0.02) -> list[dict]:
+    def building_extents(self, min_share: float = 0.02) -> list[BuildingExtent]:
         """The buildings seen: id, pixel share of the building pixels, column extent, mean probability.
 
         A building is listed when it is the most probable identity of at least ``min_share`` of the
@@ -65,20 +84,20 @@ class IdentityMap:
         ids, prob = self.column_best()
         pixels_per_column = self.building_mask.sum(axis=0)
         total = max(int(pixels_per_column.sum()), 1)
-        result = []
+        result: list[BuildingExtent] = []
         for building_id in np.unique(ids[ids >= 0]):
             columns = np.flatnonzero((ids == building_id) & (pixels_per_column > 0))
             share = pixels_per_column[columns].sum() / total
             if len(columns) == 0 or share < min_share:
                 continue
             result.append(
-                {
-                    "building_id": int(building_id),
-                    "pixel_share": float(share),
-                    "x_start": int(columns.min()),
-                    "x_end": int(columns.max()),
-                    "probability": float(prob[columns].mean()),
-                }
+                BuildingExtent(
+                    building_id=int(building_id),
+                    pixel_share=float(share),
+                    x_start=int(columns.min()),
+                    x_end=int(columns.max()),
+                    probability=float(prob[columns].mean()),
+                )
             )
         return sorted(result, key=lambda r: -r["pixel_share"])
 

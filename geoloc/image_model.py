@@ -9,6 +9,7 @@ optical axis, see :mod:`geoloc.camera`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -42,17 +43,19 @@ class ImageModel:
     distance_m: np.ndarray | None = None
     top_tan_elevation: np.ndarray | None = None
     bin_deg: float = DEFAULT_BIN_DEG
-    meta: dict = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        """Check that every per-bin array has one value per bin; ValueError if not."""
         k = len(self.offsets_deg)
         if self.facade_present.shape != (k,) or self.orientation_deg.shape != (k,):
             raise ValueError("facade_present and orientation_deg must have one value per bin")
         if (self.identity_prob is None) != (self.identity_building_ids is None):
             raise ValueError("identity_prob and identity_building_ids go together")
-        if self.identity_prob is not None and self.identity_prob.shape != (
-            k,
-            len(self.identity_building_ids),
+        if (
+            self.identity_prob is not None
+            and self.identity_building_ids is not None
+            and self.identity_prob.shape != (k, len(self.identity_building_ids))
         ):
             raise ValueError("identity_prob must be (bins, buildings)")
         if self.distance_m is not None and self.distance_m.shape != (k,):
@@ -62,14 +65,16 @@ class ImageModel:
 
     @property
     def n_bins(self) -> int:
+        """Number of bearing bins."""
         return len(self.offsets_deg)
 
     @property
     def has_identity(self) -> bool:
+        """Whether the model carries building identity probabilities."""
         return self.identity_prob is not None
 
     def without_identity(self) -> ImageModel:
-        """This model without building identities (facade geometry and distances only)."""
+        """The same model without building identities (facade geometry and distances only)."""
         return ImageModel(
             self.offsets_deg,
             self.facade_present,
@@ -93,7 +98,7 @@ def bin_offsets_deg(intrinsics: Intrinsics, bin_deg: float = DEFAULT_BIN_DEG) ->
 def column_bins(intrinsics: Intrinsics, offsets_deg: np.ndarray, bin_deg: float = DEFAULT_BIN_DEG) -> np.ndarray:
     """For each pixel column, the index of its angular bin in ``offsets_deg`` (-1 if outside)."""
     angles = intrinsics.column_angle_deg(np.arange(intrinsics.width) + 0.5)
-    index = np.round((angles - offsets_deg[0]) / bin_deg).astype(int)
+    index: np.ndarray = np.round((angles - offsets_deg[0]) / bin_deg).astype(int)
     index[(index < 0) | (index >= len(offsets_deg))] = -1
     return index
 

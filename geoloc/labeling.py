@@ -1,5 +1,7 @@
-"""Reference labelling: the heading (and corrected position) of a geo-tagged photo, and a building
-identity for each of its building pixels, from the map (paper: "Assigning Building Identity to Pixels").
+"""Reference labelling: a geo-tagged photo's pose and its building pixels' identities, from the map.
+
+The heading (and corrected position) of the photo, and a building identity for each of its building
+pixels (paper: "Assigning Building Identity to Pixels").
 
 Poses are sampled around the GPS tag (paper: 3 x 3 positions 10 m apart x 120 yaws; here the grid
 spacing and half-size are parameters), each is scored with the pose likelihood, and:
@@ -95,8 +97,10 @@ class ReferenceLabel:
         return self.alternative is not None and self.mode_margin < AMBIGUOUS_MARGIN
 
 
-def heading_prior(yaws_deg: np.ndarray, prior_yaw_deg: float, sigma_deg: float = HEADING_PRIOR_SIGMA_DEG) -> np.ndarray:
-    """(Y,) Gaussian prior over yaws around ``prior_yaw_deg`` (wrapped difference), max 1."""
+def heading_prior(
+    yaws_deg: np.ndarray | float, prior_yaw_deg: float, sigma_deg: float = HEADING_PRIOR_SIGMA_DEG
+) -> np.ndarray:
+    """(Y,) Gaussian prior over (Y,) yaws (or a scalar yaw) around ``prior_yaw_deg`` (wrapped difference), max 1."""
     delta = (np.asarray(yaws_deg) - prior_yaw_deg + 180.0) % 360.0 - 180.0
     return np.exp(-0.5 * (delta / sigma_deg) ** 2)
 
@@ -286,4 +290,5 @@ def _near_pose(
     """(P, Y) bool: poses within ``separation_m`` and ``yaw_separation_deg`` of a pose."""
     near_xy = np.hypot(*(positions - np.asarray(xy, dtype=float)).T) < separation_m
     near_yaw = np.abs((np.asarray(yaws_deg) - yaw_deg + 180.0) % 360.0 - 180.0) < yaw_separation_deg
-    return near_xy[:, None] & near_yaw[None, :]
+    near: np.ndarray = near_xy[:, None] & near_yaw[None, :]
+    return near

@@ -32,4 +32,5 @@ CLASS_COLORS = np.array(
 
 def colorize(labels: np.ndarray) -> np.ndarray:
     """(H, W) class codes -> (H, W, 3) uint8 RGB."""
-    return CLASS_COLORS[np.clip(labels, 0, len(CLASS_NAMES) - 1)]
+    rgb: np.ndarray = CLASS_COLORS[np.clip(labels, 0, len(CLASS_NAMES) - 1)]
+    return rgb

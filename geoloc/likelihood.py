@@ -48,6 +48,7 @@ All positions x yaws are evaluated in one call, in chunks of positions to bound 
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from geoloc.camera import wrap_orientation_deg
 from geoloc.image_model import ImageModel
@@ -109,15 +110,7 @@ def pose_likelihood(
         log_distance_hat = np.log(image_model.distance_m).astype(np.float32)  # NaN where unknown
     if use_identity and image_model.has_identity:
         identity_lut = _identity_lookup(image_model, panoramas, unknown_weight)
-    log_rise = log_top_hat = None
-    if building_height_m is not None and image_model.top_tan_elevation is not None:
-        top_hat = image_model.top_tan_elevation
-        if np.isfinite(top_hat).any():
-            rise = np.asarray(building_height_m, dtype=np.float64) - CAMERA_HEIGHT_M
-            # Column 0: no hit; unknown or too low buildings give NaN (no evidence).
-            log_rise = np.concatenate([[np.nan], np.where(rise > 0.5, np.log(np.maximum(rise, 0.5)), np.nan)])
-            log_rise = log_rise.astype(np.float32)
-            log_top_hat = np.log(top_hat).astype(np.float32)
+    skyline = _skyline_logs(image_model, building_height_m)
 
     n_pos = len(panoramas)
     out = np.zeros((n_pos, len(yaws)), dtype=np.float32)
@@ -142,7 +135,8 @@ def pose_likelihood(
             # distance too long; one seen too low is rare. So a map facade nearer than the image says costs less.
             z = np.where(z < 0, DISTANCE_NEAR_SLACK * z, z)
             score = score * np.where(np.isfinite(z), np.exp(-0.5 * np.square(np.nan_to_num(z))), 1.0)
-        if log_rise is not None:
+        if skyline is not None:
+            log_rise, log_top_hat = skyline
             building_hit = panoramas.building_id[sl][:, window]
             # ln(implied rise) - ln(map rise): > 0 where the image's top is higher than the map's building.
             z = (
@@ -171,8 +165,27 @@ def known_building_heights(city_map: CityMap) -> np.ndarray:
     return np.where(known, np.asarray(city_map.building_height_m, dtype=float), np.nan)
 
 
+def _skyline_logs(
+    image_model: ImageModel, building_height_m: np.ndarray | None
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]] | None:
+    """What the skyline term compares, or None when there is nothing to compare.
+
+    Returns (B + 1,) ln(height above the camera, m) per map building (column 0: no hit; NaN where the
+    height is unknown or too low to tell) and (K,) ln(tan elevation) of the image's building top per bin.
+    """
+    top_hat = image_model.top_tan_elevation
+    if building_height_m is None or top_hat is None or not np.isfinite(top_hat).any():
+        return None
+    rise = np.asarray(building_height_m, dtype=np.float64) - CAMERA_HEIGHT_M
+    # Column 0: no hit; unknown or too low buildings give NaN (no evidence).
+    log_rise = np.concatenate([[np.nan], np.where(rise > 0.5, np.log(np.maximum(rise, 0.5)), np.nan)])
+    return log_rise.astype(np.float32), np.log(top_hat).astype(np.float32)
+
+
 def _identity_lookup(image_model: ImageModel, panoramas: Panoramas, unknown_weight: float) -> np.ndarray:
     """(K, B + 1) table: match probability of bin k with map building b (column b + 1; column 0 = no hit)."""
+    if image_model.identity_prob is None or image_model.identity_building_ids is None:
+        raise ValueError("the image model carries no building identities")
     n_buildings = int(max(panoramas.building_id.max(initial=-1), image_model.identity_building_ids.max(initial=-1))) + 1
     prob = np.clip(image_model.identity_prob, 0.0, 1.0)
     unknown = np.clip(1.0 - prob.sum(axis=1), 0.0, 1.0) * unknown_weight  # (K,)

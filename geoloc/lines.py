@@ -37,7 +37,8 @@ def to_gray(image: np.ndarray) -> np.ndarray:
 def segment_lengths_px(segments: np.ndarray) -> np.ndarray:
     """(N, 4) segments -> (N,) lengths in pixels."""
     s = np.asarray(segments, dtype=float).reshape(-1, 4)
-    return np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1])
+    lengths: np.ndarray = np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1])
+    return lengths
 
 
 def sample_points_along(segments: np.ndarray, n_samples: int, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -70,6 +71,7 @@ def _raw_detect(gray: np.ndarray, method: str) -> np.ndarray:
     import cv2
 
     if method == "fld":
+        # cv2.ximgproc is in opencv-contrib only: absent from the stubs of the headless wheel we depend on.
         fld = cv2.ximgproc.createFastLineDetector()  # type: ignore[attr-defined]
         lines = fld.detect(gray)
     else:

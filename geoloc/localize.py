@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import shapely
@@ -69,7 +70,8 @@ class PositionPrior:
     def weights(self, positions: np.ndarray) -> np.ndarray:
         """(P,) prior weight (peak 1) of positions (P, 2)."""
         d2 = np.sum((positions - np.array([self.x_m, self.y_m])) ** 2, axis=1)
-        return np.exp(-0.5 * d2 / self.sigma_m**2)
+        weights: np.ndarray = np.exp(-0.5 * d2 / self.sigma_m**2)
+        return weights
 
 
 @dataclass
@@ -89,16 +91,17 @@ class Localization:
     heatmap: np.ndarray
     poses: list[RankedPose]
     likelihood: np.ndarray
-    search: dict = field(default_factory=dict)
-    timings_ms: dict = field(default_factory=dict)
+    search: dict[str, Any] = field(default_factory=dict)
+    timings_ms: dict[str, float] = field(default_factory=dict)
 
 
 def identified_buildings(image_model: ImageModel, min_probability: float = MIN_BUILDING_PROBABILITY) -> list[int]:
     """Building ids whose identity probability reaches ``min_probability`` in some column bin."""
-    if not image_model.has_identity:
+    prob, ids = image_model.identity_prob, image_model.identity_building_ids
+    if prob is None or ids is None:
         return []
-    peak = image_model.identity_prob.max(axis=0) if image_model.identity_prob.size else np.zeros(0)
-    return [int(b) for b in np.asarray(image_model.identity_building_ids)[peak >= min_probability]]
+    peak = prob.max(axis=0) if prob.size else np.zeros(0)
+    return [int(b) for b in np.asarray(ids)[peak >= min_probability]]
 
 
 def search_grid(
@@ -161,15 +164,16 @@ def localize(
     grid, reason = search_grid(city_map, buildings, cell_m, search_radius_m, position_prior)
     positions = grid.positions
     yaws = default_yaws_deg(n_yaws)
-    has_identity = image_model.has_identity and float(image_model.identity_prob.sum()) > 0
-    search = {
+    has_identity = image_model.identity_prob is not None and float(image_model.identity_prob.sum()) > 0
+    # Without any identity evidence the identity-aware likelihood is zero everywhere: use geometry.
+    identity_likelihood = bool(use_identity and has_identity)
+    search: dict[str, Any] = {
         "region": reason,
         "buildings": buildings,
         "positions": int(len(positions)),
         "yaws": n_yaws,
         "cell_m": cell_m,
-        # Without any identity evidence the identity-aware likelihood is zero everywhere: use geometry.
-        "identity": bool(use_identity and has_identity),
+        "identity": identity_likelihood,
         "position_prior": position_prior is not None,
         "heading_prior": prior_yaw_deg is not None,
     }
@@ -187,7 +191,7 @@ def localize(
         image_model,
         yaws,
         sigma_m=sigma_m,
-        use_identity=search["identity"],
+        use_identity=identity_likelihood,
         normalization=normalization,
         building_height_m=heights,
     )

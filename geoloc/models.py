@@ -25,6 +25,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from geoloc import config
 
@@ -88,12 +89,13 @@ def sha256_file(path: Path) -> str:
     return digest.hexdigest()
 
 
-def read_meta(files: SegModelFiles) -> dict | None:
+def read_meta(files: SegModelFiles) -> dict[str, Any] | None:
     """The export's JSON metadata, or None if missing/unreadable."""
     try:
-        return json.loads(files.meta.read_text())
+        meta = json.loads(files.meta.read_text())
     except (OSError, ValueError):
         return None
+    return meta if isinstance(meta, dict) else None
 
 
 def is_current(files: SegModelFiles, weights_sha256: str) -> bool:
@@ -110,11 +112,17 @@ def is_current(files: SegModelFiles, weights_sha256: str) -> bool:
 def build_segmentation_model(force: bool = False, size: tuple[int, int] | None = None) -> Path:
     """Export ESPNetv2 (s=2.0, Cityscapes) to ONNX in the cache unless an up-to-date export exists.
 
-    Args:
-        force: re-export even if the cached file matches the weights.
-        size: network input (W, H), multiples of 16; default ``SEG_DEFAULT_SIZE``.
-    Returns:
-        Path of the ONNX file.
+    Parameters
+    ----------
+    force
+        Re-export even if the cached file matches the weights.
+    size
+        Network input (W, H), multiples of 16; default ``SEG_DEFAULT_SIZE``.
+
+    Returns
+    -------
+    Path
+        The ONNX file.
     """
     size = size or SEG_DEFAULT_SIZE
     check_size(size)
@@ -166,7 +174,8 @@ def _export(weights: Path, out: Path, size: tuple[int, int]) -> dict[str, str]:
     dummy = torch.zeros(1, 3, size[1], size[0])
     with torch.no_grad(), warnings.catch_warnings():
         # Shapes are Python ints on purpose: the graph has a fixed input size.
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        # torch.jit re-exports TracerWarning (from torch.jit._trace) without listing it in __all__.
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)  # type: ignore[attr-defined]
         warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter is what we want
         torch.onnx.export(
             model,
@@ -225,11 +234,17 @@ def aliked_is_current(files: AlikedModelFiles, weights_sha256: str) -> bool:
 def build_aliked_model(config_name: str = "aliked-n16", force: bool = False) -> AlikedModelFiles:
     """Export ALIKED ``config_name`` to the cache (ONNX dense graph + head weights) unless up to date.
 
-    Args:
-        config_name: "aliked-n16" (128-D descriptors) or "aliked-t16" (64-D).
-        force: re-export even if the cached files match the weights.
-    Returns:
-        The :class:`AlikedModelFiles`.
+    Parameters
+    ----------
+    config_name
+        "aliked-n16" (128-D descriptors) or "aliked-t16" (64-D).
+    force
+        Re-export even if the cached files match the weights.
+
+    Returns
+    -------
+    AlikedModelFiles
+        The exported files.
     """
     files = aliked_files(config_name)
     weights = aliked_weights_path(config_name)
@@ -280,7 +295,8 @@ def _export_aliked(
     outputs = ["score", "level1", "level2", "level3", "level4"]
     dynamic = {"image": {2: "height", 3: "width"}, **{name: {2: f"{name}_h", 3: f"{name}_w"} for name in outputs}}
     with torch.no_grad(), warnings.catch_warnings():
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        # torch.jit re-exports TracerWarning (from torch.jit._trace) without listing it in __all__.
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)  # type: ignore[attr-defined]
         warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter is what we want
         torch.onnx.export(
             model,

@@ -33,8 +33,16 @@ from geoloc.features import Features, extract_features
 from geoloc.ground import DEFAULT_CAMERA_HEIGHT_M, facade_base_distances, facade_top_elevations
 from geoloc.identity import IdentityMap
 from geoloc.image_model import ImageModel, image_model_from_columns
-from geoloc.labeling import ReferenceLabel, label_reference
+from geoloc.labeling import (
+    DEFAULT_GPS_SIGMA_M,
+    DEFAULT_REFERENCE_CELL_M,
+    DEFAULT_REFERENCE_HALF_SIZE_M,
+    ReferenceLabel,
+    label_reference,
+)
+from geoloc.likelihood import DEFAULT_SIGMA_M
 from geoloc.osm import CityMap
+from geoloc.posterior import DEFAULT_SHARPNESS
 
 if TYPE_CHECKING:
     from geoloc.query import StoredReference
@@ -54,7 +62,9 @@ class Photo:
 
     @property
     def gps(self) -> tuple[float, float] | None:
-        return (self.exif.lat, self.exif.lon) if self.exif.has_gps else None
+        """(lat, lon) degrees from EXIF, or None when the photo carries no GPS."""
+        lat, lon = self.exif.lat, self.exif.lon
+        return None if lat is None or lon is None else (lat, lon)
 
 
 def load_photo(
@@ -71,7 +81,7 @@ def load_photo(
     """
     data = source if isinstance(source, bytes) else Path(source).read_bytes()
     try:
-        image = Image.open(io.BytesIO(data))
+        image: Image.Image = Image.open(io.BytesIO(data))
         image.load()
     except Exception as exc:  # Pillow raises many types for bad data
         raise ValueError(f"not a decodable image: {exc}") from exc
@@ -112,7 +122,9 @@ class PhotoEvidence:
 
     @property
     def building_mask(self) -> np.ndarray:
-        return self.labels == classes.BUILDING
+        """(H, W) bool: pixels labelled building."""
+        mask: np.ndarray = self.labels == classes.BUILDING
+        return mask
 
 
 def analyze_photo(photo: Photo, labels: np.ndarray | None = None) -> PhotoEvidence:
@@ -191,6 +203,28 @@ def _camera_pose(label: ReferenceLabel, evidence: PhotoEvidence, alternative: bo
     return CameraPose(label.x_m, label.y_m, label.yaw_deg, DEFAULT_CAMERA_HEIGHT_M, rotation)
 
 
+@dataclass(frozen=True)
+class LabelOptions:
+    """How :func:`label_reference_photo` labels a reference: the tuning of :func:`geoloc.labeling.label_reference`.
+
+    The defaults are ``label_reference``'s (a test checks that they agree). gps_sigma_m: Gaussian prior on the
+    position around the GPS tag (m; None: uniform). sharpness: pose weights are likelihood ** sharpness.
+    cell_m, half_size_m: the pose grid around the tag (m). n_yaws: yaws sampled over 360 deg. sigma_m,
+    normalization, use_skyline: the pose likelihood's (:func:`geoloc.likelihood.pose_likelihood`). n_modes: grid
+    modes refined continuously.
+    """
+
+    gps_sigma_m: float | None = DEFAULT_GPS_SIGMA_M
+    sharpness: float = DEFAULT_SHARPNESS
+    cell_m: float = DEFAULT_REFERENCE_CELL_M
+    half_size_m: float = DEFAULT_REFERENCE_HALF_SIZE_M
+    n_yaws: int = 120
+    sigma_m: float = DEFAULT_SIGMA_M
+    normalization: str = "weighted"
+    use_skyline: bool = True
+    n_modes: int = 3
+
+
 def label_reference_photo(
     city_map: CityMap,
     photo: Photo,
@@ -199,15 +233,17 @@ def label_reference_photo(
     prior_yaw_deg: float | None = None,
     evidence: PhotoEvidence | None = None,
     strategy: str = "marginalized",
-    **label_options: float,
+    options: LabelOptions | None = None,
 ) -> LabelledReference:
     """Label a geo-tagged reference photo (GPS tag in local metres) with the map.
 
-    strategy: "marginalized" (default, the paper's better one) or "greedy" chooses which identity
-    map the keypoints carry. ``label_options`` go to :func:`geoloc.labeling.label_reference`.
+    prior_yaw_deg: optional heading prior (local bearing, deg). evidence: the photo's analysis when already
+    done. strategy: "marginalized" (default, the paper's better one) or "greedy" chooses which identity
+    map the keypoints carry. options: the labelling's tuning (default :class:`LabelOptions`).
     """
     if strategy not in ("marginalized", "greedy"):
         raise ValueError(f"strategy must be 'marginalized' or 'greedy', got {strategy!r}")
+    options = options or LabelOptions()
     evidence = evidence or analyze_photo(photo)
     t0 = time.perf_counter()
     label = label_reference(
@@ -217,7 +253,15 @@ def label_reference_photo(
         photo.intrinsics,
         gps_xy,
         prior_yaw_deg=prior_yaw_deg,
-        **label_options,
+        gps_sigma_m=options.gps_sigma_m,
+        sharpness=options.sharpness,
+        cell_m=options.cell_m,
+        half_size_m=options.half_size_m,
+        n_yaws=options.n_yaws,
+        sigma_m=options.sigma_m,
+        normalization=options.normalization,
+        use_skyline=options.use_skyline,
+        n_modes=options.n_modes,
     )
     identity = label.marginalized if strategy == "marginalized" else label.greedy
     keypoint_identity = identity.probabilities_at(evidence.features.xy)

@@ -102,12 +102,14 @@ def pose_posterior(
     if total <= 0:
         post = np.ones_like(post) if prior is None else np.broadcast_to(prior, post.shape).astype(float).copy()
         total = post.sum()
-    return post / total
+    normalised: np.ndarray = post / total
+    return normalised
 
 
 def position_heatmap(posterior: np.ndarray) -> np.ndarray:
     """(P, Y) posterior -> (P,) probability of each position (summed over yaws)."""
-    return posterior.sum(axis=1)
+    heatmap: np.ndarray = posterior.sum(axis=1)
+    return heatmap
 
 
 @dataclass

@@ -261,10 +261,10 @@ def geolocate(
     final_identity = identity
     if trust and identity_override is None:
         final_identity = _identity_at(city_map, poses[0], evidence, photo)
-    buildings = final_identity.building_extents()
-    for entry in buildings:
+    buildings: list[dict[str, Any]] = []
+    for entry in final_identity.building_extents():
         building = city_map.buildings[entry["building_id"]]
-        entry.update(osm_id=building.osm_id, name=building.name)
+        buildings.append({**entry, "osm_id": building.osm_id, "name": building.name})
     search = dict(localization.search)
     search.update(
         anchors={

@@ -64,9 +64,11 @@ class Panoramas:
 
     @property
     def bearing_step_deg(self) -> float:
+        """Spacing of the rays (deg)."""
         return float(360.0 / len(self.bearings_deg))
 
     def __len__(self) -> int:
+        """Number of positions."""
         return len(self.positions)
 
     def subset(self, index: np.ndarray) -> Panoramas:
@@ -240,5 +242,5 @@ def cast_all_hits(
 
 
 def _cross(r: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """z of the 2D cross product of vector ``r`` (2,) with each row of ``p`` (N, 2)."""
+    """The z component of the 2D cross product of vector ``r`` (2,) with each row of ``p`` (N, 2)."""
     return np.asarray(r[0] * p[:, 1] - r[1] * p[:, 0])

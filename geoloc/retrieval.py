@@ -69,21 +69,26 @@ _VOCAB_FEATURES_PER_IMAGE = 600
 
 @dataclass
 class Vocabulary:
-    """Visual words: (V, D) float32 centroids of local descriptors. ``meta``: how it was built (and the
-    feature type, ``meta["method"]``, for the default vocabularies)."""
+    """Visual words: (V, D) float32 centroids of local descriptors.
+
+    ``meta``: how it was built (and the feature type, ``meta["method"]``, for the default vocabularies).
+    """
 
     centroids: np.ndarray
     meta: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        """Store the centroids as contiguous float32 with their squared norms."""
         self.centroids = np.ascontiguousarray(self.centroids, dtype=np.float32)
         self._sq_norms = np.einsum("ij,ij->i", self.centroids, self.centroids)
 
     def __len__(self) -> int:
+        """Number of words."""
         return len(self.centroids)
 
     @property
     def n_words(self) -> int:
+        """Number of words (V)."""
         return len(self.centroids)
 
     def words(self, descriptors: np.ndarray, chunk: int = 4096) -> np.ndarray:
@@ -115,6 +120,7 @@ class Vocabulary:
 
     @classmethod
     def load(cls, path: str | Path) -> Vocabulary:
+        """A vocabulary saved by :meth:`save`."""
         with np.load(path) as data:
             meta = dict(zip(data["meta_keys"].tolist(), data["meta_values"].tolist(), strict=True))
             return cls(data["centroids"], meta)
@@ -187,8 +193,10 @@ def build_vocabulary(
 
 
 def vocabulary_path(n_words: int = DEFAULT_WORDS, method: str | None = None) -> Path:
-    """Where :func:`default_vocabulary` caches a vocabulary:
-    ``cache_dir()/models/sbow_vocabulary_<method>_<V>.npz`` (method None: the default feature type)."""
+    """Where :func:`default_vocabulary` caches a vocabulary.
+
+    ``cache_dir()/models/sbow_vocabulary_<method>_<V>.npz`` (method None: the default feature type).
+    """
     from geoloc.features import canonical_method
 
     return cache_dir() / "models" / f"sbow_vocabulary_{canonical_method(method)}_{n_words}.npz"
@@ -201,8 +209,10 @@ def camvid_building_descriptors(
     progress: Callable[[str], None] | None = None,
     method: str | None = None,
 ) -> np.ndarray:
-    """Descriptors (of feature type ``method``, default the default type) on the ground-truth Building
-    pixels of the CamVid ``split`` images, in file order."""
+    """Descriptors on the ground-truth Building pixels of the CamVid ``split`` images, in file order.
+
+    Of feature type ``method`` (None: the default type).
+    """
     from PIL import Image
 
     from geoloc.features import DESCRIPTOR_DIMS, canonical_method, extract_features
@@ -225,8 +235,9 @@ def camvid_building_descriptors(
 
 @lru_cache(maxsize=4)
 def default_vocabulary(n_words: int = DEFAULT_WORDS, progress: bool = True, method: str | None = None) -> Vocabulary:
-    """The SBoW vocabulary of feature type ``method`` (None: the default type) with ``n_words`` words:
-    loaded from the cache, or built and cached when missing.
+    """The SBoW vocabulary: loaded from the cache, or built and cached when missing.
+
+    Of feature type ``method`` (None: the default type), with ``n_words`` words.
 
     Built deterministically (seed :data:`VOCABULARY_SEED`) from the building pixels of the CamVid train
     images (measured on the loaded 2-core box: RootSIFT 2 minutes, ALIKED-n16 4.5, ALIKED-t16 6.5);
@@ -309,6 +320,10 @@ def tfidf_scores(
 # In-memory inverted index
 
 
+_CompiledPostings = tuple[list[Hashable], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""An index's postings for queries: doc ids, then word-sorted words, doc positions and counts, and doc lengths."""
+
+
 class InvertedIndex:
     """In-memory SBoW inverted index (documents = reference images, terms = visual words).
 
@@ -320,16 +335,19 @@ class InvertedIndex:
 
     def __init__(self) -> None:
         self._docs: dict[Hashable, tuple[np.ndarray, np.ndarray]] = {}
-        self._compiled: tuple | None = None
+        self._compiled: _CompiledPostings | None = None
 
     def __len__(self) -> int:
+        """Number of documents."""
         return len(self._docs)
 
     def __contains__(self, doc_id: Hashable) -> bool:
+        """Whether ``doc_id`` is indexed."""
         return doc_id in self._docs
 
     @property
     def doc_ids(self) -> list[Hashable]:
+        """The indexed document ids, in insertion order."""
         return list(self._docs)
 
     def add(self, doc_id: Hashable, words: np.ndarray) -> None:
@@ -346,7 +364,7 @@ class InvertedIndex:
         """The document's distinct words and their counts (what a database would store as postings rows)."""
         return self._docs[doc_id]
 
-    def _compile(self) -> tuple:
+    def _compile(self) -> _CompiledPostings:
         if self._compiled is None:
             keys = list(self._docs)
             bags = [self._docs[k] for k in keys]

@@ -113,11 +113,17 @@ def _cached_session(path: str, threads: int) -> ort.InferenceSession:
 def load_session(size: tuple[int, int] | None = None, threads: int | None = None) -> ort.InferenceSession:
     """The onnxruntime CPU session for network input ``size`` (W, H), cached per process.
 
-    Args:
-        size: network input (W, H); default ``geoloc.models.SEG_DEFAULT_SIZE``.
-        threads: intra-op threads; default ``$GEOLOC_SEG_THREADS`` or min(4, cpu count).
-    Raises:
-        ModelNotBuiltError: the ONNX file is not in the cache.
+    Parameters
+    ----------
+    size
+        Network input (W, H); default ``geoloc.models.SEG_DEFAULT_SIZE``.
+    threads
+        Intra-op threads; default ``$GEOLOC_SEG_THREADS`` or min(4, cpu count).
+
+    Raises
+    ------
+    ModelNotBuiltError
+        The ONNX file is not in the cache.
     """
     size = size or SEG_DEFAULT_SIZE
     path = segmentation_files(size).onnx
@@ -150,7 +156,8 @@ def cityscapes_logits(image_rgb: np.ndarray, *, session: Any = None) -> np.ndarr
     """Raw network output: (20, h, w) float32 Cityscapes logits at half the network input size."""
     session = session or load_session()
     x = _prepare(image_rgb, network_size(session))
-    return session.run(None, {session.get_inputs()[0].name: x})[0][0]
+    logits: np.ndarray = session.run(None, {session.get_inputs()[0].name: x})[0][0]
+    return logits
 
 
 def _group_probabilities(logits: np.ndarray, mapping: np.ndarray) -> np.ndarray:
@@ -166,7 +173,8 @@ def _group_probabilities(logits: np.ndarray, mapping: np.ndarray) -> np.ndarray:
     z /= z.sum(axis=0, keepdims=True)
     onehot = (mapping[keep][None, :] == np.arange(len(labels.CLASS_NAMES))[:, None]).astype(np.float32)
     groups = onehot @ z.reshape(z.shape[0], -1)  # (6, h*w)
-    return groups.T.reshape(*z.shape[1:], len(labels.CLASS_NAMES))
+    probabilities: np.ndarray = groups.T.reshape(*z.shape[1:], len(labels.CLASS_NAMES))
+    return probabilities
 
 
 def class_probabilities(
@@ -174,11 +182,18 @@ def class_probabilities(
 ) -> np.ndarray:
     """Per-pixel probabilities of our classes at the image's resolution.
 
-    Args:
-        image_rgb: (H, W, 3) uint8 RGB photo, any size.
-        session: an onnxruntime session from ``load_session`` (default: the cached default one).
-        mapping: (20,) Cityscapes trainId -> our class code, or ``DROP`` to leave a class out.
-    Returns:
+    Parameters
+    ----------
+    image_rgb
+        (H, W, 3) uint8 RGB photo, any size.
+    session
+        An onnxruntime session from ``load_session`` (default: the cached default one).
+    mapping
+        (20,) Cityscapes trainId -> our class code, or ``DROP`` to leave a class out.
+
+    Returns
+    -------
+    numpy.ndarray
         (H, W, 6) float32, summing to 1 over the last axis (class order ``labels.CLASS_NAMES``).
     """
     probs = _group_probabilities(cityscapes_logits(image_rgb, session=session), mapping)
@@ -189,13 +204,20 @@ def class_probabilities(
 def segment(image_rgb: np.ndarray, *, session: Any = None) -> np.ndarray:
     """Label every pixel of an RGB photo with our classes.
 
-    Args:
-        image_rgb: (H, W, 3) uint8 RGB.
-        session: optional onnxruntime session (``load_session(size)``) to pick another net size.
-    Returns:
+    Parameters
+    ----------
+    image_rgb
+        (H, W, 3) uint8 RGB.
+    session
+        Optional onnxruntime session (``load_session(size)``) to pick another net size.
+
+    Returns
+    -------
+    numpy.ndarray
         (H, W) uint8 class codes (``geoloc.labels``).
     """
-    return class_probabilities(image_rgb, session=session).argmax(axis=2).astype(np.uint8)
+    codes: np.ndarray = class_probabilities(image_rgb, session=session).argmax(axis=2).astype(np.uint8)
+    return codes
 
 
 def model_path(size: tuple[int, int] | None = None) -> Path:

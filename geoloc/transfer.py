@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
+from typing import Any, TypedDict
 
 import cv2
 import numpy as np
@@ -65,6 +66,7 @@ class ReferenceEvidence:
     match: ReferenceMatch | None = None
 
     def __post_init__(self) -> None:
+        """Coerce ``building_ids`` to (M,) int64 and ``keypoint_prob`` to (N, M) float32."""
         self.building_ids = np.asarray(self.building_ids, dtype=np.int64).reshape(-1)
         self.keypoint_prob = np.asarray(self.keypoint_prob, dtype=np.float32).reshape(
             len(self.features), len(self.building_ids)
@@ -102,7 +104,8 @@ class ReferenceMatch:
     pairs: np.ndarray = field(repr=False)  # (n_inliers, 2) int (query index, reference index)
     putative: np.ndarray | None = field(default=None, repr=False)  # (n_matches, 2) all ratio-test pairs
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
+        """The match's figures as a JSON-ready dict (no arrays)."""
         return {
             "reference_id": self.reference_id,
             "score": self.score,
@@ -118,15 +121,28 @@ class QueryIdentity:
 
     identity: the query's :class:`IdentityMap` (union of the references' building ids; rows sum to <= 1).
     evidence: (W,) float32 total vote mass per column (in inlier votes). references: per-reference diagnostics.
-    building_regions: runs of columns with the same most probable building:
-    ``{"building_id", "x_start", "x_end" (inclusive, pixels of the mask), "probability" (mean), "evidence"}``,
+    building_regions: runs of columns with the same most probable building (:class:`BuildingRegion`),
     widest first.
     """
 
     identity: IdentityMap
     evidence: np.ndarray
     references: list[ReferenceMatch]
-    building_regions: list[dict]
+    building_regions: list[BuildingRegion]
+
+
+class BuildingRegion(TypedDict):
+    """A run of columns of the query whose most probable building is the same.
+
+    x_start, x_end: first and last column (inclusive, pixels of the mask). probability: the building's mean
+    identity probability over the run; evidence: the mean vote mass per column (inlier votes).
+    """
+
+    building_id: int
+    x_start: int
+    x_end: int
+    probability: float
+    evidence: float
 
 
 # ----------------------------------------------------------------------------------------------
@@ -358,7 +374,7 @@ def _spread_votes(
     return prob, wide.sum(axis=0)
 
 
-def _regions(ids: np.ndarray, prob: np.ndarray, evidence: np.ndarray, min_width: int) -> list[dict]:
+def _regions(ids: np.ndarray, prob: np.ndarray, evidence: np.ndarray, min_width: int) -> list[BuildingRegion]:
     """Runs of equal building id (>= 0) along the columns, at least ``min_width`` columns wide, widest first."""
     if len(ids) == 0:
         return []
@@ -369,13 +385,13 @@ def _regions(ids: np.ndarray, prob: np.ndarray, evidence: np.ndarray, min_width:
     cum_e = np.r_[0.0, np.cumsum(evidence, dtype=np.float64)]
     keep = (ids[starts] >= 0) & (ends - starts >= min_width)
     out = [
-        {
-            "building_id": int(ids[s]),
-            "x_start": int(s),
-            "x_end": int(e - 1),
-            "probability": float((cum_p[e] - cum_p[s]) / (e - s)),
-            "evidence": float((cum_e[e] - cum_e[s]) / (e - s)),
-        }
+        BuildingRegion(
+            building_id=int(ids[s]),
+            x_start=int(s),
+            x_end=int(e - 1),
+            probability=float((cum_p[e] - cum_p[s]) / (e - s)),
+            evidence=float((cum_e[e] - cum_e[s]) / (e - s)),
+        )
         for s, e in zip(starts[keep], ends[keep], strict=True)
     ]
     return sorted(out, key=lambda r: (-(r["x_end"] - r["x_start"]), r["x_start"]))
@@ -466,7 +482,7 @@ def transfer_identities(
 
     # Back to the mask's columns (nearest working column); zero where the column has no building pixel.
     src = np.minimum(((np.arange(full_w) + 0.5) * f).astype(np.int64), ww - 1)
-    has_building = mask.any(axis=0)
+    has_building = np.asarray(mask.any(axis=0))  # (W,): the mask is 2-D
     column_prob = prob_work[src] * has_building[:, None]
     evidence = (total[src] * has_building).astype(np.float32)
     identity = IdentityMap(ids_union, column_prob, mask)

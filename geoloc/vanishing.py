@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -77,13 +78,14 @@ class VanishingPoints:
     @property
     def directions_upright(self) -> np.ndarray:
         """(1 + M, 3) the VP directions in the upright camera frame."""
-        return self.directions_cam @ self.rotation_upright_from_cam.T
+        directions: np.ndarray = self.directions_cam @ self.rotation_upright_from_cam.T
+        return directions
 
     def image_points(self, intrinsics: Intrinsics) -> np.ndarray:
         """(1 + M, 2) VP positions in pixels (+-inf / large where a VP is at or near infinity)."""
         v = self.directions_cam @ intrinsics.matrix.T
         with np.errstate(divide="ignore", invalid="ignore"):
-            xy = v[:, :2] / v[:, 2:3]
+            xy: np.ndarray = v[:, :2] / v[:, 2:3]
         far = np.abs(v[:, 2]) < 1e-9
         xy[far] = np.copysign(np.inf, v[far, :2] + 0.0)
         return xy
@@ -92,11 +94,12 @@ class VanishingPoints:
         """Homogeneous image line (a, b, c) of the horizon: a x + b y + c = 0 (pixels)."""
         g = self.directions_cam[0]
         line = np.linalg.inv(intrinsics.matrix).T @ g
-        return line / np.hypot(line[0], line[1])
+        normalised: np.ndarray = line / np.hypot(line[0], line[1])
+        return normalised
 
-    def to_dict(self, intrinsics: Intrinsics | None = None) -> dict:
+    def to_dict(self, intrinsics: Intrinsics | None = None) -> dict[str, Any]:
         """JSON-friendly summary."""
-        out: dict = {
+        out: dict[str, Any] = {
             "pitch_deg": round(float(self.pitch_deg), 3),
             "roll_deg": round(float(self.roll_deg), 3),
             "vertical_found": bool(self.vertical_found),
@@ -166,7 +169,8 @@ def _residuals(
     sin_err = np.clip(sin_err, 0.0, 1.0)
     dist_px = 0.5 * geo.lengths_px[None, :] * sin_err
     angle_deg = np.degrees(np.arcsin(sin_err))
-    return np.maximum(dist_px / tol_px, angle_deg / max_angle_deg)
+    residuals: np.ndarray = np.maximum(dist_px / tol_px, angle_deg / max_angle_deg)
+    return residuals
 
 
 def _kernel(residual: np.ndarray) -> np.ndarray:
@@ -207,7 +211,8 @@ def horizontal_direction_cam(theta_deg: np.ndarray | float, rotation_upright_fro
     """(..., 3) camera-frame direction of the horizontal lines of facades with orientation ``theta_deg``."""
     t = np.radians(np.asarray(theta_deg, dtype=float))
     up = np.stack([np.cos(t), np.zeros_like(t), -np.sin(t)], axis=-1)
-    return up @ rotation_upright_from_cam  # R^T applied to row vectors
+    direction: np.ndarray = up @ rotation_upright_from_cam  # R^T applied to row vectors
+    return direction
 
 
 def rotation_upright_from_pitch_roll(pitch_deg: float, roll_deg: float) -> np.ndarray:
@@ -218,7 +223,8 @@ def rotation_upright_from_pitch_roll(pitch_deg: float, roll_deg: float) -> np.nd
     p, r = math.radians(pitch_deg), math.radians(roll_deg)
     r_pitch = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(p), math.sin(p)], [0.0, -math.sin(p), math.cos(p)]])
     r_roll = np.array([[math.cos(r), math.sin(r), 0.0], [-math.sin(r), math.cos(r), 0.0], [0.0, 0.0, 1.0]])
-    return (r_roll @ r_pitch).T
+    rotation: np.ndarray = (r_roll @ r_pitch).T
+    return rotation
 
 
 def _refine_jointly(

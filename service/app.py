@@ -1,5 +1,8 @@
-"""The FastAPI application: settings, migrations at start, body-size guard, errors, limits, the job waiter,
-the OpenAPI document of the running configuration, routes."""
+"""The FastAPI application.
+
+Settings, migrations at start, body-size guard, errors, limits, the job waiter, the OpenAPI document of
+the running configuration, routes.
+"""
 
 from __future__ import annotations
 
@@ -32,14 +35,17 @@ FORM_OVERHEAD_BYTES = 64 * 1024
 
 
 class BodySizeLimit:
-    """Pure ASGI middleware: answer 413 when a request body exceeds the limit for its path,
-    from ``Content-Length`` up front or while streaming (chunked uploads)."""
+    """Pure ASGI middleware: answer 413 when a request body exceeds the limit for its path.
+
+    Checked from ``Content-Length`` up front or while streaming (chunked uploads).
+    """
 
     def __init__(self, app: Any, limit_for_path: Callable[[str], int]) -> None:
         self.app = app
         self.limit_for_path = limit_for_path
 
     async def __call__(self, scope: Message, receive: Receive, send: Send) -> None:
+        """Pass an ASGI request on to the app, or answer 413 once its body exceeds the path's limit."""
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
@@ -51,34 +57,11 @@ class BodySizeLimit:
             await self._drain(receive, int(declared))
             await self._send_413(send, message, limit)
             return
-        received = 0
-        too_large = False
-        response_started = False
-
-        async def limited_receive() -> Message:
-            nonlocal received, too_large
-            event = await receive()
-            if event["type"] == "http.request":
-                received += len(event.get("body", b""))
-                if received > limit:
-                    too_large = True
-                    return {"type": "http.disconnect"}
-            return event
-
-        async def guarded_send(event: Message) -> None:
-            nonlocal response_started
-            if too_large:
-                if not response_started and event["type"] == "http.response.start":
-                    response_started = True
-                    await self._send_413(send, message, limit)
-                return
-            response_started = response_started or event["type"] == "http.response.start"
-            await send(event)
-
+        stream = _StreamedBody(receive, send, limit, message)
         try:
-            await self.app(scope, limited_receive, guarded_send)
+            await self.app(scope, stream.receive, stream.send)
         except Exception:
-            if too_large and not response_started:
+            if stream.too_large and not stream.response_started:
                 await self._send_413(send, message, limit)
                 return
             raise
@@ -95,6 +78,7 @@ class BodySizeLimit:
 
     @staticmethod
     async def _send_413(send: Send, message: str, limit: int) -> None:
+        """Send the 413 error response."""
         body = json.dumps(error_body("payload_too_large", message, {"limit_bytes": limit})).encode()
         await send(
             {
@@ -104,6 +88,43 @@ class BodySizeLimit:
             }
         )
         await send({"type": "http.response.body", "body": body})
+
+
+class _StreamedBody:
+    """One request's body streamed under a size limit (for :class:`BodySizeLimit`).
+
+    ``receive`` counts the body's bytes and ends the body (a disconnect) once ``limit`` is passed;
+    from then on ``send`` swallows the app's response and sends the 413 in its place.
+    """
+
+    def __init__(self, receive: Receive, send: Send, limit: int, message: str) -> None:
+        self._receive = receive
+        self._send = send
+        self._limit = limit
+        self._message = message
+        self.received = 0
+        self.too_large = False
+        self.response_started = False
+
+    async def receive(self) -> Message:
+        """The next ASGI event of the request, or a disconnect once the body is too large."""
+        event = await self._receive()
+        if event["type"] == "http.request":
+            self.received += len(event.get("body", b""))
+            if self.received > self._limit:
+                self.too_large = True
+                return {"type": "http.disconnect"}
+        return event
+
+    async def send(self, event: Message) -> None:
+        """Send the app's ASGI event, or, once the body is too large, the 413 instead of its response."""
+        if self.too_large:
+            if not self.response_started and event["type"] == "http.response.start":
+                self.response_started = True
+                await BodySizeLimit._send_413(self._send, self._message, self._limit)
+            return
+        self.response_started = self.response_started or event["type"] == "http.response.start"
+        await self._send(event)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

@@ -32,8 +32,9 @@ def _scopes_of(settings: Settings, presented: str) -> frozenset[str] | None:
 
 
 def require_scope(scope: str) -> Callable[..., Awaitable[None]]:
-    """A dependency that admits requests whose key has ``scope`` (everyone when auth is off), within the
-    key's rate limit (:mod:`service.limits`).
+    """A dependency that admits requests whose key has ``scope``, within the key's rate limit.
+
+    Everyone is admitted when auth is off; rate limits are :mod:`service.limits`.
 
     The scope is declared on the security requirement, so the OpenAPI schema shows it per operation
     (and :mod:`service.spec` drops it when no keys are configured). Async: it does no I/O, so it needs

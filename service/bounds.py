@@ -1,5 +1,6 @@
-"""Numeric bounds of the form fields and of the ids in paths: one table that both checks requests and
-documents them.
+"""Numeric bounds of the form fields and of the ids in paths.
+
+One table that both checks requests and documents them.
 
 A value outside its bounds (or not finite) is a 422 ``invalid_request`` that names the field, its
 bounds and the value sent; the OpenAPI schema shows the same bounds as ``minimum``/``maximum``.

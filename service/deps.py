@@ -13,7 +13,8 @@ from service.settings import Settings
 
 def get_settings(request: Request) -> Settings:
     """The app's settings."""
-    return request.app.state.settings
+    settings: Settings = request.app.state.settings
+    return settings
 
 
 def get_db(request: Request) -> Iterator[sqlite_utils.Database]:

@@ -6,7 +6,7 @@ The parts that workers compute (query answers, reference labels) are in :mod:`se
 from __future__ import annotations
 
 from datetime import UTC, datetime
-from typing import Any, Literal
+from typing import Any, Literal, overload
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -14,17 +14,24 @@ from service.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon,
 from service.errors import ERROR_CODES
 
 
+@overload
+def timestamp(value: float) -> datetime: ...
+@overload
+def timestamp(value: None) -> None: ...
 def timestamp(value: float | None) -> datetime | None:
     """Unix seconds -> aware UTC datetime (None stays None)."""
     return datetime.fromtimestamp(value, tz=UTC) if value is not None else None
 
 
 class ErrorDetail(BaseModel):
+    """What went wrong: a machine-readable code, a message for people, and details."""
+
     code: str = Field(
         description="Machine-readable error code",
         examples=["outside_map"],
         json_schema_extra={
-            "enum": sorted({code for _, code in ERROR_CODES}),
+            # A list display (not sorted()'s list[str]) so that it types as a list of JSON values.
+            "enum": [*sorted({code for _, code in ERROR_CODES})],
             "x-error-codes": [{"status": status, "code": code} for status, code in sorted(ERROR_CODES)],
         },
     )
@@ -90,6 +97,8 @@ class MapOut(BaseModel):
 
 
 class MapList(BaseModel):
+    """The maps, oldest first."""
+
     maps: list[MapOut]
 
 
@@ -153,6 +162,8 @@ class ReferenceAccepted(BaseModel):
 
 
 class Position(BaseModel):
+    """A WGS84 position (degrees) and where it came from."""
+
     lat: float = Field(examples=[60.1699])
     lon: float = Field(examples=[24.9384])
     source: Literal["exif", "request"] = Field(description="Where the position came from")
@@ -223,10 +234,14 @@ class ReferenceOut(BaseModel):
 
 
 class Health(BaseModel):
+    """Liveness: the process answers."""
+
     status: str = Field(examples=["ok"])
 
 
 class Readiness(BaseModel):
+    """Readiness: whether the service can answer, and every reason when it cannot."""
+
     status: Literal["ready", "not_ready"]
     schema_version: int
     expected_schema_version: int

@@ -13,12 +13,16 @@ def building_colors(building_ids: np.ndarray) -> np.ndarray:
     """A stable, distinct RGB colour per building id (golden-ratio hues), (M, 3) uint8."""
     hue = (np.asarray(building_ids, dtype=float) * 0.618033988749895) % 1.0
     hsv = np.stack([hue * 179, np.full_like(hue, 200), np.full_like(hue, 255)], axis=-1).astype(np.uint8)
-    return cv2.cvtColor(hsv[None], cv2.COLOR_HSV2RGB)[0]
+    rgb: np.ndarray = cv2.cvtColor(hsv[None], cv2.COLOR_HSV2RGB)[0]
+    return rgb
 
 
 def identity_overlay_png(photo_path: Path, arrays: dict[str, np.ndarray]) -> bytes:
-    """PNG of the photo (at the labels' working size) with building pixels tinted by their most probable
-    building; the tint's strength is that building's probability in the column."""
+    """PNG of the photo (at the labels' working size) with building pixels tinted by their building.
+
+    Each pixel takes its most probable building's colour; the tint's strength is that building's
+    probability in the column.
+    """
     width = int(arrays["mask_width"][0])
     mask = np.unpackbits(arrays["building_mask"], axis=1, count=width).astype(bool)
     image = ImageOps.exif_transpose(Image.open(photo_path)).convert("RGB").resize((width, mask.shape[0]))

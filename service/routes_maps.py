@@ -18,11 +18,12 @@ from fastapi.responses import JSONResponse
 
 from db import maps as map_store
 from db import transaction
+from service.answers import BoundingBox, LatLon
 from service.auth import require_read, require_write
 from service.bounds import MapId
 from service.deps import get_db, get_settings
 from service.errors import ApiError
-from service.models import BoundingBox, LatLon, MapList, MapOut, error_responses, timestamp
+from service.models import MapList, MapOut, error_responses, timestamp
 from service.settings import Settings
 from service.uploads import received_upload, remove_quietly
 
@@ -233,8 +234,10 @@ def get_map(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) -> MapOu
     dependencies=[Depends(require_read)],
 )
 def get_buildings(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) -> Response:
-    """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat) with building id, OSM id,
-    name and height."""
+    """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat).
+
+    Each feature has its building id, OSM id, name and height.
+    """
     require_map(db, map_id)
     # The stored geometry text goes out as it is: no decoding and re-encoding of a city's footprints.
     features = ",".join(

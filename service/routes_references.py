@@ -12,6 +12,7 @@ from fastapi.responses import FileResponse, JSONResponse
 from db import jobs as job_store
 from db import references as reference_store
 from db import transaction
+from service.answers import EstimatedPose
 from service.auth import require_read, require_write
 from service.bounds import MapId, ReferenceId, check_bounds, documented
 from service.deps import get_db, get_settings
@@ -19,7 +20,6 @@ from service.errors import ApiError
 from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
 from service.limits import require_queue_capacity
 from service.models import (
-    EstimatedPose,
     Position,
     ReferenceAccepted,
     ReferenceList,
@@ -201,8 +201,10 @@ def reference_out(row: dict[str, Any], job: dict[str, Any] | None) -> ReferenceO
     dependencies=[Depends(require_read)],
 )
 def get_reference(reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db)) -> ReferenceOut:
-    """A reference: status (queued, processing, done, failed) and, when done, the estimated pose,
-    the buildings seen and timings."""
+    """A reference: its status (queued, processing, done, failed).
+
+    When done, also the estimated pose, the buildings seen and timings.
+    """
     row = reference_store.get_reference(db, reference_id)
     if row is None:
         raise ApiError(404, "not_found", f"reference {reference_id} not found")
@@ -237,8 +239,10 @@ def delete_reference(
 def get_labels_png(
     reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
 ) -> Response:
-    """The photo with its building pixels coloured by identity (one colour per building, as in the
-    paper's Fig. 5); uncertain columns are drawn paler. 409 until the reference is labelled."""
+    """The photo with its building pixels coloured by identity; 409 until the reference is labelled.
+
+    One colour per building, as in the paper's Fig. 5; uncertain columns are drawn paler.
+    """
     from service.rendering import identity_overlay_png
 
     row = reference_store.get_reference(db, reference_id)
@@ -265,8 +269,11 @@ def list_map_references(
     limit: Annotated[int, Query(ge=1, le=500, description="Most references in this page")] = 100,
     db: sqlite_utils.Database = Depends(get_db),
 ) -> ReferenceList:
-    """A map's references, oldest first, a page at a time (follow ``next_after_id``), each with its status and,
-    once labelled, its estimated pose; ``counts`` and ``total`` cover the whole map (ingestion progress)."""
+    """A map's references, oldest first, a page at a time (follow ``next_after_id``).
+
+    Each with its status and, once labelled, its estimated pose; ``counts`` and ``total`` cover the
+    whole map (ingestion progress).
+    """
     require_map(db, map_id)
     rows = reference_store.list_references_after(db, map_id, after_id=after_id, limit=limit + 1)
     page = rows[:limit]

@@ -47,8 +47,11 @@ def healthz() -> Health:
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": ErrorResponse}}, tags=["system"])
 def readyz(request: Request) -> Readiness | JSONResponse:
-    """Ready when the database answers at the current schema version, the models the workers need are built
-    and current, and a worker heartbeat is recent; else 503 with every reason in ``problems``."""
+    """Readiness: 200 when the service can answer, else 503 with every reason in ``problems``.
+
+    Ready when the database answers at the current schema version, the models the workers need are
+    built and current, and a worker heartbeat is recent.
+    """
     settings: Settings = request.app.state.settings
     problems: list[str] = []
     version, workers = -1, 0

@@ -84,7 +84,6 @@ def _form_schema(spec: Schema, operation: Schema) -> Schema | None:
 def adjust(spec: Schema, settings: Settings) -> Schema:
     """Make FastAPI's document ``spec`` describe the service as configured by ``settings`` (in place)."""
     schemas: Schema = spec.setdefault("components", {}).setdefault("schemas", {})
-    limited = settings.auth_enabled and settings.rate_limit_per_min > 0
     for item in spec.get("paths", {}).values():
         for method, operation in item.items():
             responses: Schema = operation.setdefault("responses", {})
@@ -97,23 +96,30 @@ def adjust(spec: Schema, settings: Settings) -> Schema:
                 responses.setdefault("400", error_response("The body is not valid `multipart/form-data`"))
             if method in WRITE_METHODS:
                 responses.setdefault("507", error_response("The server's storage is full: nothing was stored"))
-            if "security" in operation and not settings.auth_enabled:
-                del operation["security"]
-            elif "security" in operation:
-                responses.setdefault("401", error_response("Missing or unknown API key"))
-                responses.setdefault("403", error_response("The API key lacks the scope"))
-                if limited:
-                    description = f"More than {settings.rate_limit_per_min} requests a minute with this key"
-                    description += " (`rate_limited`)"
-                    if "429" in responses:
-                        description = f"{responses['429']['description']}; or: {description}"
-                    responses["429"] = error_response(description, RETRY_AFTER_HEADER)
+            _adjust_security(operation, responses, settings)
             operation["responses"] = dict(sorted(responses.items()))
     for name in FASTAPI_VALIDATION_SCHEMAS:
         schemas.pop(name, None)
     if not settings.auth_enabled:
         spec["components"].pop("securitySchemes", None)
     return spec
+
+
+def _adjust_security(operation: Schema, responses: Schema, settings: Settings) -> None:
+    """Drop an operation's security requirement when auth is off; else document its 401, 403 and 429."""
+    if "security" not in operation:
+        return
+    if not settings.auth_enabled:
+        del operation["security"]
+        return
+    responses.setdefault("401", error_response("Missing or unknown API key"))
+    responses.setdefault("403", error_response("The API key lacks the scope"))
+    if settings.rate_limit_per_min > 0:
+        description = f"More than {settings.rate_limit_per_min} requests a minute with this key"
+        description += " (`rate_limited`)"
+        if "429" in responses:
+            description = f"{responses['429']['description']}; or: {description}"
+        responses["429"] = error_response(description, RETRY_AFTER_HEADER)
 
 
 def install_openapi(app: FastAPI, settings: Settings) -> None:
@@ -131,4 +137,5 @@ def install_openapi(app: FastAPI, settings: Settings) -> None:
             app.openapi_schema = adjust(spec, settings)
         return app.openapi_schema
 
+    # FastAPI's documented way to customise the document is to replace the app's ``openapi`` method.
     app.openapi = openapi  # type: ignore[method-assign]

@@ -1,5 +1,8 @@
-"""Receiving uploaded files: streamed to a temp file under ``DATA_DIR/tmp`` with a size limit and
-a sha256, then moved into place only as part of a successful database transaction."""
+"""Receiving uploaded files.
+
+Streamed to a temp file under ``DATA_DIR/tmp`` with a size limit and a sha256, then moved into
+place only as part of a successful database transaction.
+"""
 
 from __future__ import annotations
 
@@ -38,8 +41,11 @@ class ReceivedFile:
 
 @contextlib.contextmanager
 def received_upload(upload: UploadFile, data_dir: Path, max_bytes: int, what: str) -> Iterator[ReceivedFile]:
-    """Receive an upload (:func:`receive_upload`) for the duration of a block: if the block fails, a file it
-    moved into place is removed again (nothing half-stored); the temp file is always removed."""
+    """Receive an upload (:func:`receive_upload`) for the duration of a block.
+
+    If the block fails, a file it moved into place is removed again (nothing half-stored); the temp
+    file is always removed.
+    """
     received = receive_upload(upload, data_dir, max_bytes, what)
     try:
         yield received
@@ -85,8 +91,11 @@ def receive_upload(upload: UploadFile, data_dir: Path, max_bytes: int, what: str
 
 
 def move_into_place(temp_path: Path, final_path: Path) -> bool:
-    """Rename ``temp_path`` to ``final_path``; True if that created the file (False: same content
-    was already there). Call inside the database transaction; on failure delete it again."""
+    """Rename ``temp_path`` to ``final_path``; True if that created the file.
+
+    False: the same content was already there. Call inside the database transaction; on failure
+    delete it again.
+    """
     final_path.parent.mkdir(parents=True, exist_ok=True)
     existed = final_path.exists()
     os.replace(temp_path, final_path)
@@ -115,8 +124,11 @@ def clean_stale_temp_files(data_dir: Path, older_than_s: float = STALE_TEMP_S) -
 
 
 def clean_orphan_files(data_dir: Path, referenced: set[str], older_than_s: float = STALE_TEMP_S) -> int:
-    """Delete stored files no row refers to (left by a crash between the file move and the commit,
-    or between a delete's commit and the file removal); only files older than ``older_than_s``."""
+    """Delete stored files older than ``older_than_s`` that no row refers to.
+
+    Such files are left by a crash between the file move and the commit, or between a delete's
+    commit and the file removal.
+    """
     removed = 0
     cutoff = time.time() - older_than_s
     for folder in ("maps", "images", "queries"):

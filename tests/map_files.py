@@ -1,5 +1,7 @@
-"""Map files of every accepted format, written at test time from the shared Helsinki extract with the
-same libraries the service reads them with (pyogrio/GDAL, shapely, pyproj) — never checked in.
+"""Map files of every accepted format, written at test time from the shared Helsinki extract.
+
+Written with the same libraries the service reads them with (pyogrio/GDAL, shapely, pyproj); never
+checked in.
 
 :func:`write_map_files` writes into a folder and returns :class:`MapFiles`: the good files (each
 with the expected building count and read options) and the malformed ones (with the error code

@@ -1,5 +1,7 @@
-"""Helpers for service and worker tests: a real ``geoloc serve``/``geoloc worker`` subprocess on a
-free loopback port with its own data folder, table counts, test images, and test-only job handlers.
+"""Helpers for service and worker tests.
+
+A real ``geoloc serve``/``geoloc worker`` subprocess on a free loopback port with its own data folder,
+table counts, test images, and test-only job handlers.
 
 The handlers below register themselves when this file is loaded as a worker plugin
 (``GEOLOC_WORKER_PLUGINS=<path of this file>``); they are never shipped with the service.
@@ -156,7 +158,9 @@ def start_process(args: list[str], data_dir: Path, env: dict[str, str]) -> Runni
 
 def wait_for(predicate: Any, timeout: float, interval: float = 0.1, what: Any = "condition") -> Any:
     """Poll ``predicate()`` until it returns something truthy; fail after ``timeout`` seconds.
-    ``what`` (a string, or a callable giving one, e.g. to show a log) describes the wait."""
+
+    ``what`` (a string, or a callable giving one, e.g. to show a log) describes the wait.
+    """
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         value = predicate()
@@ -341,8 +345,10 @@ def jpeg_bytes(
 
 
 def png_header_only(width: int, height: int) -> bytes:
-    """A PNG that declares ``width x height`` but carries one tiny IDAT (a decompression bomb's
-    header: Pillow learns the size without decoding)."""
+    """A PNG that declares ``width x height`` but carries one tiny IDAT.
+
+    A decompression bomb's header: Pillow learns the size without decoding.
+    """
 
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)

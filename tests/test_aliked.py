@@ -1,7 +1,10 @@
-"""ALIKED: the hand-written network loads the published weights strictly, its grid_sample deformable
+"""ALIKED: the network, its ONNX runtime and its features.
+
+The hand-written network loads the published weights strictly, its grid_sample deformable
 convolution is the deformable convolution, the ONNX + numpy runtime gives the PyTorch network's
 keypoints and descriptors on real photos, and ``extract_features(method="aliked")`` keeps the
-:class:`Features` contract."""
+:class:`Features` contract.
+"""
 
 from __future__ import annotations
 
@@ -223,8 +226,10 @@ def test_aliked_features_contract(exported: Path, tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_aliked_matches_overlapping_real_photos_and_rejects_distant_ones(exported: Path) -> None:
-    """Adjacent Lund photos (same street, overlapping) verify with hundreds of inliers; photos 16 apart with
-    a few (whole images: road, cars and trees match too)."""
+    """Adjacent Lund photos (same street, overlapping) verify with hundreds of inliers.
+
+    Photos 16 apart verify with a few (whole images: road, cars and trees match too).
+    """
     feats = {n: extract_features(_lund(n), None, 1500, method="aliked") for n in ("04", "05", "20")}
     _, adjacent, _ = match_and_verify(feats["04"], feats["05"])
     _, far, _ = match_and_verify(feats["04"], feats["20"])

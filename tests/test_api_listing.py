@@ -1,7 +1,9 @@
-"""The endpoints the browser viewer reads besides the core API, against a real ``geoloc serve`` on loopback
-with no workers (jobs stay queued unless a test moves them through the real job store): a map's references
-page by page with its status counts, the stored photos of references and queries, and the viewer's own
-routes (page, redirect, configuration, static files)."""
+"""The endpoints the browser viewer reads besides the core API.
+
+Against a real ``geoloc serve`` on loopback with no workers (jobs stay queued unless a test moves them
+through the real job store): a map's references page by page with its status counts, the stored photos
+of references and queries, and the viewer's own routes (page, redirect, configuration, static files).
+"""
 
 from __future__ import annotations
 

@@ -1,8 +1,10 @@
-"""Map uploads in every accepted format through the real API (``geoloc serve`` with a worker on loopback,
-a real SQLite file): the files of ``tests/map_files.py`` load with their building counts and read
-options; every malformed variant gets a clear 4xx and stores nothing; a file read with two layers
-is two maps sharing one stored file; a worker labels a reference on a GeoPackage map through the
-map copy the API cached."""
+"""Map uploads in every accepted format through the real API.
+
+``geoloc serve`` with a worker on loopback, a real SQLite file: the files of ``tests/map_files.py``
+load with their building counts and read options; every malformed variant gets a clear 4xx and stores
+nothing; a file read with two layers is two maps sharing one stored file; a worker labels a reference
+on a GeoPackage map through the map copy the API cached.
+"""
 
 from __future__ import annotations
 

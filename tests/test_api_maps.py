@@ -1,6 +1,8 @@
-"""The REST API against a real ``geoloc serve`` (uvicorn + a worker process) on loopback with a real
-SQLite file: maps (the real Helsinki extract), references, jobs, auth, and every bad input
-answered with the right 4xx, a reason, the service still up and nothing stored."""
+"""The REST API against a real ``geoloc serve`` (uvicorn + a worker process) on loopback.
+
+With a real SQLite file: maps (the real Helsinki extract), references, jobs, auth, and every bad input
+answered with the right 4xx, a reason, the service still up and nothing stored.
+"""
 
 from __future__ import annotations
 
@@ -365,6 +367,7 @@ def test_serve_refuses_a_public_host_without_api_keys(tmp_path: Path) -> None:
         capture_output=True,
         text=True,
         timeout=60,
+        check=False,
     )
     assert result.returncode == 2
     assert "refusing to listen on 0.0.0.0" in result.stderr and "GEOLOC_API_KEYS" in result.stderr

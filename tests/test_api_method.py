@@ -1,5 +1,8 @@
-"""The whole service with the real method: a real server on loopback, real worker processes, a real SQLite
-file, the Helsinki map, and a simulated world's photos ingested and queried through the API."""
+"""The whole service with the real method.
+
+A real server on loopback, real worker processes, a real SQLite file, the Helsinki map, and a simulated
+world's photos ingested and queried through the API.
+"""
 
 from __future__ import annotations
 

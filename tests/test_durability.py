@@ -1,7 +1,10 @@
-"""Durability against real processes: a corrupted stored photo, a map deleted under a running job, SIGKILL of the
-API in the middle of uploads, and a full disk (a 20 MB tmpfs): jobs fail at once with a reason while the others
-go on, the database stays consistent, writes on a full disk are ``507`` with nothing stored, and the service
-recovers once there is space again."""
+"""Durability against real processes.
+
+A corrupted stored photo, a map deleted under a running job, SIGKILL of the API in the middle of uploads,
+and a full disk (a 20 MB tmpfs): jobs fail at once with a reason while the others go on, the database
+stays consistent, writes on a full disk are ``507`` with nothing stored, and the service recovers once
+there is space again.
+"""
 
 from __future__ import annotations
 
@@ -211,7 +214,10 @@ def _assert_every_row_complete(service: RunningProcess) -> None:
 def _small_disk(mount_point: Path, size_mb: int = 20) -> Iterator[Path]:
     mount_point.mkdir(parents=True)
     mounted = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", f"size={size_mb}m", "tmpfs", str(mount_point)], capture_output=True, text=True
+        ["mount", "-t", "tmpfs", "-o", f"size={size_mb}m", "tmpfs", str(mount_point)],
+        capture_output=True,
+        text=True,
+        check=False,
     )
     if mounted.returncode != 0:
         pytest.skip(f"cannot mount a {size_mb} MB tmpfs to fill (needs root): {mounted.stderr.strip()}")

@@ -74,8 +74,10 @@ CORNER_XZ = np.array([0.8, 14.0])
 
 
 def corner_scene() -> tuple[np.ndarray, np.ndarray, float]:
-    """Convex building corner in front of the camera: a wall receding to the left (theta 35 deg)
-    and one receding to the right (theta -50 deg). Returns image, labels, corner column (px)."""
+    """Convex building corner in front of the camera; returns image, labels, corner column (px).
+
+    A wall receding to the left (theta 35 deg) and one receding to the right (theta -50 deg).
+    """
     # Left wall drawn from its far end towards the corner, right wall from the corner outwards.
     t_l = math.radians(THETA_LEFT)
     u_l = np.array([math.cos(t_l), -math.sin(t_l)])  # (x, z) along-wall, pointing right/closer

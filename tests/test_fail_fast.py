@@ -1,6 +1,9 @@
-"""Fail fast: without built (or with stale) models ``geoloc serve`` and ``geoloc worker`` refuse to start with the
+"""Fail fast on missing or stale models.
+
+Without built (or with stale) models ``geoloc serve`` and ``geoloc worker`` refuse to start with the
 reason and exit code 2, ``/readyz`` says why the service is not ready, and a model that disappears while the
-service runs fails each job at once (no retries) with that reason."""
+service runs fails each job at once (no retries) with that reason.
+"""
 
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ from .service_fixtures import (
 def _run(args: list[str], data_dir: Path) -> subprocess.CompletedProcess[str]:
     env = service_env(data_dir)
     return subprocess.run(
-        [*geoloc_command(), *args], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=120
+        [*geoloc_command(), *args], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=120, check=False
     )
 
 

@@ -1,6 +1,8 @@
-"""``geoloc ingest`` against a real ``geoloc serve`` on loopback (API only, ``--workers 0``): the 29 real
-Lund photos rejected as outside the Helsinki map, a mixed folder (photos, non-images, a duplicate)
-and a second run that creates nothing; plus retries and unreachable services."""
+"""``geoloc ingest`` against a real ``geoloc serve`` on loopback (API only, ``--workers 0``).
+
+The 29 real Lund photos rejected as outside the Helsinki map, a mixed folder (photos, non-images, a
+duplicate) and a second run that creates nothing; plus retries and unreachable services.
+"""
 
 from __future__ import annotations
 
@@ -62,6 +64,7 @@ def run_ingest(service: RunningProcess, *args: str, api_key: str = WRITE_KEY) ->
         text=True,
         timeout=120,
         env={**os.environ, "COLUMNS": "200"},
+        check=False,
     )
 
 
@@ -177,13 +180,16 @@ def test_cannot_start_exits_2_with_the_reason(service: RunningProcess, helsinki_
         capture_output=True,
         text=True,
         timeout=60,
+        check=False,
     )
     assert nobody.returncode == 2 and "cannot reach the service" in nobody.stderr
 
 
 def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -> None:
-    """No server: a mock transport answers 503, then a connection error, then 202 for one photo and
-    always 429 for the other."""
+    """No server: a mock transport answers in turn.
+
+    503, then a connection error, then 202 for one photo; always 429 for the other.
+    """
     _photo(tmp_path / "ok.jpg", INSIDE_HELSINKI[0], seed=4)
     _photo(tmp_path / "busy.jpg", INSIDE_HELSINKI[1], seed=5)
     calls: dict[str, int] = {}

@@ -1,5 +1,7 @@
-"""The worker pool against a real database file with real worker processes: atomic claims,
-crash recovery after SIGKILL, retry limits, graceful shutdown."""
+"""The worker pool against a real database file with real worker processes.
+
+Atomic claims, crash recovery after SIGKILL, retry limits, graceful shutdown.
+"""
 
 from __future__ import annotations
 

@@ -1,3 +1,6 @@
+import dataclasses
+import inspect
+
 import numpy as np
 import pytest
 
@@ -6,6 +9,7 @@ from geoloc.image_model import ImageModel, bin_offsets_deg
 from geoloc.labeling import column_building_ids, label_reference
 from geoloc.likelihood import image_model_from_map
 from geoloc.localize import PositionPrior, localize
+from geoloc.pipeline import LabelOptions
 from geoloc.pose_refinement import refine_pose, vanishing_point_yaw
 from geoloc.raycast import cast_panoramas
 
@@ -104,3 +108,13 @@ def test_position_prior_radius_is_two_sigma() -> None:
     assert prior.sigma_m == 25.0 and prior.radius_m == 50.0
     weights = prior.weights(np.array([[0.0, 0.0], [25.0, 0.0]]))
     assert weights[0] == 1.0 and weights[1] == pytest.approx(np.exp(-0.5))
+
+
+def test_label_options_restate_label_reference_defaults() -> None:
+    """``LabelOptions`` has one field per tuning keyword of ``label_reference``, with the same default."""
+    tuning = {
+        name: parameter.default
+        for name, parameter in inspect.signature(label_reference).parameters.items()
+        if parameter.kind is inspect.Parameter.KEYWORD_ONLY and name != "prior_yaw_deg"
+    }
+    assert dataclasses.asdict(LabelOptions()) == tuning

@@ -1,5 +1,8 @@
-"""Load limits against a real server: waiting clients hold no thread, a full queue answers 429 with
-``Retry-After`` and stores nothing, per-key rate limits, ids beyond 64 bits, ``Allow`` on 405."""
+"""Load limits against a real server.
+
+Waiting clients hold no thread, a full queue answers 429 with ``Retry-After`` and stores nothing,
+per-key rate limits, ids beyond 64 bits, ``Allow`` on 405.
+"""
 
 from __future__ import annotations
 

@@ -24,8 +24,9 @@ def render_segments(
     n_outliers: int = 30,
     seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Segments of 3D lines along the vertical and horizontal directions ``thetas_deg`` (upright frame),
-    seen by a camera with the given pitch and roll, with endpoint noise and random outlier segments.
+    """Segments of 3D lines along the vertical and horizontal directions ``thetas_deg`` (upright frame).
+
+    Seen by a camera with the given pitch and roll, with endpoint noise and random outlier segments.
 
     Returns (segments (N, 4) px, true label per segment: 0 vertical, k horizontal k, -1 outlier).
     """

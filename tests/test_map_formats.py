@@ -1,7 +1,9 @@
-"""Every accepted map format, read from real files written at test time from the shared OSM data
-(``tests/map_files.py``): building counts, footprints to 0.5 m against the source whatever the CRS,
-names and heights through configurable attributes, and a clear :class:`MapLoadError` for every
-malformed variant."""
+"""Every accepted map format, read from real files written at test time from the shared OSM data.
+
+The files are ``tests/map_files.py``'s: building counts, footprints to 0.5 m against the source whatever
+the CRS, names and heights through configurable attributes, and a clear :class:`MapLoadError` for every
+malformed variant.
+"""
 
 from __future__ import annotations
 
@@ -24,15 +26,20 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> MapFiles:
 
 
 def _same_order(city: CityMap, reference: CityMap) -> np.ndarray:
-    """Index into ``city.buildings`` of each reference building, matched by OSM id (GIS files carry it
-    as an attribute; FlatGeobuf stores features in its spatial index's order)."""
+    """Index into ``city.buildings`` of each reference building, matched by OSM id.
+
+    GIS files carry it as an attribute; FlatGeobuf stores features in its spatial index's order.
+    """
     index = {b.osm_id: i for i, b in enumerate(city.buildings)}
     return np.array([index[b.osm_id] for b in reference.buildings])
 
 
 def _max_offset_m(city: CityMap, reference: CityMap) -> float:
-    """Largest Hausdorff distance (m) between each building of ``city`` and the building with the same
-    OSM id in ``reference``, both placed in the reference's local frame through WGS84."""
+    """Largest Hausdorff distance (m) between the buildings of ``city`` and those of ``reference``.
+
+    Each building is compared with the one with the same OSM id, both placed in the reference's local
+    frame through WGS84.
+    """
     frame: LocalFrame = reference.frame
 
     def to_reference_frame(lonlat: np.ndarray) -> np.ndarray:

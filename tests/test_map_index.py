@@ -1,6 +1,8 @@
-"""Spatial indexes of a loaded map and its stored copy: the answers of the indexed lookups are the ones a
-scan of the whole map gives, work near a place does not see the rest of a larger map, and a stored map
-reads back equal."""
+"""Spatial indexes of a loaded map and its stored copy.
+
+The answers of the indexed lookups are the ones a scan of the whole map gives, work near a place does
+not see the rest of a larger map, and a stored map reads back equal.
+"""
 
 from __future__ import annotations
 
@@ -79,15 +81,17 @@ def test_facade_index_memory_grows_with_facades_not_extent() -> None:
 
 
 def _tiled(helsinki: CityMap, tiles_per_side: int, gap_m: float = 30.0) -> CityMap:
-    """Copies of the Helsinki footprints side by side, the original in the middle at its own place,
-    in the same local frame."""
+    """Copies of the Helsinki footprints side by side, in the same local frame.
+
+    The original is in the middle at its own place.
+    """
     min_x, min_y, max_x, max_y = helsinki.bounds_m
     step = np.array([max_x - min_x + gap_m, max_y - min_y + gap_m])
     half = tiles_per_side // 2
     geoms, ids = [], []
     for i in range(-half, tiles_per_side - half):
         for j in range(-half, tiles_per_side - half):
-            geoms.append(shapely.transform(helsinki.footprints, lambda xy, d=step * (i, j): xy + d))  # noqa: B023
+            geoms.append(shapely.transform(helsinki.footprints, lambda xy, d=step * (i, j): xy + d))
             ids += [f"tile{i},{j}/{b.osm_id}" for b in helsinki.buildings]
 
     def to_lonlat(xy: np.ndarray) -> np.ndarray:

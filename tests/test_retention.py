@@ -1,5 +1,7 @@
-"""Retention: finished queries (photo, answer, job) older than ``GEOLOC_QUERY_RETENTION_S`` are deleted by the
-workers; queries still waiting or running, and references, are never deleted implicitly."""
+"""Retention: finished queries (photo, answer, job) older than ``GEOLOC_QUERY_RETENTION_S`` are deleted.
+
+The workers delete them; queries still waiting or running, and references, are never deleted implicitly.
+"""
 
 from __future__ import annotations
 

@@ -1,5 +1,8 @@
-"""Segmentation: the hand-written ESPNetv2 loads the published weights, the ONNX export matches it,
-and the runtime labels real CamVid pixels correctly."""
+"""Segmentation: the network, its ONNX export and its runtime.
+
+The hand-written ESPNetv2 loads the published weights, the ONNX export matches it, and the runtime
+labels real CamVid pixels correctly.
+"""
 
 from __future__ import annotations
 

@@ -124,8 +124,11 @@ def test_transfer_without_evidence_is_unknown():
 @pytest.mark.skipif(not LUND.exists(), reason="shared Lund photos not available")
 @pytest.mark.parametrize("pair", [(8, 9), (17, 18)])
 def test_transfer_on_consecutive_lund_photos(pair: tuple[int, int]):
-    """Reference: left half of its columns is building 7, right half 9. On the query, every inlier's column
-    must carry the building of its reference keypoint's side, and both buildings appear left to right."""
+    """Reference: left half of its columns is building 7, right half 9.
+
+    On the query, every inlier's column must carry the building of its reference keypoint's side, and
+    both buildings appear left to right.
+    """
     paths = sorted(LUND.glob("*.jpg"))
     feats, masks = [], []
     for i in pair:
@@ -163,8 +166,10 @@ def column_identity(building_id: np.ndarray, mask: np.ndarray) -> IdentityMap:
 
 
 def test_transfer_on_a_simulated_pair():
-    """Two views of a street canyon (two buildings, touching in the query): the right building on the
-    columns both photos see, from the reference's ground-truth identities."""
+    """Two views of a street canyon (two buildings, touching in the query).
+
+    The right building on the columns both photos see, from the reference's ground-truth identities.
+    """
     from geoloc.camera import Intrinsics
     from geoloc.sim import Pose, Scene, render
     from tests.scenes import street_canyon

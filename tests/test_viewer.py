@@ -1,8 +1,9 @@
-"""The browser viewer in a real headless Chromium (Debian's ``chromium`` through Playwright) against a real
-``geoloc serve`` on loopback with real workers and models: load the page, give it the API key, upload the
-Helsinki map, ingest a small simulated world's references and locate one of its queries, all through the
-page; then check what is drawn against the API's own answer, with positions computed independently
-(pyproj, the service's map frame). No console error, page error or failed request is allowed.
+"""The browser viewer in a real headless Chromium (Debian's ``chromium`` through Playwright).
+
+Against a real ``geoloc serve`` on loopback with real workers and models: load the page, give it the API
+key, upload the Helsinki map, ingest a small simulated world's references and locate one of its queries,
+all through the page; then check what is drawn against the API's own answer, with positions computed
+independently (pyproj, the service's map frame). No console error, page error or failed request is allowed.
 
 The screenshot of the answered page is written to the test's folder; set ``GEOLOC_VIEWER_SCREENSHOT`` to a
 path (the README's is ``docs/viewer.png``) to write it there too.
@@ -369,8 +370,10 @@ def _check_uncertainty_circle(page: Any, query: dict[str, Any]) -> None:
 
 
 def _check_reload_reopens_the_answer(page: Any, query: dict[str, Any]) -> None:
-    """The address names the map and the query: a reload (the key asked again) shows the same answer,
-    with the query's photo fetched from the service."""
+    """The address names the map and the query.
+
+    A reload (the key asked again) shows the same answer, with the query's photo fetched from the service.
+    """
     assert page.url.endswith(f"#map={query['map_id']}&query={query['id']}")
     page.reload()
     page.get_by_label("API key", exact=True).fill(WRITE_KEY)

@@ -54,8 +54,10 @@ PERMANENT_ERRORS: list[type[BaseException]] = [PermanentJobError]
 
 
 def treat_as_permanent(*error_types: type[BaseException]) -> None:
-    """Fail jobs at once on these exception types (and their subclasses), e.g. a model that is not built:
-    the same attempt would fail again until an operator acts."""
+    """Fail jobs at once on these exception types (and their subclasses).
+
+    E.g. a model that is not built: the same attempt would fail again until an operator acts.
+    """
     PERMANENT_ERRORS.extend(t for t in error_types if t not in PERMANENT_ERRORS)
 
 

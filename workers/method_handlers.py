@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Mapping, Sequence
 from functools import lru_cache
 from typing import Any
 
@@ -37,8 +38,11 @@ treat_as_permanent(ModelNotBuiltError)  # a missing model stays missing until `g
 
 @lru_cache(maxsize=4)
 def _city_map(source_path: str, sha256: str, read_options: str) -> CityMap:
-    """The map's CityMap, loaded once per worker process (keyed by file, checksum and read options) from
-    the copy the API cached at upload; parsed from the source only when that copy is missing."""
+    """The map's CityMap, loaded once per worker process (keyed by file, checksum and read options).
+
+    Loaded from the copy the API cached at upload; parsed from the source only when that copy is
+    missing.
+    """
     options = MapReadOptions.from_dict(json.loads(read_options))
     return load_map_cached(data_dir() / source_path, map_cache_dir(data_dir()), options, sha256=sha256)
 
@@ -48,6 +52,7 @@ MAX_REPORTED_RADIUS_M = 100_000.0
 
 
 def city_map_for(db: sqlite_utils.Database, map_id: int) -> CityMap:
+    """The CityMap of map ``map_id`` (cached per process); a permanent job error if the map is gone."""
     row = map_store.get_map(db, map_id)
     if row is None:
         raise PermanentJobError(f"map {map_id} no longer exists")
@@ -153,7 +158,9 @@ def label_reference(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[
     return {"reference_id": reference_id, "heading_deg": round(heading, 2), "buildings": len(buildings)}
 
 
-def _describe_buildings(city: CityMap, extents: list[dict], column_scale: float) -> list[dict]:
+def _describe_buildings(
+    city: CityMap, extents: Sequence[Mapping[str, Any]], column_scale: float
+) -> list[dict[str, Any]]:
     """Add OSM ids and names to building extents and express columns in the uploaded photo's pixels."""
     out = []
     for entry in extents:

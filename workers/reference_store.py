@@ -43,7 +43,9 @@ class DatabaseReferenceStore:
         """The stored references of these ids (ones deleted meanwhile are left out)."""
         out: dict[Hashable, StoredReference] = {}
         for reference_id in reference_ids:
-            arrays = reference_store.load_keypoints(self.db, int(reference_id))  # type: ignore[call-overload]
+            if not isinstance(reference_id, int | np.integer):
+                raise TypeError(f"this store's reference ids are database row ids (integers), got {reference_id!r}")
+            arrays = reference_store.load_keypoints(self.db, int(reference_id))
             if arrays is not None:
                 out[reference_id] = stored_reference_from_arrays(reference_id, arrays)
         return out

@@ -34,8 +34,11 @@ def purge_interval_s(retention_s: float) -> float:
 def purge_expired_queries(
     db: sqlite_utils.Database, data_dir: Path, retention_s: float, *, now: float | None = None
 ) -> int:
-    """Delete finished queries created more than ``retention_s`` seconds before ``now`` (Unix s, default
-    the current time) with their jobs and photos; returns how many queries were deleted."""
+    """Delete finished queries with their jobs and photos; returns how many queries were deleted.
+
+    Deletes those created more than ``retention_s`` seconds before ``now`` (Unix s, default the
+    current time).
+    """
     cutoff = (time.time() if now is None else now) - retention_s
     deleted = 0
     while True:

@@ -37,7 +37,7 @@ class ChildSpec:
 @dataclass
 class _Child:
     spec: ChildSpec
-    process: subprocess.Popen | None = None
+    process: subprocess.Popen[bytes] | None = None
     started_at: float = 0.0
     starts: int = 0
     restart_delay_s: float = 0.5

@@ -73,6 +73,7 @@ class Worker:
 
     @property
     def heartbeat_interval_s(self) -> float:
+        """Seconds between heartbeats: a third of the job lease, within 0.05-5 s."""
         return max(min(self.settings.job_lease_s / 3.0, 5.0), 0.05)
 
     def _parent_gone(self) -> bool:

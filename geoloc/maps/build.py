@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 from shapely.geometry import LineString, MultiPolygon, Polygon
+from shapely.geometry.base import BaseGeometry
 from shapely.ops import linemerge, polygonize, unary_union
 
 from geoloc.geo import LocalFrame, bearing_deg, frame_for_bbox
@@ -197,7 +198,9 @@ def _distinct_points(xy: np.ndarray, n: np.ndarray) -> np.ndarray:
     return np.bincount(r[new], minlength=len(n))
 
 
-def _relation_footprints(relations: list[RawRelation], frame: LocalFrame, report: LoadReport) -> list[object]:
+def _relation_footprints(
+    relations: list[RawRelation], frame: LocalFrame, report: LoadReport
+) -> list[Polygon | MultiPolygon | None]:
     """Footprints of all relations (their rings transformed to the local frame in one go)."""
     rings = [ring for r in relations for ring in (*r.outers, *r.inners)]
     if not rings:
@@ -205,7 +208,7 @@ def _relation_footprints(relations: list[RawRelation], frame: LocalFrame, report
     bounds = np.r_[0, np.cumsum([len(ring) for ring in rings])].tolist()
     xy = _local(frame, np.concatenate(rings))
     local = iter([xy[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)])
-    out = []
+    out: list[Polygon | MultiPolygon | None] = []
     for relation in relations:
         outers = [next(local) for _ in relation.outers]
         inners = [next(local) for _ in relation.inners]
@@ -222,11 +225,13 @@ def _relation_footprint(
     if not outers:
         return None
     repaired = False
-    fixed = []
+    fixed: list[BaseGeometry] = []
     for poly in outers:
-        if not poly.is_valid:
-            poly, repaired = shapely.make_valid(poly), True
-        fixed.append(poly)
+        if poly.is_valid:
+            fixed.append(poly)
+        else:
+            fixed.append(shapely.make_valid(poly))
+            repaired = True
     shape = unary_union(fixed)
     if inners:
         shape = shape.difference(unary_union([p if p.is_valid else shapely.make_valid(p) for p in inners]))

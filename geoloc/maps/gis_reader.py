@@ -50,6 +50,7 @@ class Layer:
 
     @property
     def polygonal(self) -> bool:
+        """Whether the layer's declared geometry type is a polygon or surface type."""
         kind = (self.geometry_type or "").lower()
         return "polygon" in kind or "surface" in kind
 
@@ -60,6 +61,7 @@ class Layer:
         return self.polygonal or kind in ("unknown", "geometry", "geometrycollection", "unknown (any)")
 
     def describe(self) -> str:
+        """The layer's name and geometry type, for messages."""
         return f"{self.name or '(unnamed)'} ({self.geometry_type or 'no geometry'})"
 
 
@@ -250,7 +252,9 @@ def _layer_crs(declared: str | None, options: MapReadOptions, what: str) -> CRS 
 
 def _geojson_declares_crs(path: Path, kind: str) -> bool:
     """Whether a GeoJSON file has a (legacy) ``crs`` member near its start, where writers put it.
-    GDAL reports EPSG:4326 either way; this tells "declared" from "RFC 7946 default" for messages."""
+
+    GDAL reports EPSG:4326 either way; this tells "declared" from "RFC 7946 default" for messages.
+    """
     opener = gzip.open if kind.endswith(".gz") else open
     with opener(path, "rb") as f:
         return b'"crs"' in f.read(_CRS_LOOKAHEAD_BYTES)

@@ -1,5 +1,8 @@
-"""Entry points: :func:`load_map` (any accepted file -> :class:`CityMap`), :func:`load_map_cached`,
-:func:`city_map_from_footprints` (hand-made scenes) and :func:`map_summary` (``geoloc map info``)."""
+"""Entry points of map loading.
+
+:func:`load_map` (any accepted file -> :class:`CityMap`), :func:`load_map_cached`,
+:func:`city_map_from_footprints` (hand-made scenes) and :func:`map_summary` (``geoloc map info``).
+"""
 
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
-"""What a loaded map is: :class:`CityMap` with its :class:`Building` list, :class:`Facades` arrays and
-:class:`LoadReport`; how a file is read (:class:`MapReadOptions`); the error :class:`MapLoadError`.
+"""What a loaded map is, how a file is read, and the error a bad file raises.
+
+:class:`CityMap` with its :class:`Building` list, :class:`Facades` arrays and :class:`LoadReport`;
+how a file is read (:class:`MapReadOptions`); the error :class:`MapLoadError`.
 
 Everything geometric is in the map's local East-North frame (metres, :class:`geoloc.geo.LocalFrame`).
 Spatial lookups that grow with the map go through lazily built, cached indexes (an STRtree of the
@@ -16,6 +18,7 @@ from typing import Any
 import numpy as np
 import shapely
 from shapely.geometry import MultiPolygon, Polygon
+from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
 
 from geoloc.geo import LocalFrame
@@ -96,6 +99,7 @@ class LoadReport:
     short_facades_dropped: int = 0
 
     def as_dict(self) -> dict[str, int | str]:
+        """The counts as a JSON-ready dict."""
         return asdict(self)
 
 
@@ -131,6 +135,7 @@ class Facades:
     building_id: np.ndarray
 
     def __len__(self) -> int:
+        """Number of facades."""
         return len(self.length_m)
 
 
@@ -188,9 +193,12 @@ class CityMap:
         return FacadeIndex(self.facades)
 
     @cached_property
-    def building_union(self) -> Polygon | MultiPolygon:
-        """Union of all footprints (cached). Costs time and memory in the map's size: prefer
-        :meth:`inside_buildings` and :meth:`buildings_near` for local questions."""
+    def building_union(self) -> BaseGeometry:
+        """Union of all footprints (cached).
+
+        Costs time and memory in the map's size: prefer :meth:`inside_buildings` and
+        :meth:`buildings_near` for local questions.
+        """
         return unary_union(self.footprints)
 
     def inside_buildings(self, xy: np.ndarray) -> np.ndarray:

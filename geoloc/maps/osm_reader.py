@@ -41,17 +41,27 @@ def _is_building(tags: Any) -> bool:
     return value is not None and value != "no"
 
 
-def _read(path: Path, kind: str) -> RawMap:
-    report = LoadReport(format=kind)
-    osm_file = osmium.io.File(str(path), _OSMIUM_FORMATS[kind])
+_Relation = tuple[int, dict[str, str], list[tuple[int, str]]]
+"""A building multipolygon relation: (id, tags, [(member way id, role)])."""
 
-    relations: list[tuple[int, dict[str, str], list[tuple[int, str]]]] = []
+
+def _building_relations(osm_file: Any) -> list[_Relation]:
+    """The building multipolygon relations of an ``osmium.io.File``, with their member ways."""
+    relations: list[_Relation] = []
     relation: Any  # pyosmium's objects (typed as a union of all kinds)
     for relation in osmium.FileProcessor(osm_file, osmium.osm.RELATION):
         tags = relation.tags
         if tags.get("type") == "multipolygon" and _is_building(tags):
             members = [(m.ref, m.role) for m in relation.members if m.type == "w"]
             relations.append((relation.id, dict(tags), members))
+    return relations
+
+
+def _read(path: Path, kind: str) -> RawMap:
+    report = LoadReport(format=kind)
+    osm_file = osmium.io.File(str(path), _OSMIUM_FORMATS[kind])
+
+    relations = _building_relations(osm_file)
     member_ids = {ref for _, _, members in relations for ref, _ in members}
 
     factory = osmium.geom.WKBFactory()
@@ -92,7 +102,20 @@ def _read(path: Path, kind: str) -> RawMap:
     raw.way_ids = [f"way/{building_ways[i][0]}" for i in order]
     raw.way_tags = [building_ways[i][1] for i in order]
     report.building_ways = len(building_ways)
+    raw.relations = _raw_relations(relations, member_geoms, report)
 
+    street_lonlat, street_offsets = _ragged(street_geoms)
+    long_enough = np.flatnonzero(np.diff(street_offsets) >= 2)
+    raw.street_lonlat, raw.street_offsets = _reorder(street_lonlat, street_offsets, long_enough)
+    raw.trees = np.asarray(trees, dtype=float).reshape(-1, 2)
+    return raw
+
+
+def _raw_relations(
+    relations: list[_Relation], member_geoms: dict[int, str | np.ndarray], report: LoadReport
+) -> list[RawRelation]:
+    """The relations (by id) with their member ways' lon/lat rings; incomplete ones skipped and counted."""
+    out: list[RawRelation] = []
     member_list = list(member_geoms)
     member_coords, member_offsets = _ragged([member_geoms[way_id] for way_id in member_list])
     member_rings = {
@@ -106,18 +129,16 @@ def _read(path: Path, kind: str) -> RawMap:
         if len(outers) < sum(role != "inner" for _, role in members):
             report.skipped_incomplete_relations += 1
             continue
-        raw.relations.append(RawRelation(f"relation/{rel_id}", tags, outers, inners))
-
-    street_lonlat, street_offsets = _ragged(street_geoms)
-    long_enough = np.flatnonzero(np.diff(street_offsets) >= 2)
-    raw.street_lonlat, raw.street_offsets = _reorder(street_lonlat, street_offsets, long_enough)
-    raw.trees = np.asarray(trees, dtype=float).reshape(-1, 2)
-    return raw
+        out.append(RawRelation(f"relation/{rel_id}", tags, outers, inners))
+    return out
 
 
 def _way_geometry(factory: Any, way: Any, report: LoadReport) -> str | np.ndarray:
-    """The way's node locations as hex WKB (built in C++), or, when some are missing or there are
-    fewer than two, an (N, 2) lon/lat array of the valid ones (the missing ones counted)."""
+    """The way's node locations as hex WKB (built in C++), or an array when that cannot be built.
+
+    When some locations are missing or there are fewer than two, returns an (N, 2) lon/lat array of
+    the valid ones (the missing ones counted).
+    """
     try:
         return str(factory.create_linestring(way, osmium.geom.use_nodes.ALL))
     except (osmium.InvalidLocationError, RuntimeError):
@@ -135,7 +156,8 @@ def _ragged(items: list[str | np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     is_wkb = np.fromiter((isinstance(item, str) for item in items), dtype=bool, count=len(items))
     wkb_items, array_items = np.flatnonzero(is_wkb), np.flatnonzero(~is_wkb)
     counts = np.zeros(len(items), dtype=np.int64)
-    wkb_coords, counts[wkb_items] = _linestring_coords([items[i] for i in wkb_items.tolist()])  # type: ignore[misc]
+    wkb_coords, wkb_counts = _linestring_coords([str(items[i]) for i in wkb_items.tolist()])
+    counts[wkb_items] = wkb_counts
     arrays = [np.asarray(items[i]) for i in array_items.tolist()]
     counts[array_items] = [len(a) for a in arrays]
     offsets = np.r_[0, np.cumsum(counts)].astype(np.int64)
@@ -148,8 +170,10 @@ def _ragged(items: list[str | np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _linestring_coords(hex_wkb: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Coordinates (N, 2) and point counts of little-endian 2D WKB linestrings (as pyosmium writes them),
-    decoded in one go: a 9-byte header (byte order, type, count), then x, y doubles."""
+    """Coordinates (N, 2) and point counts of little-endian 2D WKB linestrings, decoded in one go.
+
+    As pyosmium writes them: a 9-byte header (byte order, type, count), then x, y doubles.
+    """
     if not hex_wkb:
         return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
     lengths = np.fromiter((len(h) // 2 for h in hex_wkb), dtype=np.int64, count=len(hex_wkb))

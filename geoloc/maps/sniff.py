@@ -45,6 +45,24 @@ def sniff_format(path: Path) -> str:
     """The format of the map file at ``path`` (one of :data:`OSM_FORMATS` + :data:`GIS_FORMATS`)."""
     with path.open("rb") as f:
         head = f.read(_HEAD_BYTES)
+    container_format = _container_format(path, head)
+    if container_format is not None:
+        return container_format
+    text_format = _text_format(head)
+    if text_format == "xml":
+        raise MapLoadError(f"{path.name}: XML but not OpenStreetMap data (no <osm> element)")
+    if text_format:
+        return text_format
+    if b"OSMHeader" in head[:64]:
+        return "pbf"
+    raise MapLoadError(f"{path.name}: not map data (expected {ACCEPTED})")
+
+
+def _container_format(path: Path, head: bytes) -> str | None:
+    """The format of a compressed, zipped or database file from its magic bytes; None for other files.
+
+    Raises :class:`MapLoadError` for containers that hold no map (another SQLite database, a bare .shp).
+    """
     if head.startswith(b"\x1f\x8b"):
         return _compressed_text_format(path, "gz", _decompressed_head(path, gzip.open))
     if head.startswith(b"BZh"):
@@ -62,14 +80,7 @@ def sniff_format(path: Path) -> str:
             f"{path.name}: a bare shapefile (.shp) has no attributes and no CRS on its own; "
             "upload it zipped together with its .shx, .dbf and .prj files"
         )
-    text_format = _text_format(head)
-    if text_format == "xml":
-        raise MapLoadError(f"{path.name}: XML but not OpenStreetMap data (no <osm> element)")
-    if text_format:
-        return text_format
-    if b"OSMHeader" in head[:64]:
-        return "pbf"
-    raise MapLoadError(f"{path.name}: not map data (expected {ACCEPTED})")
+    return None
 
 
 def _text_format(head: bytes) -> str | None:
@@ -119,8 +130,11 @@ def zip_member_names(path: Path) -> list[str]:
 
 
 def check_compressed_stream(path: Path, kind: str) -> None:
-    """Raise :class:`MapLoadError` if the gzip/bz2 stream of a ``*.gz``/``*.bz2`` file is truncated or
-    corrupt (read to the end, nothing kept). Called when a reader fails, to say what went wrong."""
+    """Raise :class:`MapLoadError` if the gzip/bz2 stream of a ``*.gz``/``*.bz2`` file is broken.
+
+    Truncated or corrupt: the stream is read to the end, nothing kept. Called when a reader fails, to
+    say what went wrong.
+    """
     compression = kind.rsplit(".", 1)[-1]
     if compression not in ("gz", "bz2"):
         return

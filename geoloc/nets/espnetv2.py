@@ -59,7 +59,9 @@ class ConvBnAct(nn.Module):
         self.act = nn.PReLU(c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.act(self.bn(self.conv(x)))
+        """(N, c_in, H, W) -> (N, c_out, H / stride, W / stride)."""
+        out: torch.Tensor = self.act(self.bn(self.conv(x)))
+        return out
 
 
 class ConvBn(nn.Module):
@@ -71,7 +73,9 @@ class ConvBn(nn.Module):
         self.bn = nn.BatchNorm2d(c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.bn(self.conv(x))
+        """(N, c_in, H, W) -> (N, c_out, H / stride, W / stride)."""
+        out: torch.Tensor = self.bn(self.conv(x))
+        return out
 
 
 class BnAct(nn.Module):
@@ -83,7 +87,9 @@ class BnAct(nn.Module):
         self.act = nn.PReLU(c)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.act(self.bn(x))
+        """(N, c, H, W) -> same shape."""
+        out: torch.Tensor = self.act(self.bn(x))
+        return out
 
 
 class DilatedDW(nn.Module):
@@ -94,7 +100,9 @@ class DilatedDW(nn.Module):
         self.conv = nn.Conv2d(c, c, 3, stride, dilation, dilation=dilation, groups=c, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.conv(x)
+        """(N, c, H, W) -> (N, c, H / stride, W / stride)."""
+        out: torch.Tensor = self.conv(x)
+        return out
 
 
 class SeqConvBnAct(nn.Module):
@@ -109,7 +117,9 @@ class SeqConvBnAct(nn.Module):
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.cbr(x)
+        """(N, c_in, H, W) -> (N, c_out, H, W)."""
+        out: torch.Tensor = self.cbr(x)
+        return out
 
 
 class SeqBnAct(nn.Module):
@@ -120,7 +130,9 @@ class SeqBnAct(nn.Module):
         self.br = nn.Sequential(nn.BatchNorm2d(c), nn.PReLU(c))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.br(x)
+        """(N, c, H, W) -> same shape."""
+        out: torch.Tensor = self.br(x)
+        return out
 
 
 class ChannelShuffle(nn.Module):
@@ -131,6 +143,7 @@ class ChannelShuffle(nn.Module):
         self.groups = groups
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(N, g*c, H, W) -> same shape, channels reordered."""
         n, c, h, w = x.shape
         x = x.reshape(n, self.groups, c // self.groups, h, w).transpose(1, 2)
         return x.reshape(n, c, h, w)
@@ -193,8 +206,10 @@ def adaptive_avg_pool(x: torch.Tensor, size: tuple[int, int], static: bool) -> t
 
 
 class EESP(nn.Module):
-    """Extremely Efficient Spatial Pyramid unit: group 1x1 reduce, K dilated depth-wise branches
-    fused hierarchically, group 1x1 expand; residual + PReLU when stride 1.
+    """Extremely Efficient Spatial Pyramid unit.
+
+    Group 1x1 reduce, K dilated depth-wise branches fused hierarchically, group 1x1 expand; residual
+    + PReLU when stride 1.
 
     With ``stride=2`` it returns the expanded map without residual/activation (the down-sampler
     merges it with an average-pooled copy of its input).
@@ -214,21 +229,25 @@ class EESP(nn.Module):
         self.module_act = nn.PReLU(c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(N, c_in, H, W) -> (N, c_out, H / stride, W / stride)."""
         reduced = self.proj_1x1(x)
         outs = [self.spp_dw[0](reduced)]
         for branch in list(self.spp_dw)[1:]:
             outs.append(branch(reduced) + outs[-1])
-        expanded = self.conv_1x1_exp(self.br_after_cat(torch.cat(outs, 1)))
+        expanded: torch.Tensor = self.conv_1x1_exp(self.br_after_cat(torch.cat(outs, 1)))
         if self.stride == 2:
             return expanded
         if expanded.shape == x.shape:
             expanded = expanded + x
-        return self.module_act(expanded)
+        activated: torch.Tensor = self.module_act(expanded)
+        return activated
 
 
 class DownSampler(nn.Module):
-    """Halve the resolution: [avg-pool(x), strided EESP(x)] concatenated, plus a projection of the
-    input image pooled to the same size (input reinforcement), then PReLU."""
+    """Halve the resolution: [avg-pool(x), strided EESP(x)] concatenated.
+
+    Plus a projection of the input image pooled to the same size (input reinforcement), then PReLU.
+    """
 
     def __init__(self, c_in: int, c_out: int, branches: int, r_lim: int) -> None:
         super().__init__()
@@ -239,7 +258,8 @@ class DownSampler(nn.Module):
     def forward(self, x: torch.Tensor, image_pooled: torch.Tensor) -> torch.Tensor:
         """``image_pooled``: the input image average-pooled (3x3, stride 2) to this output size."""
         out = torch.cat([F.avg_pool2d(x, 3, 2, 1), self.eesp(x)], 1)
-        return self.act(out + self.inp_reinf(image_pooled))
+        activated: torch.Tensor = self.act(out + self.inp_reinf(image_pooled))
+        return activated
 
 
 class EESPNetBase(nn.Module):
@@ -278,8 +298,11 @@ class EESPNetBase(nn.Module):
 
 
 class EfficientPyrPool(nn.Module):
-    """Pyramid pooling: project to few channels, depth-wise 3x3 at 5 scales (2, 1.5, 1, 0.5, 0.1
-    of the map size; at least 5 px), shuffle, group conv, 1x1 to ``c_out`` (+ BN/PReLU)."""
+    """Pyramid pooling.
+
+    Project to few channels, depth-wise 3x3 at 5 scales (2, 1.5, 1, 0.5, 0.1 of the map size; at
+    least 5 px), shuffle, group conv, 1x1 to ``c_out`` (+ BN/PReLU).
+    """
 
     def __init__(self, c_in: int, c_proj: int, c_out: int, last_layer_br: bool = True) -> None:
         super().__init__()
@@ -299,6 +322,7 @@ class EfficientPyrPool(nn.Module):
             self.br = SeqBnAct(c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(N, c_in, H, W) -> (N, c_out, H, W)."""
         x = self.projection_layer(x)
         h, w = int(x.shape[2]), int(x.shape[3])
         branches = []
@@ -311,8 +335,10 @@ class EfficientPyrPool(nn.Module):
             else:
                 y = stage(x)
             branches.append(y)
-        out = self.merge_layer(torch.cat(branches, 1))
-        return self.br(out) if self.last_layer_br else out
+        out: torch.Tensor = self.merge_layer(torch.cat(branches, 1))
+        if self.last_layer_br:
+            out = self.br(out)
+        return out
 
 
 class EfficientPWConv(nn.Module):
@@ -324,15 +350,20 @@ class EfficientPWConv(nn.Module):
         self.expansion_layer = SeqConvBnAct(c_in, c_out, 3, groups=math.gcd(c_in, c_out))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.expansion_layer(x) * self.wt_layer(x)
+        """(N, c_in, H, W) -> (N, c_out, H, W)."""
+        out: torch.Tensor = self.expansion_layer(x) * self.wt_layer(x)
+        return out
 
 
 class ESPNetv2Segmentation(nn.Module):
     """ESPNetv2 encoder + pyramid-pooling decoder (EdgeNets ``espnetv2_seg``, ``dataset='city'``).
 
-    Args:
-        s: width scale (0.5, 1.0, 1.5, 2.0).
-        classes: output channels (20 for the Cityscapes weights).
+    Parameters
+    ----------
+    s
+        Width scale (0.5, 1.0, 1.5, 2.0).
+    classes
+        Output channels (20 for the Cityscapes weights).
     """
 
     def __init__(self, s: float = 2.0, classes: int = 20) -> None:
@@ -378,6 +409,9 @@ class ESPNetv2Segmentation(nn.Module):
 class NormalizedSegmenter(nn.Module):
     """Wrapper for export: (N, 3, H, W) float RGB in 0..255 -> ImageNet normalisation -> network."""
 
+    mean: torch.Tensor
+    inv_std: torch.Tensor
+
     def __init__(self, net: ESPNetv2Segmentation) -> None:
         super().__init__()
         self.net = net
@@ -385,7 +419,9 @@ class NormalizedSegmenter(nn.Module):
         self.register_buffer("inv_std", 1.0 / (torch.tensor(IMAGENET_STD).reshape(1, 3, 1, 1) * 255.0))
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
-        return self.net((image - self.mean) * self.inv_std)
+        """(N, 3, H, W) float RGB in 0..255 -> the network's logits."""
+        logits: torch.Tensor = self.net((image - self.mean) * self.inv_std)
+        return logits
 
 
 def load_espnetv2(weights: Path, s: float = 2.0, classes: int = 20) -> ESPNetv2Segmentation:

@@ -34,6 +34,7 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from geoloc import labels
 from geoloc.camera import Intrinsics, wrap_orientation_deg
@@ -70,6 +71,7 @@ class Pose:
     height_m: float = CAMERA_HEIGHT_M
 
     def as_dict(self) -> dict[str, float]:
+        """The pose as a JSON-ready dict (metres, degrees)."""
         return {k: float(v) for k, v in asdict(self).items()}
 
 
@@ -113,12 +115,16 @@ def rotation_matrix(pitch_deg: float, roll_deg: float) -> np.ndarray:
     p, r = math.radians(pitch_deg), math.radians(roll_deg)
     rx = np.array([[1, 0, 0], [0, math.cos(-p), -math.sin(-p)], [0, math.sin(-p), math.cos(-p)]])
     rz = np.array([[math.cos(-r), -math.sin(-r), 0], [math.sin(-r), math.cos(-r), 0], [0, 0, 1]])
-    return rz @ rx
+    rotation: np.ndarray = rz @ rx
+    return rotation
 
 
 def upright_to_image_homography(pose: Pose, intrinsics: Intrinsics, upright: Intrinsics) -> np.ndarray:
     """3x3 H mapping upright-canvas pixel coordinates to image pixel coordinates (same pixel convention)."""
-    return intrinsics.matrix @ rotation_matrix(pose.pitch_deg, pose.roll_deg) @ np.linalg.inv(upright.matrix)
+    homography: np.ndarray = (
+        intrinsics.matrix @ rotation_matrix(pose.pitch_deg, pose.roll_deg) @ np.linalg.inv(upright.matrix)
+    )
+    return homography
 
 
 def _upright_canvas(pose: Pose, intr: Intrinsics) -> Intrinsics:
@@ -203,7 +209,7 @@ def _cast_layers(scene: Scene, pose: Pose, canvas: Intrinsics, max_range_m: floa
     n_layers = int(nv.max())
 
     def padded(values: np.ndarray, fill: float, dtype: type = np.float64) -> np.ndarray:
-        out = np.full((w, n_layers), fill, dtype=dtype)
+        out: np.ndarray = np.full((w, n_layers), fill, dtype=dtype)
         out[ray_v, rank_v] = values[visible]
         return out
 
@@ -250,7 +256,8 @@ def _bilinear(tex: np.ndarray, var: np.ndarray, fx: np.ndarray, fy: np.ndarray, 
     c11 = flat[base + y1 * tw + x1].astype(np.float32)
     top = c00 + (c01 - c00) * ax
     bot = c10 + (c11 - c10) * ax
-    return (top + (bot - top) * ay) * np.float32(1.0 / 255.0)
+    colour: np.ndarray = (top + (bot - top) * ay) * np.float32(1.0 / 255.0)
+    return colour
 
 
 def _sample_mip(
@@ -281,7 +288,7 @@ def _sample_mip(
     return out
 
 
-def _hash(*keys: np.ndarray) -> np.ndarray:
+def _hash(*keys: npt.ArrayLike) -> np.ndarray:
     """Deterministic integer hash of integer arrays -> uint64."""
     h = np.full(np.broadcast(*keys).shape, 1469598103934665603, dtype=np.uint64)
     for k in keys:
@@ -460,6 +467,58 @@ def _car_geometry(c: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, list[tuple[
     return np.concatenate(pts), polys
 
 
+_CAR_FACE_KINDS = ("front", "back", "side", "top")  # a face kind is one of these + "0" (body) or "1" (cabin)
+
+
+def _fill_car_polygon(img: np.ndarray, local_px: np.ndarray, idx: np.ndarray, colour: tuple[float, ...] | int) -> None:
+    """Fill one convex polygon of a car (point indices ``idx`` into ``local_px``, patch pixels) into ``img``."""
+    cv2.fillConvexPoly(img, np.round(local_px[idx] * 16).astype(np.int32), colour, cv2.LINE_8, 4)
+
+
+def _visible_car_faces(
+    polys: list[tuple[str, np.ndarray]], pts: np.ndarray, cam: np.ndarray, d: np.ndarray
+) -> tuple[list[tuple[float, str, np.ndarray, np.ndarray]], set[int]]:
+    """The car's box faces that face the camera and which long sides of the body are seen.
+
+    Returns [(distance to the camera m, kind, corner indices, outward normal)] and the set of visible
+    body sides (+1: the side along +n, the left normal of direction ``d``; -1 the other).
+    """
+    faces = []
+    visible_sides = set()
+    for kind, idx in polys:
+        if kind[:-1] in _CAR_FACE_KINDS:
+            quad, normal = pts[idx[:-1]], pts[idx[-1]]
+            centre = quad.mean(axis=0)
+            if np.dot(cam - centre, normal) > 0:
+                faces.append((float(np.linalg.norm(cam - centre)), kind, idx[:-1], normal))
+                if kind == "side0":
+                    visible_sides.add(round(float(np.dot(normal[:2], [d[1], -d[0]]))))  # +1: the +n side
+    return faces, visible_sides
+
+
+def _draw_car_details(
+    polys: list[tuple[str, np.ndarray]],
+    faces: list[tuple[float, str, np.ndarray, np.ndarray]],
+    visible_sides: set[int],
+    local_px: np.ndarray,
+    patch: np.ndarray,
+    mask: np.ndarray,
+) -> None:
+    """Wheels on the visible sides and lamps on the visible front/back, into the car's patch and mask."""
+    wheel_i = 0
+    for kind, idx in polys:
+        if kind == "wheel":
+            side = -1 if wheel_i < 2 else 1  # the first two wheels are on the -n side
+            wheel_i += 1
+            if side in visible_sides:
+                _fill_car_polygon(patch, local_px, idx, (0.04, 0.04, 0.04))
+                _fill_car_polygon(mask, local_px, idx, 1)
+        elif kind in ("lamp_f", "lamp_b"):
+            face = "front0" if kind == "lamp_f" else "back0"
+            if any(f[1] == face for f in faces):
+                _fill_car_polygon(patch, local_px, idx, (0.92, 0.92, 0.86) if kind == "lamp_f" else (0.75, 0.08, 0.06))
+
+
 def _draw_car(
     k: int,
     scene: Scene,
@@ -472,6 +531,7 @@ def _draw_car(
     zbuf: np.ndarray,
     light: tuple[float, float],
 ) -> None:
+    """Draw car ``k`` (its shadow, faces, wheels, lamps) into the canvas layers where it is nearest."""
     cars = scene.cars
     c, d, body = cars.xy[k], cars.direction[k], cars.rgb[k]
     cam = np.array([pose.x_m, pose.y_m, pose.height_m])
@@ -479,7 +539,7 @@ def _draw_car(
     px, z = _project(pts, pose, canvas)
     is_normal = np.zeros(len(pts), bool)
     for kind, idx in polys:
-        if kind[:-1] in ("front", "back", "side", "top"):
+        if kind[:-1] in _CAR_FACE_KINDS:
             is_normal[idx[-1]] = True
     if np.any(z[~is_normal] < 0.5):
         return
@@ -497,46 +557,24 @@ def _draw_car(
     ambient, direct = light
     sun = scene.sun.vector
     glass = np.array([0.07, 0.08, 0.10])
-    offset = np.array([x0, y0])
+    local_px = px - np.array([x0, y0])
 
-    def fill(img: np.ndarray, idx: np.ndarray, colour: tuple[float, ...] | int) -> None:
-        cv2.fillConvexPoly(img, np.round((px[idx] - offset) * 16).astype(np.int32), colour, cv2.LINE_8, 4)
-
-    faces = []
-    visible_sides = set()
     for kind, idx in polys:
         if kind == "shadow":
             shadow = np.zeros_like(mask)
-            fill(shadow, idx, 1)
+            _fill_car_polygon(shadow, local_px, idx, 1)
             sel = (shadow > 0) & (lab[y0:y1, x0:x1] == labels.ROAD)
             rgb[y0:y1, x0:x1][sel] *= 0.45
-        elif kind[:-1] in ("front", "back", "side", "top"):
-            quad, normal = pts[idx[:-1]], pts[idx[-1]]
-            centre = quad.mean(axis=0)
-            if np.dot(cam - centre, normal) > 0:
-                faces.append((float(np.linalg.norm(cam - centre)), kind, idx[:-1], normal))
-                if kind == "side0":
-                    visible_sides.add(round(float(np.dot(normal[:2], [d[1], -d[0]]))))  # +1: the +n side
+    faces, visible_sides = _visible_car_faces(polys, pts, cam, d)
     for _, kind, idx, normal in sorted(faces, key=lambda item: -item[0]):
         lam = max(0.0, float(normal @ sun))
         colour = body * (ambient + direct * lam)
         if kind in ("side1", "front1", "back1"):
             colour = glass + 0.1 * (ambient + direct * lam)
-        fill(patch, idx, tuple(float(x) for x in colour))
-        fill(mask, idx, 1)
+        _fill_car_polygon(patch, local_px, idx, tuple(float(x) for x in colour))
+        _fill_car_polygon(mask, local_px, idx, 1)
     if detailed:
-        wheel_i = 0
-        for kind, idx in polys:
-            if kind == "wheel":
-                side = -1 if wheel_i < 2 else 1  # the first two wheels are on the -n side
-                wheel_i += 1
-                if side in visible_sides:
-                    fill(patch, idx, (0.04, 0.04, 0.04))
-                    fill(mask, idx, 1)
-            elif kind in ("lamp_f", "lamp_b"):
-                face = "front0" if kind == "lamp_f" else "back0"
-                if any(f[1] == face for f in faces):
-                    fill(patch, idx, (0.92, 0.92, 0.86) if kind == "lamp_f" else (0.75, 0.08, 0.06))
+        _draw_car_details(polys, faces, visible_sides, local_px, patch, mask)
     sel = (mask > 0) & (zbuf[y0:y1, x0:x1] > depth)
     rgb[y0:y1, x0:x1][sel] = patch[sel]
     lab[y0:y1, x0:x1][sel] = labels.CAR
@@ -629,8 +667,8 @@ def render(
     flat_layer = kk + (np.arange(wc) * n_layers)[None, :]
     covered = (k0 < layers.n[None, :]) & (y32 <= layers.bottom.ravel()[flat_layer])
 
-    rgb = np.zeros((hc, wc, 3), np.float32)
-    lab = np.full((hc, wc), labels.SKY, np.uint8)
+    rgb: np.ndarray = np.zeros((hc, wc, 3), np.float32)
+    lab: np.ndarray = np.full((hc, wc), labels.SKY, np.uint8)
     bld = np.full((hc, wc), -1, np.int32)
     fcd = np.full((hc, wc), -1, np.int32)
     zbuf = np.full((hc, wc), np.inf, np.float32)
@@ -799,7 +837,7 @@ def _photometric(rng: np.random.Generator, rgb: np.ndarray) -> np.ndarray:
     """Exposure and white balance jitter, vignetting, slight blur, sensor noise (float RGB in [0, 1])."""
     h, w = rgb.shape[:2]
     gain = (rng.uniform(0.9, 1.1) * (1.0 + rng.normal(0, 0.02, 3))).astype(np.float32)
-    img = rgb * (_vignette(h, w) * gain)
+    img: np.ndarray = rgb * (_vignette(h, w) * gain)
     img = cv2.GaussianBlur(img, (0, 0), float(rng.uniform(0.5, 0.8)))
     noise = rng.standard_normal((h, w, 3), dtype=np.float32)
     noise *= np.float32(0.006)
@@ -811,4 +849,5 @@ def _photometric(rng: np.random.Generator, rgb: np.ndarray) -> np.ndarray:
 def _vignette(h: int, w: int) -> np.ndarray:
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     r2 = ((xx - w / 2) / (w / 2)) ** 2 + ((yy - h / 2) / (w / 2)) ** 2
-    return (1.0 - 0.18 * r2)[..., None].astype(np.float32)
+    vignette: np.ndarray = (1.0 - 0.18 * r2)[..., None].astype(np.float32)
+    return vignette

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import shapely
+from shapely.geometry.base import BaseGeometry
 
 from geoloc.osm import CityMap
 from geoloc.raycast import FacadeIndex
@@ -102,7 +103,7 @@ class Scene:
         self.perimeter_m = np.bincount(bid, weights=fac.length_m, minlength=n_b)
         self.facade_dir = (fac.end - fac.start) / fac.length_m[:, None]
         self._looks: dict[int, BuildingLook] = {}
-        self._grown: dict[float, object] = {}
+        self._grown: dict[float, BaseGeometry] = {}
         rng = np.random.default_rng([self.seed, 1])
         self.sun = Sun(float(rng.uniform(0, 360)), float(rng.uniform(22, 50)))
         cover = float(rng.uniform(0.15, 0.6)) if cloud_cover is None else cloud_cover
@@ -156,7 +157,8 @@ class Scene:
         self.road = cv2.blur(raster * np.uint8(255), (3, 3))
 
     def _to_raster(self, xy: np.ndarray) -> np.ndarray:
-        return np.round((xy - self.raster_origin) / ROAD_RASTER_M).astype(np.int32).reshape(-1, 1, 2)
+        raster_xy: np.ndarray = np.round((xy - self.raster_origin) / ROAD_RASTER_M).astype(np.int32)
+        return raster_xy.reshape(-1, 1, 2)
 
     def road_class(self, xy: np.ndarray) -> np.ndarray:
         """(N, 2) local points -> (N,) uint8: 1 road, 2 kerb, 0 pavement (also outside the raster).
@@ -255,4 +257,5 @@ def _tile_noise(rng: np.random.Generator, size: int) -> np.ndarray:
     f = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.fftfreq(size)[None, :]) + 1e-3
     spec = (rng.standard_normal(f.shape) + 1j * rng.standard_normal(f.shape)) / f**0.9
     field = np.real(np.fft.ifft2(spec))
-    return ((field - field.mean()) / (3 * field.std())).astype(np.float32)
+    noise: np.ndarray = ((field - field.mean()) / (3 * field.std())).astype(np.float32)
+    return noise

@@ -449,7 +449,7 @@ def cloud_panorama(rng: np.random.Generator, cover: float, res_deg: float = 0.25
     field = np.real(np.fft.ifft2(spectrum))[:rows]
     field = (field - field.mean()) / (field.std() + 1e-9)
     thresh = np.quantile(field, 1.0 - cover)
-    opacity = np.clip((field - thresh) / 1.2, 0.0, 1.0) ** 0.8
+    opacity: np.ndarray = np.clip((field - thresh) / 1.2, 0.0, 1.0) ** 0.8
     return opacity.astype(np.float32)
 
 

@@ -91,13 +91,14 @@ class _Candidates:
 
 def _world_centre(city_map: CityMap) -> np.ndarray:
     cent = np.array([b.polygon.centroid.coords[0] for b in city_map.buildings])
-    return np.median(cent, axis=0)
+    centre: np.ndarray = np.median(cent, axis=0)
+    return centre
 
 
 def _street_points(
     city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray, radius_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """n random points on streets inside the disk (uniform by length): (n, 2) xy, (n, 2) unit directions."""
+    """``n`` random points on streets inside the disk (uniform by length): (n, 2) xy, (n, 2) unit directions."""
     segs_a, segs_b = [], []
     for line in city_map.streets:
         if len(line) >= 2:
@@ -244,43 +245,14 @@ def sample_queries(
         for _attempt in range(6):
             if want == 0:
                 break
-            if kind == "between" and len(ref_xy) >= 2:
-                i = rng.integers(len(ref_xy), size=m)
-                d = np.hypot(*(ref_xy[:, None] - ref_xy[None]).transpose(2, 0, 1))
-                np.fill_diagonal(d, np.inf)
-                nn = np.argsort(d, axis=1)[:, :3]
-                j = nn[i, rng.integers(0, min(3, len(ref_xy) - 1), m)]
-                t = rng.uniform(0.3, 0.7, (m, 1))
-                xy = ref_xy[i] * (1 - t) + ref_xy[j] * t + rng.normal(0, 2.0, (m, 2))
-                diff = ((ref_yaw[j] - ref_yaw[i] + 180.0) % 360.0) - 180.0
-                yaw = (ref_yaw[i] + diff * t[:, 0] + rng.normal(0, 25.0, m)) % 360.0
-                cand = _Candidates(xy, yaw)
-                far = d[i, j] > 80.0
-            elif kind == "offset" and len(ref_xy):
-                i = rng.integers(len(ref_xy), size=m)
-                ang = rng.uniform(0, 2 * np.pi, m)
-                r = rng.uniform(4.0, 15.0, m)
-                xy = ref_xy[i] + np.column_stack([np.cos(ang), np.sin(ang)]) * r[:, None]
-                turn = rng.uniform(20.0, 70.0, m) * rng.choice([-1.0, 1.0], m)
-                cand = _Candidates(xy, (ref_yaw[i] + turn) % 360.0)
-                far = np.zeros(m, bool)
-            else:
-                cand = _street_candidates(scene.map, rng, m, centre, opts.radius_m)
-                cand.yaw_deg = (cand.yaw_deg + rng.normal(0, 20.0, m)) % 360.0
-                far = np.zeros(m, bool)
+            cand, far = _query_candidates(kind, scene, opts, rng, centre, ref_xy, ref_yaw, m)
             ok = _valid_positions(scene, cand.xy) & ~far
             view = _views(scene, cand.xy, cand.yaw_deg, opts.hfov_deg)
             ok &= (view.coverage >= 0.45) & (view.median_dist_m >= 5.0) & (view.median_dist_m <= 60.0)
             if kind == "unseen":
                 seen = np.array([ref_seen.get(int(b), 0.0) for b in view.main_building])
                 ok &= (seen < 0.02) & (view.main_building >= 0)
-            for q in np.flatnonzero(ok):
-                if got >= want:
-                    break
-                if out and np.min(np.hypot(*(np.array([o[1] for o in out]) - cand.xy[q]).T)) < 2.0:
-                    continue
-                out.append((kind, cand.xy[q], float(cand.yaw_deg[q])))
-                got += 1
+            got += _accept_queries(out, kind, cand, ok, want - got)
             if got >= want:
                 break
         if got < want:  # not enough of this kind (e.g. every building is seen): top up with the next kind
@@ -292,6 +264,63 @@ def sample_queries(
         pitch, roll = _pitch_roll(rng, opts)
         result.append((kind, Pose(round(float(xy[0]), 3), round(float(xy[1]), 3), round(yaw, 3), pitch, roll)))
     return result
+
+
+def _query_candidates(
+    kind: str,
+    scene: Scene,
+    opts: WorldOptions,
+    rng: np.random.Generator,
+    centre: np.ndarray,
+    ref_xy: np.ndarray,
+    ref_yaw: np.ndarray,
+    m: int,
+) -> tuple[_Candidates, np.ndarray]:
+    """``m`` candidate query poses of one kind (local metres, yaw degrees) and (m,) bool: too far to use.
+
+    ``between``: on the segment between a reference and one of its 3 nearest (too far beyond 80 m apart);
+    ``offset``: 4-15 m from a reference, turned 20-70 deg; otherwise (``unseen``, or too few references)
+    anywhere along the streets.
+    """
+    if kind == "between" and len(ref_xy) >= 2:
+        i = rng.integers(len(ref_xy), size=m)
+        d = np.hypot(*(ref_xy[:, None] - ref_xy[None]).transpose(2, 0, 1))
+        np.fill_diagonal(d, np.inf)
+        nn = np.argsort(d, axis=1)[:, :3]
+        j = nn[i, rng.integers(0, min(3, len(ref_xy) - 1), m)]
+        t = rng.uniform(0.3, 0.7, (m, 1))
+        xy = ref_xy[i] * (1 - t) + ref_xy[j] * t + rng.normal(0, 2.0, (m, 2))
+        diff = ((ref_yaw[j] - ref_yaw[i] + 180.0) % 360.0) - 180.0
+        yaw = (ref_yaw[i] + diff * t[:, 0] + rng.normal(0, 25.0, m)) % 360.0
+        return _Candidates(xy, yaw), d[i, j] > 80.0
+    if kind == "offset" and len(ref_xy):
+        i = rng.integers(len(ref_xy), size=m)
+        ang = rng.uniform(0, 2 * np.pi, m)
+        r = rng.uniform(4.0, 15.0, m)
+        xy = ref_xy[i] + np.column_stack([np.cos(ang), np.sin(ang)]) * r[:, None]
+        turn = rng.uniform(20.0, 70.0, m) * rng.choice([-1.0, 1.0], m)
+        return _Candidates(xy, (ref_yaw[i] + turn) % 360.0), np.zeros(m, bool)
+    cand = _street_candidates(scene.map, rng, m, centre, opts.radius_m)
+    cand.yaw_deg = (cand.yaw_deg + rng.normal(0, 20.0, m)) % 360.0
+    return cand, np.zeros(m, bool)
+
+
+def _accept_queries(
+    out: list[tuple[str, np.ndarray, float]], kind: str, cand: _Candidates, ok: np.ndarray, n_wanted: int
+) -> int:
+    """Append up to ``n_wanted`` of the ``ok`` candidates to ``out``; returns how many were appended.
+
+    Candidates are taken in order, each at least 2 m from the queries already in ``out``.
+    """
+    taken = 0
+    for q in np.flatnonzero(ok):
+        if taken >= n_wanted:
+            break
+        if out and np.min(np.hypot(*(np.array([o[1] for o in out]) - cand.xy[q]).T)) < 2.0:
+            continue
+        out.append((kind, cand.xy[q], float(cand.yaw_deg[q])))
+        taken += 1
+    return taken
 
 
 # ----------------------------------------------------------------------------------------------
@@ -582,23 +611,28 @@ class WorldImage:
 
     @property
     def name(self) -> str:
-        return self.record["name"]
+        """The image's name in the manifest."""
+        return str(self.record["name"])
 
     @property
     def role(self) -> str:
-        return self.record["role"]
+        """``"reference"`` or ``"query"``."""
+        return str(self.record["role"])
 
     @property
     def path(self) -> Path:
-        return self.root / self.record["file"]
+        """The JPEG file."""
+        return self.root / str(self.record["file"])
 
     @property
     def pose(self) -> Pose:
+        """The true camera pose (local frame, metres and degrees)."""
         p = self.record["pose"]
         return Pose(p["x_m"], p["y_m"], p["yaw_deg"], p["pitch_deg"], p["roll_deg"], p["height_m"])
 
     @property
     def intrinsics(self) -> Intrinsics:
+        """The true camera intrinsics (pixels)."""
         i = self.record["intrinsics"]
         return Intrinsics(i["width"], i["height"], i["focal_px"], i["cx"], i["cy"], "exif_35mm")
 
@@ -621,13 +655,16 @@ class World:
 
     @property
     def references(self) -> list[WorldImage]:
+        """The reference images (geo-tagged)."""
         return [im for im in self.images if im.role == "reference"]
 
     @property
     def queries(self) -> list[WorldImage]:
+        """The query images."""
         return [im for im in self.images if im.role == "query"]
 
     def image(self, name: str) -> WorldImage:
+        """The image called ``name``; KeyError if there is none."""
         for im in self.images:
             if im.name == name:
                 return im
