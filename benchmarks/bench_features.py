@@ -65,7 +65,7 @@ import numpy as np
 from geoloc import labels as classes
 from geoloc.camera import Intrinsics
 from geoloc.config import shared_path
-from geoloc.evaluation import _best_overlapping_references
+from geoloc.evaluation import shown_by_references
 from geoloc.features import Features, extract_features
 from geoloc.osm import CityMap
 from geoloc.retrieval import InvertedIndex, default_vocabulary
@@ -305,7 +305,7 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
         r = max(refs, key=lambda r, q=q: covisible[(q, r)])
         if covisible[(q, r)] >= 0.1:
             best[q] = r
-    best_sets = {q: _best_overlapping_references(world, q, refs) for q in queries}
+    best_sets = {q: shown_by_references(world, q, refs)["references"] for q in queries}
 
     results: dict = {
         "pairs": {"sharing": len(sharing), "wrong": len(wrong), "queries_with_best_overlap": len(best)},

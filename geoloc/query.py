@@ -57,6 +57,9 @@ from geoloc.transfer import (
     transfer_identities,
 )
 
+SPARE_POSES = 3
+"""Likelihood poses asked beyond ``top_n``: ones that coincide after refinement (or with the anchored pose)
+are dropped, and the spares keep the answer at ``top_n`` locations."""
 PRIOR_SHORTLIST_FACTOR = 3
 """With a position prior, this many times the shortlist is ranked before far references are left out."""
 CHI2_2D_90 = 4.605
@@ -233,7 +236,7 @@ def geolocate(
         search_radius_m=config.search_radius_m,
         n_yaws=config.n_yaws,
         sharpness=config.sharpness,
-        top_n=top_n,
+        top_n=top_n + SPARE_POSES,
     )
     timings["localize"] = 1e3 * (time.perf_counter() - t0)
 
