@@ -138,6 +138,12 @@ class Settings(BaseSettings):
         description="onnxruntime threads for segmentation",
         json_schema_extra=_shown("min(4, cores)"),
     )
+    worker_threads: int = Field(
+        default=1,
+        ge=1,
+        description="threads of numpy's BLAS and of OpenCV in each worker process (the pool's processes are the "
+        "parallelism; inner threads on busy cores only wait for each other)",
+    )
     log_level: str = Field(default="INFO", description="log level of the workers")
 
     @field_validator("shared", "data_dir", mode="after")
