@@ -146,9 +146,17 @@ def _cast_tile(
     origin = positions[members]
     start, end, normal = facades.start[near], facades.end[near], facades.normal[near]
     local = np.full((len(members), n_bearings), np.iinfo(np.int64).max, dtype=np.int64)
+    columns = [origin[:, 0], origin[:, 1], start[:, 0], start[:, 1], end[:, 0], end[:, 1], normal[:, 0], normal[:, 1]]
+    px, py, sx, sy, ex, ey, nx, ny = (np.ascontiguousarray(c, dtype=np.float64) for c in columns)
     _cast_kernel(
-        *(np.ascontiguousarray(c, dtype=np.float64) for c in (origin[:, 0], origin[:, 1], start[:, 0], start[:, 1])),
-        *(np.ascontiguousarray(c, dtype=np.float64) for c in (end[:, 0], end[:, 1], normal[:, 0], normal[:, 1])),
+        px,
+        py,
+        sx,
+        sy,
+        ex,
+        ey,
+        nx,
+        ny,
         np.asarray(near, dtype=np.int64),
         sin_k,
         cos_k,

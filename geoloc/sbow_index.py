@@ -151,8 +151,11 @@ def _sorted_by_word_then_doc(word: np.ndarray, doc: np.ndarray) -> bool:  # prag
 
 def _compact_weights(weight: np.ndarray) -> np.ndarray:
     """float32 when every weight is exactly a float32 (integer word counts are), else float64."""
+    if weight.dtype == np.float32:
+        return weight
+    weight = np.asarray(weight, np.float64)
     single = weight.astype(np.float32)
-    return single if np.array_equal(single.astype(np.float64), weight) else weight
+    return single if np.array_equal(single, weight) else weight
 
 
 class SbowIndex:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import sqlite_utils
 
 from db import connect, migrate, sbow, transaction
 from db import maps as map_store
@@ -105,7 +106,7 @@ def test_ties_go_to_the_lower_id() -> None:
         index.remove(99)
 
 
-def _add_map(db) -> int:
+def _add_map(db: sqlite_utils.Database) -> int:
     content = map_store.MapContent(
         bbox_wgs84=(60.169, 24.939, 60.172, 24.942),
         origin_lat=60.1705,
@@ -127,7 +128,7 @@ def _add_map(db) -> int:
         )
 
 
-def _add_indexed_reference(db, map_id: int, number: int, words: np.ndarray) -> int:
+def _add_indexed_reference(db: sqlite_utils.Database, map_id: int, number: int, words: np.ndarray) -> int:
     with transaction(db):
         reference_id = reference_store.insert_reference(
             db,
@@ -147,7 +148,7 @@ def _add_indexed_reference(db, map_id: int, number: int, words: np.ndarray) -> i
     return reference_id
 
 
-def _sql_ranking(db, map_id: int, query: np.ndarray, n: int) -> list[tuple[int, float]]:
+def _sql_ranking(db: sqlite_utils.Database, map_id: int, query: np.ndarray, n: int) -> list[tuple[int, float]]:
     """The ranking the service computed before the in-memory index: every postings row of the query's words."""
     p = sbow.postings_for_words(db, map_id, query)
     scores = tfidf_scores(query, p.word, p.doc, p.count, p.doc_lengths, p.n_docs)

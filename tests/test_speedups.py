@@ -25,7 +25,7 @@ from geoloc.likelihood import (
     pose_likelihood_numpy,
 )
 from geoloc.osm import CityMap
-from geoloc.pipeline import PhotoEvidence, analyze_photo, load_photo
+from geoloc.pipeline import Photo, PhotoEvidence, analyze_photo, load_photo
 from geoloc.posterior import grid_around
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
@@ -33,7 +33,7 @@ from geoloc.sim.world import WorldOptions, generate_world, load_world
 @dataclass
 class Scene:
     city: CityMap
-    photos: list[tuple[np.ndarray, PhotoEvidence, object]]  # (gps_xy, evidence, photo)
+    photos: list[tuple[np.ndarray, PhotoEvidence, Photo]]  # (gps_xy, evidence, photo)
 
 
 @pytest.fixture(scope="module")
@@ -46,11 +46,12 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Scene:
     )
     world = load_world(Path(out))
     city = world.load_map()
-    photos = []
+    photos: list[tuple[np.ndarray, PhotoEvidence, Photo]] = []
     for image in [*world.references, *world.queries]:
         photo = load_photo(image.path)
         evidence = analyze_photo(photo, world.gt(image.name)["labels"])
-        photos.append((np.array(city.frame.to_local(*photo.gps), dtype=float), evidence, photo))
+        assert photo.gps is not None
+        photos.append((np.array(city.frame.to_local(*photo.gps), dtype=np.float64), evidence, photo))
     return Scene(city, photos)
 
 
@@ -95,6 +96,7 @@ def test_likelihood_kernel_equals_numpy(scene: Scene) -> None:
         panoramas = raycast.cast_panoramas(scene.city, grid.positions, bearing_step_deg=model.bin_deg)
         # An identity-aware model: the map's identities at a grid pose, over the photo's own geometry.
         truth = image_model_from_map(panoramas, len(panoramas) // 2, 40.0, model.offsets_deg)
+        assert truth.identity_prob is not None
         with_identity = type(model)(
             model.offsets_deg,
             model.facade_present,
