@@ -5,7 +5,8 @@
 
 Each service is ``geoloc serve --workers N`` on its own fresh data folder (the built models linked in), on
 loopback; ``--baseline`` adds the same service run from another commit of this repository (exported with
-``git archive`` into the work folder, run with the same Python environment), so that old and new are
+``git archive`` into the work folder, run with the same Python environment), and each ``--variant`` one more
+service of this checkout with other settings (e.g. ``GEOLOC_SEG_THREADS=2``), so that old and new are
 measured side by side under the same load. On each:
 
 1. The Helsinki map is uploaded; the references of the world (``geoloc sim world --map helsinki.osm.pbf
@@ -21,8 +22,9 @@ measured side by side under the same load. On each:
    per second of wall time per worker.
 4. Memory: the workers' peak resident memory (``VmHWM``) while labelling and, reset in between
    (``/proc/PID/clear_refs``), while answering queries.
-5. Answers: each query's ranked locations on the two services (rank 1 position and heading, the number of
-   locations), which must agree: the speed-ups do not change what the method computes.
+5. Answers: each query's ranked locations on every other service next to this checkout's (rank 1 position
+   and heading, the number of locations), which must agree: the speed-ups do not change what the method
+   computes.
 
 The machine is shared: its load average is printed with each phase. Prints a table and writes JSON. Targets
 (issue 14): query p50 <= 400 ms and p95 <= 800 ms, >= 1.5 references and >= 2 queries per second per core.
@@ -289,6 +291,26 @@ def _distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:
     return float(np.hypot(dx, dy))
 
 
+def compare_answers(other: list[dict[str, Any]], current: list[dict[str, Any]]) -> dict[str, Any]:
+    """How far the rank-1 answers of the same queries lie apart on two services."""
+    pairs = list(zip(other, current, strict=True))
+    gaps = [_distance_m(a["locations"][0][:2], b["locations"][0][:2]) for a, b in pairs if a["locations"]]
+    headings = [
+        abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) for a, b in pairs if a["locations"]
+    ]
+    same = sum(
+        len(a["locations"]) == len(b["locations"])
+        and (not a["locations"] or (_distance_m(a["locations"][0][:2], b["locations"][0][:2]) < 0.05
+                                    and abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) < 0.05))
+        for a, b in pairs
+    )  # fmt: skip
+    return {
+        "same_rank1_pose": f"{same}/{len(pairs)}",
+        "rank1_gap_m_max": round(max(gaps, default=0.0), 3),
+        "rank1_heading_gap_deg_max": round(max(headings, default=0.0), 3),
+    }
+
+
 def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
     walls = [r["wall_ms"] for r in runs]
     stages = sorted({stage for r in runs for stage in r["timings_ms"]}, key=list(runs[0]["timings_ms"]).index)
@@ -308,7 +330,12 @@ def main() -> None:
     parser.add_argument("--world", type=Path, help="a simulated Helsinki world (default: made here)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--env", action="append", default=[], help="KEY=VALUE for this checkout's service")
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        help="KEY=VALUE[,KEY=VALUE]: one more service of this checkout with these settings (repeatable)",
+    )
     parser.add_argument("--workdir", type=Path, help="folder for the services and the world (default: temp)")
     parser.add_argument("--json", type=Path, default=Path("service.json"))
     args = parser.parse_args()
@@ -338,10 +365,13 @@ def main() -> None:
     queries = [im.path for im in world.queries]
     figures["world"] = {"path": str(world_dir), "references": len(references), "queries": len(queries)}
 
-    sources = {"current": (REPO_ROOT, dict(kv.split("=", 1) for kv in args.env))}
+    sources: dict[str, tuple[Path, dict[str, str]]] = {}
     if args.baseline:
         commit = export_commit(args.baseline, workdir / "baseline-src")
-        sources = {f"baseline {commit}": (workdir / "baseline-src", {}), **sources}
+        sources[f"baseline {commit}"] = (workdir / "baseline-src", {})
+    for variant in args.variant:
+        sources[f"current {variant}"] = (REPO_ROOT, dict(kv.split("=", 1) for kv in variant.split(",")))
+    sources["current"] = (REPO_ROOT, {})
     services: dict[str, Service] = {}
     try:
         for index, (name, (source, env)) in enumerate(sources.items()):
@@ -372,28 +402,11 @@ def main() -> None:
         figures["queries_load_average"] = [load0, load_average()]
         figures["concurrent_queries"] = {name: concurrent_queries(services[name], queries) for name in names}
 
-        if len(names) == 2:
-            pairs = list(zip(runs[names[0]], runs[names[1]], strict=True))
-            gaps = [
-                _distance_m(a["locations"][0][:2], b["locations"][0][:2]) if a["locations"] and b["locations"] else 0
-                for a, b in pairs
-            ]
-            headings = [
-                abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) if a["locations"] else 0
-                for a, b in pairs
-            ]
-            same = sum(
-                len(a["locations"]) == len(b["locations"]) and g < 0.05 and h < 0.05
-                for (a, b), g, h in zip(pairs, gaps, headings, strict=True)
+        figures["answers"] = {name: compare_answers(runs[name], runs["current"]) for name in names if name != "current"}
+        for name, row in figures["answers"].items():
+            row["speedup_p50"] = round(
+                figures["queries"][name]["wall_ms_p50"] / figures["queries"]["current"]["wall_ms_p50"], 2
             )
-            figures["answers"] = {
-                "same_rank1_pose": f"{same}/{len(pairs)}",
-                "rank1_gap_m_max": round(max(gaps), 3),
-                "rank1_heading_gap_deg_max": round(max(headings), 3),
-                "speedup_p50": round(
-                    figures["queries"][names[0]]["wall_ms_p50"] / figures["queries"][names[1]]["wall_ms_p50"], 2
-                ),
-            }
     finally:
         for service in services.values():
             service.stop()
@@ -415,12 +428,11 @@ def main() -> None:
         c = figures["concurrent_queries"][name]
         print(f"{name}: {c['queries']} concurrent queries in {c['wall_s']} s: {c['per_s_per_worker']} per second per "
               f"worker, {c['per_cpu_s']} per CPU-second (load {c['load_average']})")  # fmt: skip
-    if "answers" in figures:
-        answers = figures["answers"]
-        print(f"answers: rank 1 the same on both for {answers['same_rank1_pose']} queries (largest gap "
-              f"{answers['rank1_gap_m_max']} m, {answers['rank1_heading_gap_deg_max']} deg); "
-              f"median speed-up {answers['speedup_p50']}x")  # fmt: skip
-    current = names[-1]
+    for name, answers in figures["answers"].items():
+        print(f"answers of {name} and current: rank 1 the same for {answers['same_rank1_pose']} queries (largest "
+              f"gap {answers['rank1_gap_m_max']} m, {answers['rank1_heading_gap_deg_max']} deg); median latency "
+              f"{answers['speedup_p50']}x current's")  # fmt: skip
+    current = "current"
     q, lab = figures["queries"][current], figures["labelling"][current]
     figures["targets"] = {
         "query_p50_ms": {"value": q["wall_ms_p50"], "target": TARGET_P50_MS, "met": q["wall_ms_p50"] <= TARGET_P50_MS},

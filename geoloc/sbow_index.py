@@ -8,15 +8,16 @@ postings: same formula, same float64 operations in the same order (each document
 increasing word id), the same document frequencies (live documents only) and the same ties (lower id
 first). A test compares the two rankings.
 
-Changes are incremental: :meth:`SbowIndex.upsert` and :meth:`SbowIndex.remove` touch a small *recent*
-segment and a tombstone mask on the large *base* segment; when these grow past a share of the base, the
-base is rebuilt from memory (:meth:`SbowIndex.compact`, a stable radix sort by word). The caller keeps
-the index in step with the database (``workers/reference_store.py``: a change log read by a high-water
+Changes are incremental: :meth:`SbowIndex.upsert` appends the document to a small *recent* store (document
+by document, scored per document against the query's dense tf and idf) and tombstones any older copy;
+:meth:`SbowIndex.remove` tombstones. When the recent store or the tombstones grow past a share of the base,
+the base is rebuilt from memory (:meth:`SbowIndex.compact`, counting sorts: linear time). The caller keeps
+the index in step with the database (``workers/reference_store.py``: a change log read past a high-water
 mark).
 
-Memory: 4 bytes of document index and 4 (or 8) bytes of weight per posting (weights are stored as
-float32 when that is exact, as the service's integer word counts are), plus per-document arrays: about
-0.35 GB for 100,000 references of ~450 distinct words each (``benchmarks/bench_sbow.py``).
+Memory: per posting 4 bytes of document index, 4 (or 8) of weight and 2 of word (the document's word
+list, to forget it when it is removed); weights are float32 when that is exact, as the service's integer
+word counts are. 100,000 references of ~340 distinct words: 350 MB (``benchmarks/bench_sbow.py``).
 """
 
 from __future__ import annotations
@@ -158,11 +159,81 @@ def _compact_weights(weight: np.ndarray) -> np.ndarray:
     return single if np.array_equal(single, weight) else weight
 
 
+class _Recent:
+    """Documents added since the base was built, document-major and appendable (arrays grow by doubling).
+
+    Row r holds words ``words[ptr[r]:ptr[r + 1]]`` (sorted) with their weights, ``length[r]``, ``ids[r]``;
+    a replaced or removed document's row stays, marked dead, until the next compaction. ``df``: live
+    documents per word.
+    """
+
+    def __init__(self, n_words: int) -> None:
+        self.row_of: dict[int, int] = {}
+        self.rows = 0
+        self.ids = np.zeros(16, np.int64)
+        self.length = np.zeros(16, np.float64)
+        self.live = np.zeros(16, bool)
+        self.ptr = np.zeros(17, np.int64)
+        self.words = np.zeros(1024, np.int32)
+        self.weights = np.zeros(1024, np.float64)
+        self.df = np.zeros(n_words, np.int64)
+
+    def __len__(self) -> int:
+        return len(self.row_of)
+
+    def add(self, doc_id: int, words: np.ndarray, weights: np.ndarray, length: float) -> None:
+        """Append a document (``words`` distinct and sorted); the caller removed any earlier one."""
+        r, start = self.rows, int(self.ptr[self.rows])
+        if r + 1 >= len(self.ids):
+            self.ids, self.length, self.live = (_grown(a, r + 2) for a in (self.ids, self.length, self.live))
+            self.ptr = _grown(self.ptr, r + 3)
+        if start + len(words) > len(self.words):
+            self.words, self.weights = (_grown(a, start + len(words)) for a in (self.words, self.weights))
+        self.ids[r], self.length[r], self.live[r] = doc_id, length, True
+        self.words[start : start + len(words)] = words
+        self.weights[start : start + len(words)] = weights
+        self.ptr[r + 1] = start + len(words)
+        self.df[words] += 1
+        self.row_of[doc_id] = r
+        self.rows += 1
+
+    def remove(self, doc_id: int) -> bool:
+        """Mark a document dead; False when it is not here."""
+        r = self.row_of.pop(doc_id, None)
+        if r is None:
+            return False
+        self.live[r] = False
+        self.df[self.words[self.ptr[r] : self.ptr[r + 1]]] -= 1
+        return True
+
+    def documents(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(ids, lengths, words, weights) of the live documents, one row per (document, word)."""
+        rows = np.flatnonzero(self.live[: self.rows])
+        sizes = self.ptr[rows + 1] - self.ptr[rows]
+        index = np.repeat(self.ptr[rows] - np.cumsum(sizes) + sizes, sizes) + np.arange(int(sizes.sum()))
+        return self.ids[rows], self.length[rows], np.repeat(np.arange(len(rows)), sizes), index
+
+    @property
+    def nbytes(self) -> int:
+        arrays = (self.ids, self.length, self.live, self.ptr, self.words, self.weights, self.df)
+        return int(sum(a.nbytes for a in arrays))
+
+
+def _grown(array: np.ndarray, needed: int) -> np.ndarray:
+    """``array`` in a buffer of at least twice ``needed`` elements (contents kept)."""
+    out = np.zeros(max(2 * needed, 16), array.dtype)
+    out[: len(array)] = array
+    return out
+
+
 class SbowIndex:
     """In-memory SBoW index over ``n_words`` visual words with integer document ids (reference ids).
 
-    Scores and ranks as :func:`geoloc.retrieval.tfidf_scores` on the postings (module docstring). Not
-    thread-safe: one per worker process (and map).
+    Scores and ranks as :func:`geoloc.retrieval.tfidf_scores` on the postings (module docstring). The base
+    segment is scored word by word (the postings of the query's words), the recent documents document by
+    document (each document's words looked up in the query's dense tf and idf): both add each document's
+    terms in increasing word order, the order of the database path. Not thread-safe: one per worker process
+    (and map).
     """
 
     def __init__(self, n_words: int) -> None:
@@ -171,8 +242,7 @@ class SbowIndex:
         self._base_row: dict[int, int] = {}
         self._base_df = np.zeros(self.n_words, np.int64)  # live postings per word in the base
         self._dead = 0
-        self._recent: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
-        self._recent_segment: _Segment | None = None
+        self._recent = _Recent(self.n_words)
 
     # -- contents ----------------------------------------------------------------------------------
 
@@ -180,35 +250,37 @@ class SbowIndex:
         return len(self._base_row) + len(self._recent)
 
     def __contains__(self, doc_id: Hashable) -> bool:
-        return doc_id in self._base_row or doc_id in self._recent
+        return doc_id in self._base_row or doc_id in self._recent.row_of
 
     @property
     def doc_ids(self) -> np.ndarray:
         """Sorted ids of the documents in the index."""
-        ids = np.concatenate([self._base.ids[self._base.live], np.fromiter(self._recent, np.int64, len(self._recent))])
-        return np.sort(ids)
+        recent = self._recent
+        return np.sort(
+            np.concatenate([self._base.ids[self._base.live], recent.ids[: recent.rows][recent.live[: recent.rows]]])
+        )
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the arrays of the index (postings, documents, frequencies)."""
-        recent = sum(w.nbytes + c.nbytes for w, c, _ in self._recent.values())
-        compiled = self._recent_segment.nbytes if self._recent_segment is not None else 0
-        return self._base.nbytes + self._base_df.nbytes + recent + compiled
+        return self._base.nbytes + self._base_df.nbytes + self._recent.nbytes
 
     def postings(self, doc_id: int) -> tuple[np.ndarray, np.ndarray, float]:
         """A document's distinct words (sorted), their weights (float64) and its word total."""
         doc_id = int(doc_id)
-        if doc_id in self._recent:
-            words, weights, length = self._recent[doc_id]
-            return words.copy(), weights.copy(), length
+        recent = self._recent
+        if doc_id in recent.row_of:
+            r = recent.row_of[doc_id]
+            rows = slice(recent.ptr[r], recent.ptr[r + 1])
+            return recent.words[rows].astype(np.int64), recent.weights[rows].copy(), float(recent.length[r])
         row = self._base_row[doc_id]
         base = self._base
         words = np.sort(base.words_of(row))
-        rows = np.array(
+        rows_of = np.array(
             [base.word_ptr[w] + np.searchsorted(base.doc[base.word_ptr[w] : base.word_ptr[w + 1]], row) for w in words],
             np.int64,
         )
-        return words, base.weight[rows].astype(np.float64), float(base.length[row])
+        return words, base.weight[rows_of].astype(np.float64), float(base.length[row])
 
     def load(
         self,
@@ -227,8 +299,7 @@ class SbowIndex:
         self._base_row = {int(d): i for i, d in enumerate(ids.tolist())}
         self._base_df = self._base.word_counts().astype(np.int64)
         self._dead = 0
-        self._recent = {}
-        self._recent_segment = None
+        self._recent = _Recent(self.n_words)
 
     def upsert(self, doc_id: int, words: np.ndarray, weights: np.ndarray, length: float) -> None:
         """Add or replace one document: its distinct ``words`` and their ``weights`` (as the postings rows
@@ -243,16 +314,14 @@ class SbowIndex:
             raise ValueError(f"word ids must lie in [0, {self.n_words})")
         self.remove(doc_id, missing_ok=True)
         order = np.argsort(words)
-        self._recent[int(doc_id)] = (words[order], weights[order], float(length))
-        self._recent_segment = None
+        self._recent.add(int(doc_id), words[order], weights[order], float(length))
         self._maybe_compact()
 
     def remove(self, doc_id: int, *, missing_ok: bool = False) -> None:
         """Remove a document (KeyError when absent, unless ``missing_ok``)."""
         doc_id = int(doc_id)
-        if doc_id in self._recent:
-            del self._recent[doc_id]
-            self._recent_segment = None
+        if self._recent.remove(doc_id):
+            pass
         elif doc_id in self._base_row:
             row = self._base_row.pop(doc_id)
             self._base.live[row] = False
@@ -263,23 +332,19 @@ class SbowIndex:
         self._maybe_compact()
 
     def compact(self) -> None:
-        """Merge the recent segment and drop removed documents: one base segment again."""
-        base = self._base
+        """Merge the recent documents and drop removed ones: one base segment again."""
+        base, recent = self._base, self._recent
         live_rows = np.flatnonzero(base.live)
         new_row = np.full(len(base.ids), -1, np.int32)
         new_row[live_rows] = np.arange(len(live_rows))
         keep = base.live[base.doc]
         base_word = np.repeat(np.arange(self.n_words, dtype=np.int32), base.word_counts())[keep]
-        recent_ids = np.fromiter(self._recent, np.int64, len(self._recent))
-        recent = [self._recent[int(i)] for i in recent_ids]
-        sizes = np.array([len(w) for w, _, _ in recent], np.int64)
+        recent_ids, recent_lengths, recent_doc, recent_rows = recent.documents()
         ids = np.concatenate([base.ids[live_rows], recent_ids])
-        lengths = np.concatenate([base.length[live_rows], np.array([n for _, _, n in recent], np.float64)])
-        words = np.concatenate([base_word, *[w for w, _, _ in recent]]) if recent else base_word
-        docs = np.concatenate(
-            [new_row[base.doc[keep]], np.repeat(len(live_rows) + np.arange(len(recent)), sizes)]
-        ).astype(np.int32)
-        weights = np.concatenate([base.weight[keep].astype(np.float64), *[c for _, c, _ in recent]])
+        lengths = np.concatenate([base.length[live_rows], recent_lengths])
+        words = np.concatenate([base_word, recent.words[recent_rows]])
+        docs = np.concatenate([new_row[base.doc[keep]], len(live_rows) + recent_doc]).astype(np.int32)
+        weights = np.concatenate([base.weight[keep].astype(np.float64), recent.weights[recent_rows]])
         order = np.argsort(ids, kind="stable")  # documents by id: deterministic rows
         rank = np.empty(len(ids), np.int32)
         rank[order] = np.arange(len(ids))
@@ -287,42 +352,33 @@ class SbowIndex:
 
     def _maybe_compact(self) -> None:
         n_base = len(self._base.ids)
-        recent_full = len(self._recent) > max(COMPACT_MIN_RECENT, COMPACT_RECENT_SHARE * n_base)
+        recent_full = self._recent.rows > max(COMPACT_MIN_RECENT, COMPACT_RECENT_SHARE * n_base)
         if recent_full or (self._dead > COMPACT_MIN_RECENT and self._dead > COMPACT_DEAD_SHARE * n_base):
             self.compact()
-
-    def _recent_compiled(self) -> _Segment:
-        if self._recent_segment is None:
-            ids = np.array(sorted(self._recent), np.int64)
-            docs = [self._recent[int(i)] for i in ids]
-            sizes = np.array([len(w) for w, _, _ in docs], np.int64)
-            self._recent_segment = _Segment.from_postings(
-                self.n_words,
-                ids,
-                np.array([n for _, _, n in docs], np.float64),
-                np.concatenate([w for w, _, _ in docs]) if docs else np.zeros(0, np.int64),
-                np.repeat(np.arange(len(docs)), sizes),
-                np.concatenate([c for _, c, _ in docs]) if docs else np.zeros(0),
-            )
-        return self._recent_segment
 
     # -- queries -----------------------------------------------------------------------------------
 
     def scores(self, query_words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(ids, scores) of every document in the index for a query's (N,) words (one per feature), ids sorted."""
-        recent = self._recent_compiled()
-        base, n_docs = self._base, len(self)
+        base, recent, n_docs = self._base, self._recent, len(self)
         qw, qc = bag(query_words)
         if len(qw) and (qw[0] < 0 or qw[-1] >= self.n_words):
             raise ValueError(f"word ids must lie in [0, {self.n_words})")
-        values = [np.zeros(len(base.ids), np.float64), np.zeros(len(recent.ids), np.float64)]
+        base_scores = np.zeros(len(base.ids), np.float64)
+        recent_scores = np.zeros(recent.rows, np.float64)
         if len(qw) and n_docs:
-            weights = idf(self._base_df[qw] + recent.word_counts()[qw], n_docs)
+            weights = idf(self._base_df[qw] + recent.df[qw], n_docs)
             q_tf = qc / qc.sum()
-            for segment, out in zip((base, recent), values, strict=True):
-                _score_kernel(qw, weights, q_tf, segment.word_ptr, segment.doc, segment.weight, segment.length, out)
-        ids = np.concatenate([base.ids[base.live], recent.ids])
-        scores = np.concatenate([values[0][base.live], values[1]])
+            _score_kernel(qw, weights, q_tf, base.word_ptr, base.doc, base.weight, base.length, base_scores)
+            dense_tf, dense_idf = np.zeros(self.n_words), np.zeros(self.n_words)
+            dense_tf[qw], dense_idf[qw] = q_tf, weights
+            live = recent.live[: recent.rows]
+            _score_documents(
+                dense_tf, dense_idf, recent.ptr, recent.words, recent.weights, recent.length, live, recent_scores
+            )
+        live = recent.live[: recent.rows]
+        ids = np.concatenate([base.ids[base.live], recent.ids[: recent.rows][live]])
+        scores = np.concatenate([base_scores[base.live], recent_scores[live]])
         order = np.argsort(ids, kind="stable")
         return ids[order], scores[order]
 
@@ -341,6 +397,29 @@ class SbowIndex:
             positive = positive[values[positive] >= threshold]
         order = np.lexsort((ids[positive], -values[positive]))[:n]
         return [(int(ids[positive[i]]), float(values[positive[i]])) for i in order]
+
+
+@numba.njit(cache=True, nogil=True)
+def _score_documents(
+    dense_tf: np.ndarray,
+    dense_idf: np.ndarray,
+    ptr: np.ndarray,
+    words: np.ndarray,
+    weights: np.ndarray,
+    length: np.ndarray,
+    live: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled; checked against tfidf_scores in the tests
+    """out[d] = sum over document d's words w (increasing) that the query has of idf_w * min(q_w, c_dw / |d|)."""
+    for d in range(live.shape[0]):
+        if not live[d]:
+            continue
+        total = 0.0
+        for j in range(ptr[d], ptr[d + 1]):
+            q = dense_tf[words[j]]
+            if q > 0.0:
+                total += dense_idf[words[j]] * min(q, weights[j] / max(length[d], 1.0))
+        out[d] = total
 
 
 @numba.njit(cache=True, nogil=True)
