@@ -140,8 +140,7 @@ class Settings(BaseSettings):
     worker_threads: int = Field(
         default=1,
         ge=1,
-        description="threads of numpy's BLAS and of OpenCV in each worker process (the pool's processes are the "
-        "parallelism; inner threads on busy cores only wait for each other)",
+        description="threads of numpy's BLAS and OpenCV in each worker process (the processes are the parallelism)",
     )
     log_level: str = Field(default="INFO", description="log level of the workers")
 

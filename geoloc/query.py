@@ -371,18 +371,17 @@ def anchored_pose(
         group_refs: list[Hashable] = []
         proposals: list[Proposal | None] = []
         for index, (ref, pairs) in enumerate(pairs_of):
-            alternative = bool(use_alternative and ref.alternative_anchors)
-            anchors = ref.alternative_anchors if alternative and ref.alternative_anchors else ref.anchors
+            alternative_anchors = ref.alternative_anchors if use_alternative else None
+            anchors = alternative_anchors if alternative_anchors is not None else ref.anchors
             valid = anchors.valid[pairs[:, 1]] if len(pairs) else np.zeros(0, bool)
             if valid.sum() < 4:
                 continue
             groups.append((anchors.xyz[pairs[valid, 1]], query_features.xy[pairs[valid, 0]]))
             group_refs.append(ref.reference_id)
-            if (index, alternative) not in proposal_of:
-                proposal_of[(index, alternative)] = group_proposal(
-                    *groups[-1], photo.intrinsics, threshold_px=config.pnp_threshold_px
-                )
-            proposals.append(proposal_of[(index, alternative)])
+            key = (index, alternative_anchors is not None)
+            if key not in proposal_of:
+                proposal_of[key] = group_proposal(*groups[-1], photo.intrinsics, threshold_px=config.pnp_threshold_px)
+            proposals.append(proposal_of[key])
         estimate, owner = estimate_pose_from_groups(
             groups,
             photo.intrinsics,

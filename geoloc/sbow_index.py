@@ -362,13 +362,15 @@ class SbowIndex:
         """(ids, scores) of every document in the index for a query's (N,) words (one per feature), ids sorted."""
         base, recent, n_docs = self._base, self._recent, len(self)
         qw, qc = bag(query_words)
-        if len(qw) and (qw[0] < 0 or qw[-1] >= self.n_words):
-            raise ValueError(f"word ids must lie in [0, {self.n_words})")
+        if len(qw) and qw[0] < 0:
+            raise ValueError("word ids must not be negative")
         base_scores = np.zeros(len(base.ids), np.float64)
         recent_scores = np.zeros(recent.rows, np.float64)
         if len(qw) and n_docs:
+            # A word beyond the vocabulary has no postings: it counts in |q| and matches nothing (as in tfidf_scores).
+            q_tf = (qc / qc.sum())[qw < self.n_words]
+            qw = qw[qw < self.n_words]
             weights = idf(self._base_df[qw] + recent.df[qw], n_docs)
-            q_tf = qc / qc.sum()
             _score_kernel(qw, weights, q_tf, base.word_ptr, base.doc, base.weight, base.length, base_scores)
             dense_tf, dense_idf = np.zeros(self.n_words), np.zeros(self.n_words)
             dense_tf[qw], dense_idf[qw] = q_tf, weights

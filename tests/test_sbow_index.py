@@ -100,8 +100,11 @@ def test_ties_go_to_the_lower_id() -> None:
     index.upsert(5, np.array([3]), np.array([1.0]), 1.0)
     assert [d for d, _ in index.top(np.array([1, 2]), 2)] == [10, 20]
     assert index.top(np.array([9]), 5) == []  # no shared word, no result
-    with pytest.raises(ValueError, match="word ids"):
-        index.top(np.array([16]), 5)
+    assert index.top(np.array([16, 17]), 5) == []  # beyond the vocabulary: no postings
+    # ... but such words count in the query's length, as tfidf_scores counts them
+    assert index.top(np.array([3, 16]), 1)[0][1] == pytest.approx(np.log1p(4 / 1) * 0.5)
+    with pytest.raises(ValueError, match="negative"):
+        index.top(np.array([-1]), 5)
     with pytest.raises(KeyError):
         index.remove(99)
 

@@ -29,6 +29,8 @@ from geoloc.pipeline import Photo, PhotoEvidence, analyze_photo, load_photo
 from geoloc.posterior import grid_around
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
+pytestmark = pytest.mark.slow  # a rendered world and the numpy formulations: about a minute
+
 
 @dataclass
 class Scene:
