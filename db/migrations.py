@@ -15,6 +15,10 @@ Storage decisions (see also the module docstrings of the access modules):
 - Times are Unix seconds (REAL, UTC).
 - ``maps.read_options`` (migration 2) holds how the map file was read (GIS layer, attribute names,
   CRS; ``{}`` for the defaults): one file read with other options is another map.
+- ``sbow_changes`` (migration 3) logs every change of a map's inverted index (a reference indexed,
+  re-indexed or deleted) with an increasing ``seq``: the workers' in-memory copies of the index
+  (``workers/reference_store.py``) catch up by reading the log past their high-water mark. Existing
+  documents are logged once when the migration runs.
 """
 
 from __future__ import annotations
@@ -188,6 +192,21 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         "map read options",
         """
         ALTER TABLE maps ADD COLUMN read_options TEXT NOT NULL DEFAULT '{}';
+        """,
+    ),
+    (
+        3,
+        "sbow change log",
+        """
+        CREATE TABLE sbow_changes (
+            seq INTEGER PRIMARY KEY AUTOINCREMENT,
+            map_id INTEGER NOT NULL REFERENCES maps(id) ON DELETE CASCADE,
+            reference_id INTEGER NOT NULL,
+            changed_at REAL NOT NULL
+        );
+        CREATE INDEX sbow_changes_map ON sbow_changes(map_id, seq);
+        INSERT INTO sbow_changes (map_id, reference_id, changed_at)
+            SELECT map_id, reference_id, created_at FROM sbow_documents ORDER BY reference_id;
         """,
     ),
 ]

@@ -18,6 +18,7 @@ import sqlite_utils
 
 from db.blobs import pack_arrays, unpack_arrays
 from db.jobs import cancel_queued_jobs
+from db.sbow import log_change
 
 _JSON_COLUMNS = ("buildings_seen", "timings")
 
@@ -190,6 +191,8 @@ def delete_reference(db: sqlite_utils.Database, reference_id: int) -> dict[str, 
     if row is None:
         return None
     cancel_queued_jobs(db, reference_id=reference_id)
+    if db.execute("SELECT 1 FROM sbow_documents WHERE reference_id = ?", (reference_id,)).fetchone():
+        log_change(db, row["map_id"], reference_id)  # its postings go with it (cascade)
     db.execute("DELETE FROM reference_images WHERE id = ?", (reference_id,))
     return row
 
@@ -221,3 +224,31 @@ def load_keypoints(db: sqlite_utils.Database, reference_id: int) -> dict[str, np
     """A reference's keypoint arrays, or None."""
     row = db.execute("SELECT arrays_npz FROM keypoints WHERE reference_id = ?", (reference_id,)).fetchone()
     return unpack_arrays(row[0]) if row else None
+
+
+def keypoint_stamps(db: sqlite_utils.Database, reference_ids: list[int]) -> dict[int, float]:
+    """{reference id: when its keypoints were stored} for those of these references that have keypoints.
+
+    A re-labelled reference gets a new time: a cached decoded copy is then stale.
+    """
+    out: dict[int, float] = {}
+    for start in range(0, len(reference_ids), 500):
+        chunk = reference_ids[start : start + 500]
+        marks = ", ".join("?" for _ in chunk)
+        rows = db.execute(f"SELECT reference_id, created_at FROM keypoints WHERE reference_id IN ({marks})", chunk)
+        out.update({int(ref): float(stamp) for ref, stamp in rows.fetchall()})
+    return out
+
+
+def keypoint_blobs(db: sqlite_utils.Database, reference_ids: list[int]) -> dict[int, bytes]:
+    """{reference id: its keypoints' ``.npz`` blob} for those of these references that have keypoints.
+
+    For reading a few arrays without decoding the rest.
+    """
+    out: dict[int, bytes] = {}
+    for start in range(0, len(reference_ids), 500):
+        chunk = reference_ids[start : start + 500]
+        marks = ", ".join("?" for _ in chunk)
+        rows = db.execute(f"SELECT reference_id, arrays_npz FROM keypoints WHERE reference_id IN ({marks})", chunk)
+        out.update({int(ref): bytes(blob) for ref, blob in rows.fetchall()})
+    return out

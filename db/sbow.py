@@ -11,11 +11,21 @@ replaces a reference's document and postings atomically (call it inside the tran
 stores the reference's keypoints). Document frequencies are computed from the postings at query
 time, so there are no counters to drift. Scoring is the method's (``geoloc.retrieval.tfidf_scores``)
 on the arrays of :func:`postings_for_words`.
+
+Change log: ``sbow_changes(seq, map_id, reference_id)`` gets a row in the same transaction as every
+change of a reference's postings (:func:`index_reference`, and :func:`db.references.delete_reference`
+through :func:`log_change`). A process that keeps the index in memory reads the whole index once
+(:func:`index_snapshot`, which also gives the log's high-water mark at that instant) and then, before
+each use, the references changed past its mark (:func:`changes_after`, :func:`document_postings`). All
+of it is plain SQL over these tables (a sequence, ``>`` and ``IN``), so it ports to another database.
 """
 
 from __future__ import annotations
 
+import itertools
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,7 +71,142 @@ def index_reference(
         "INSERT INTO sbow_postings (map_id, word_id, reference_id, weight) VALUES (?, ?, ?, ?)",
         [(map_id, int(w), reference_id, float(s)) for w, s in zip(unique_words, summed, strict=True)],
     )
+    log_change(db, map_id, reference_id)
     return len(unique_words)
+
+
+def log_change(db: sqlite_utils.Database, map_id: int, reference_id: int) -> None:
+    """Record that a reference's postings changed (indexed, re-indexed or deleted).
+
+    Call inside the transaction that changes them.
+    """
+    db.execute(
+        "INSERT INTO sbow_changes (map_id, reference_id, changed_at) VALUES (?, ?, ?)",
+        (map_id, reference_id, time.time()),
+    )
+
+
+def change_mark(db: sqlite_utils.Database, map_id: int) -> int:
+    """The high-water mark of a map's change log (0 when nothing was ever indexed)."""
+    row = db.execute("SELECT MAX(seq) FROM sbow_changes WHERE map_id = ?", (map_id,)).fetchone()
+    return int(row[0] or 0)
+
+
+def changes_after(db: sqlite_utils.Database, map_id: int, after_seq: int) -> list[tuple[int, int]]:
+    """(seq, reference_id) of a map's index changes with ``seq > after_seq``, oldest first."""
+    rows = db.execute(
+        "SELECT seq, reference_id FROM sbow_changes WHERE map_id = ? AND seq > ? ORDER BY seq", (map_id, after_seq)
+    ).fetchall()
+    return [(int(seq), int(reference_id)) for seq, reference_id in rows]
+
+
+@contextmanager
+def _read_snapshot(db: sqlite_utils.Database) -> Iterator[None]:
+    """Statements inside see one state of the database (a deferred transaction: no write lock)."""
+    db.execute("BEGIN")
+    try:
+        yield
+    finally:
+        db.execute("COMMIT")
+
+
+@dataclass
+class IndexSnapshot:
+    """A map's whole inverted index at change-log mark ``mark``, as arrays.
+
+    ids: (D,) sorted reference ids of the indexed documents; lengths: (D,) their word totals;
+    word, doc, weight: one entry per postings row, ``doc`` indexing ``ids``.
+    """
+
+    mark: int
+    ids: np.ndarray
+    lengths: np.ndarray
+    word: np.ndarray
+    doc: np.ndarray
+    weight: np.ndarray
+    recent_changes: list[tuple[int, int]]
+
+
+def index_snapshot(
+    db: sqlite_utils.Database, map_id: int, *, lookback: int = 0, chunk_rows: int = 1 << 20
+) -> IndexSnapshot:
+    """Every document and postings row of a map's index, read in one snapshot with the log's mark.
+
+    Also the log's rows within ``lookback`` of the mark (the changes the snapshot already holds).
+
+    Rows come in primary-key order (word, then reference) and are kept in narrow arrays (int32 words and
+    documents; float32 weights where exact, as word counts are): about 12 bytes per row.
+    """
+    words, docs, weights = [], [], []
+    with _read_snapshot(db):
+        mark = change_mark(db, map_id)
+        recent_changes = changes_after(db, map_id, mark - lookback) if lookback > 0 else []
+        documents = db.execute(
+            "SELECT reference_id, word_total FROM sbow_documents WHERE map_id = ? ORDER BY reference_id", (map_id,)
+        ).fetchall()
+        ids = np.array([r[0] for r in documents], np.int64)
+        lengths = np.array([r[1] for r in documents], np.float64)
+        cursor = db.conn.execute(
+            "SELECT word_id, reference_id, weight FROM sbow_postings WHERE map_id = ?"
+            " ORDER BY map_id, word_id, reference_id",
+            (map_id,),
+        )
+        while rows := cursor.fetchmany(chunk_rows):
+            chunk = np.fromiter(itertools.chain.from_iterable(rows), np.float64, 3 * len(rows)).reshape(-1, 3)
+            words.append(chunk[:, 0].astype(np.int32))
+            docs.append(np.searchsorted(ids, chunk[:, 1].astype(np.int64)).astype(np.int32))
+            single = chunk[:, 2].astype(np.float32)
+            weights.append(single if np.array_equal(single, chunk[:, 2]) else chunk[:, 2].copy())
+    weight_type = np.float32 if all(w.dtype == np.float32 for w in weights) else np.float64
+    return IndexSnapshot(
+        mark,
+        ids,
+        lengths,
+        np.concatenate(words) if words else np.zeros(0, np.int32),
+        np.concatenate(docs) if docs else np.zeros(0, np.int32),
+        np.concatenate(weights).astype(weight_type, copy=False) if weights else np.zeros(0, np.float32),
+        recent_changes,
+    )
+
+
+def document_postings(
+    db: sqlite_utils.Database, map_id: int, reference_ids: list[int]
+) -> dict[int, tuple[np.ndarray, np.ndarray, float]]:
+    """The current postings of some references of a map: {reference id: (words, weights, word total)}.
+
+    References without a document (deleted, or not indexed) are left out.
+    """
+    out: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
+    with _read_snapshot(db):
+        for start in range(0, len(reference_ids), 500):
+            chunk = [int(r) for r in reference_ids[start : start + 500]]
+            marks = ", ".join("?" for _ in chunk)
+            totals = db.execute(
+                f"SELECT reference_id, word_total FROM sbow_documents WHERE map_id = ? AND reference_id IN ({marks})",
+                [map_id, *chunk],
+            ).fetchall()
+            rows = db.execute(
+                f"SELECT reference_id, word_id, weight FROM sbow_postings WHERE reference_id IN ({marks})"
+                " ORDER BY reference_id, word_id",
+                chunk,
+            ).fetchall()
+            by_reference: dict[int, list[tuple[int, float]]] = {}
+            for reference_id, word_id, weight in rows:
+                by_reference.setdefault(int(reference_id), []).append((int(word_id), float(weight)))
+            for reference_id, total in totals:
+                pairs = by_reference.get(int(reference_id), [])
+                out[int(reference_id)] = (
+                    np.array([w for w, _ in pairs], np.int64),
+                    np.array([c for _, c in pairs], np.float64),
+                    float(total),
+                )
+    return out
+
+
+def vocabulary_size(db: sqlite_utils.Database, map_id: int) -> int | None:
+    """Number of words of a map's stored vocabulary, or None."""
+    row = db.execute("SELECT word_count FROM vocabularies WHERE map_id = ?", (map_id,)).fetchone()
+    return int(row[0]) if row else None
 
 
 def document_count(db: sqlite_utils.Database, map_id: int) -> int:

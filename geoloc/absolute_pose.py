@@ -138,6 +138,46 @@ def _refit(
     return PoseEstimate(pose, pitch, roll, mask, rmse, cov)
 
 
+Proposal = tuple[np.ndarray, np.ndarray]
+"""A RANSAC pose as OpenCV's (rvec, tvec)."""
+
+
+def group_proposal(
+    points_xyz: np.ndarray,
+    xy_px: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    threshold_px: float = DEFAULT_THRESHOLD_PX,
+    confidence: float = 0.9999,
+    max_iters: int = 2000,
+) -> Proposal | None:
+    """One group's own RANSAC pose (PnP, USAC MAGSAC++), or None (fewer than 6 points, or no pose with 4 inliers).
+
+    Deterministic for given inputs (OpenCV's USAC seeds its sampler per call), so a group that two estimates
+    share needs to be solved once (:func:`estimate_pose_from_groups`' ``proposals``).
+    """
+    group_pts = np.asarray(points_xyz, np.float64).reshape(-1, 3)
+    group_px = np.asarray(xy_px, np.float64).reshape(-1, 2)
+    if len(group_pts) < 6:
+        return None
+    try:
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+            group_pts,
+            group_px,
+            intrinsics.matrix,
+            None,
+            iterationsCount=max_iters,
+            reprojectionError=threshold_px,
+            confidence=confidence,
+            flags=cv2.USAC_MAGSAC,
+        )
+    except cv2.error:
+        return None
+    if not ok or inliers is None or len(inliers) < 4:
+        return None
+    return rvec, tvec
+
+
 def estimate_pose_from_groups(
     groups: list[tuple[np.ndarray, np.ndarray]],
     intrinsics: Intrinsics,
@@ -146,12 +186,15 @@ def estimate_pose_from_groups(
     min_inliers: int = DEFAULT_MIN_INLIERS,
     confidence: float = 0.9999,
     max_iters: int = 2000,
+    proposals: list[Proposal | None] | None = None,
 ) -> tuple[PoseEstimate | None, np.ndarray]:
     """Pose from several groups of correspondences (one per reference photo): (estimate, group of each point).
 
     Pooling every group into one RANSAC drowns the few right matches of a good reference among the wrong
-    ones of the others; here each group proposes its own RANSAC pose, every proposal is scored on all the
-    correspondences, and the best is refined on all its inliers. groups: [(points (N_i, 3), pixels (N_i, 2))].
+    ones of the others; here each group proposes its own RANSAC pose (:func:`group_proposal`), every proposal
+    is scored on all the correspondences, and the best is refined on all its inliers.
+    groups: [(points (N_i, 3), pixels (N_i, 2))]. proposals: each group's :func:`group_proposal` when the
+    caller already has them (same arguments), else they are computed here.
     """
     groups = [(np.asarray(a, np.float64).reshape(-1, 3), np.asarray(b, np.float64).reshape(-1, 2)) for a, b in groups]
     owner = np.concatenate([np.full(len(a), i) for i, (a, _) in enumerate(groups)]) if groups else np.zeros(0, int)
@@ -160,25 +203,16 @@ def estimate_pose_from_groups(
     pts = np.concatenate([a for a, _ in groups])
     px = np.concatenate([b for _, b in groups])
     k = intrinsics.matrix
+    if proposals is None:
+        proposals = [
+            group_proposal(a, b, intrinsics, threshold_px=threshold_px, confidence=confidence, max_iters=max_iters)
+            for a, b in groups
+        ]
     best: tuple[int, np.ndarray, np.ndarray] | None = None
-    for group_pts, group_px in groups:
-        if len(group_pts) < 6:
+    for proposal in proposals:
+        if proposal is None:
             continue
-        try:
-            ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-                group_pts,
-                group_px,
-                k,
-                None,
-                iterationsCount=max_iters,
-                reprojectionError=threshold_px,
-                confidence=confidence,
-                flags=cv2.USAC_MAGSAC,
-            )
-        except cv2.error:
-            continue
-        if not ok or inliers is None or len(inliers) < 4:
-            continue
+        rvec, tvec = proposal
         projected, _ = cv2.projectPoints(pts, rvec, tvec, k, None)
         support = int((np.linalg.norm(projected.reshape(-1, 2) - px, axis=1) <= threshold_px).sum())
         if best is None or support > best[0]:

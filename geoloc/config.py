@@ -15,7 +15,6 @@ shared data and the model cache are); ``service``, ``workers`` and ``cli`` impor
 
 from __future__ import annotations
 
-import os
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any
@@ -161,7 +160,12 @@ class Settings(BaseSettings):
         default=None,
         ge=1,
         description="onnxruntime threads for segmentation and ALIKED",
-        json_schema_extra=_shown("min(4, cores)"),
+        json_schema_extra=_shown("`GEOLOC_WORKER_THREADS`"),
+    )
+    worker_threads: int = Field(
+        default=1,
+        ge=1,
+        description="threads of numpy's BLAS and OpenCV in each worker process (the processes are the parallelism)",
     )
     log_level: str = Field(default="INFO", description="log level of the workers")
 
@@ -294,8 +298,14 @@ def shared_path(*parts: str) -> Path:
 
 
 def default_threads() -> int:
-    """Threads for the segmentation network: ``GEOLOC_SEG_THREADS``, else min(4, CPU cores)."""
-    return get_settings().seg_threads or min(4, os.cpu_count() or 1)
+    """Threads for the segmentation network: ``GEOLOC_SEG_THREADS``, else ``GEOLOC_WORKER_THREADS`` (default 1).
+
+    One per worker process: the pool's processes are the parallelism (measured on the shared 2-core box, load
+    average 5: 355 ms per 768 x 384 image with one thread, 469 ms with two; ``benchmarks/bench_service.py``
+    compares them through the service).
+    """
+    settings = get_settings()
+    return settings.seg_threads or settings.worker_threads
 
 
 def settings_table() -> str:

@@ -133,6 +133,51 @@ def identity_from_poses(column_ids: np.ndarray, weights: np.ndarray, building_ma
     return IdentityMap(ids, prob, building_mask)
 
 
+def pose_identities(
+    panoramas: Panoramas,
+    yaws_deg: np.ndarray,
+    intrinsics: Intrinsics,
+    image_model: ImageModel,
+    weights: np.ndarray,
+    building_mask: np.ndarray,
+) -> IdentityMap:
+    """:func:`identity_from_poses` of every pose of ``panoramas`` x ``yaws_deg`` with (P, Y) ``weights``.
+
+    The same identity map as ``identity_from_poses(column_building_ids(...).reshape(-1, W), weights.ravel(),
+    building_mask)``, bit for bit, without expanding the (P, Y, W) column ids: every pixel column of a bin shows
+    the same building, so the weights are summed per bin (in the same order, poses first to last; poses of
+    weight 0 add nothing) and the bins' rows are copied to their columns; the building ids (those seen by any
+    pose, weighted or not) are read from the panorama bearings the windows cover.
+    """
+    bins = column_bins(intrinsics, image_model.offsets_deg, image_model.bin_deg)  # (W,)
+    window = panorama_window(panoramas, yaws_deg, image_model.offsets_deg)  # (Y, K)
+    used_bins = np.unique(bins[bins >= 0])
+    seen = panoramas.building_id[:, np.unique(window[:, used_bins])]
+    ids = np.unique(seen[seen >= 0])
+    weights = np.asarray(weights, dtype=float)
+    total = weights.sum()
+    prob = np.zeros((len(bins), len(ids)), dtype=float)
+    if len(ids) and total > 0:
+        flat_weights = weights.ravel()
+        pose = np.flatnonzero(flat_weights)
+        position, yaw = np.divmod(pose, len(yaws_deg))
+        bin_ids = panoramas.building_id[position[:, None], window[yaw][:, used_bins]]  # (poses, used bins)
+        valid = bin_ids >= 0
+        slot = np.searchsorted(ids, bin_ids)
+        key = np.broadcast_to(np.arange(len(used_bins))[None, :] * len(ids), slot.shape) + slot
+        per_bin = np.bincount(
+            key[valid],
+            weights=np.broadcast_to(flat_weights[pose][:, None], valid.shape)[valid],
+            minlength=len(used_bins) * len(ids),
+        ).reshape(len(used_bins), len(ids))
+        row_of_bin = np.full(len(image_model.offsets_deg), -1)
+        row_of_bin[used_bins] = np.arange(len(used_bins))
+        columns = bins >= 0
+        prob[columns] = per_bin[row_of_bin[bins[columns]]]
+        prob /= total
+    return IdentityMap(ids, prob, building_mask)
+
+
 def label_reference(
     city_map: CityMap,
     image_model: ImageModel,
@@ -207,8 +252,6 @@ def label_reference(
     assert best is not None  # distinct_modes always yields the strongest pose
 
     # Identities: greedy from the refined pose; marginalised over the grid poses of the chosen mode.
-    column_ids = column_building_ids(panoramas, yaws, intrinsics, image_model.offsets_deg, image_model.bin_deg)
-    width = column_ids.shape[-1]
     at_best = cast_panoramas(city_map, np.array([[best.x_m, best.y_m]]), bearing_step_deg=image_model.bin_deg)
     greedy_ids = column_building_ids(
         at_best, np.array([best.yaw_deg]), intrinsics, image_model.offsets_deg, image_model.bin_deg
@@ -216,7 +259,7 @@ def label_reference(
     greedy = identity_from_poses(greedy_ids[None, :], np.ones(1), building_mask)
     in_mode = _near_pose(positions, yaws, (best.x_m, best.y_m), best.yaw_deg)
     marginal_weights = np.where(in_mode, weights, 0.0) if (weights * in_mode).sum() > 0 else weights
-    marginal = identity_from_poses(column_ids.reshape(-1, width), marginal_weights.ravel(), building_mask)
+    marginal = pose_identities(panoramas, yaws, intrinsics, image_model, marginal_weights, building_mask)
     distinct = _distinct_refined(refined_modes)
     return ReferenceLabel(
         x_m=best.x_m,

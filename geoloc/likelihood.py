@@ -42,11 +42,15 @@ apart; Smax is unchanged. A taller building behind a lower one shows its top abo
 the observed top is then higher than the map's first hit predicts, so only the opposite disagreement
 (seen lower than the map's building) is penalised at full weight.
 
-All positions x yaws are evaluated in one call, in chunks of positions to bound memory.
+All positions x yaws are evaluated in one call (a compiled kernel; :func:`pose_likelihood_numpy` is the same
+formula in plain numpy).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -86,7 +90,6 @@ def pose_likelihood(
     distance_sigma_log: float = DEFAULT_DISTANCE_SIGMA_LOG,
     building_height_m: np.ndarray | None = None,
     height_sigma_log: float = DEFAULT_HEIGHT_SIGMA_LOG,
-    chunk_elements: int = 8_000_000,
 ) -> np.ndarray:
     """p(I | g) for every position of ``panoramas`` and every yaw: array (P, Y) in [0, 1].
 
@@ -97,7 +100,82 @@ def pose_likelihood(
     sigma_m: distance weight scale (m). unknown_weight, normalization, use_distance, distance_sigma_log:
     see module docstring. building_height_m: (B,) height of each map building where it is known (NaN where
     the map only has a default), enabling the skyline term; height_sigma_log: its spread.
+
+    A compiled kernel (:func:`_likelihood_kernel`) evaluates the terms per (position, yaw, bin) in one pass,
+    skipping bins where nothing can score; what does not depend on the yaw (distance weights, log
+    distances) is computed once per panorama bearing. :func:`pose_likelihood_numpy` is the same formula in
+    plain numpy (the specification, and the reference of the tests and of ``benchmarks/bench_core.py``): the
+    two agree to float32 rounding.
     """
+    terms = _terms(
+        panoramas,
+        image_model,
+        yaws_deg,
+        use_identity,
+        unknown_weight,
+        normalization,
+        use_distance,
+        building_height_m,
+    )
+    inv_two_sigma2 = 1.0 / (2.0 * sigma_m**2)
+    # Per panorama bearing, as pose_likelihood_numpy computes them per (position, yaw, bin): same bits.
+    dist = panoramas.distance_m
+    hit = np.isfinite(dist)
+    weight = np.where(hit, np.exp(-np.square(np.where(hit, dist, 0.0)) * inv_two_sigma2), 0.0)
+    log_distance = np.log(np.where(hit, np.maximum(dist, 0.1), 1.0))
+    # |cos(theta - theta_hat)| = |cos(normal - (yaw + theta_hat))| (theta = normal - yaw modulo 180 deg), expanded
+    # as cos a cos b + sin a sin b: one cosine per bearing and one per (yaw, bin) instead of one per term.
+    normal = np.radians(np.where(hit, panoramas.normal_bearing_deg, 0.0).astype(np.float64))
+    view = np.radians(terms.yaws[:, None] + terms.theta_hat[None, :].astype(np.float64))  # (Y, K)
+    empty = np.zeros(0, np.float32)
+    out = np.zeros((len(panoramas), len(terms.yaws)), dtype=np.float32)
+    _likelihood_kernel(
+        terms.window,
+        np.ascontiguousarray(weight, dtype=np.float32),
+        hit,
+        np.ascontiguousarray(log_distance, dtype=np.float32),
+        np.cos(normal),
+        np.sin(normal),
+        np.cos(view),
+        np.sin(view),
+        np.ascontiguousarray(panoramas.building_id, dtype=np.int32),
+        terms.present,
+        empty if terms.log_distance_hat is None else terms.log_distance_hat,
+        np.float32(distance_sigma_log),
+        empty if terms.log_top_hat is None else terms.log_top_hat,
+        empty if terms.log_rise is None else terms.log_rise,
+        np.float32(height_sigma_log),
+        np.zeros((0, 0), np.float32) if terms.identity_lut is None else terms.identity_lut,
+        normalization == "paper",
+        out,
+    )
+    return out
+
+
+@dataclass
+class _Terms:
+    """The image side of the likelihood and the panorama window, shared by the kernel and the numpy form."""
+
+    yaws: np.ndarray  # (Y,) float64
+    window: np.ndarray  # (Y, K) bearing indices
+    present: np.ndarray  # (K,) float32 in [0, 1]
+    theta_hat: np.ndarray  # (K,) float32
+    log_distance_hat: np.ndarray | None  # (K,) float32, NaN where unknown
+    identity_lut: np.ndarray | None  # (K, B + 1) float32
+    log_rise: np.ndarray | None  # (B + 1,) float32, NaN where unknown
+    log_top_hat: np.ndarray | None  # (K,) float32
+
+
+def _terms(
+    panoramas: Panoramas,
+    image_model: ImageModel,
+    yaws_deg: np.ndarray | None,
+    use_identity: bool,
+    unknown_weight: float,
+    normalization: str,
+    use_distance: bool,
+    building_height_m: np.ndarray | None,
+) -> _Terms:
     if normalization not in NORMALIZATIONS:
         raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
     yaws = default_yaws_deg() if yaws_deg is None else np.asarray(yaws_deg, dtype=float)
@@ -111,7 +189,112 @@ def pose_likelihood(
     if use_identity and image_model.has_identity:
         identity_lut = _identity_lookup(image_model, panoramas, unknown_weight)
     skyline = _skyline_logs(image_model, building_height_m)
+    log_rise, log_top_hat = skyline if skyline is not None else (None, None)
+    return _Terms(yaws, window, present, theta_hat, log_distance_hat, identity_lut, log_rise, log_top_hat)
 
+
+@numba.njit(cache=True, nogil=True)
+def _likelihood_kernel(  # noqa: C901, PLR0912 - one compiled loop nest; numba gains from keeping it whole
+    window: np.ndarray,
+    weight: np.ndarray,
+    hit: np.ndarray,
+    log_distance: np.ndarray,
+    cos_normal: np.ndarray,
+    sin_normal: np.ndarray,
+    cos_view: np.ndarray,
+    sin_view: np.ndarray,
+    building: np.ndarray,
+    present: np.ndarray,
+    log_distance_hat: np.ndarray,
+    distance_sigma_log: np.float32,
+    log_top_hat: np.ndarray,
+    log_rise: np.ndarray,
+    height_sigma_log: np.float32,
+    identity_lut: np.ndarray,
+    paper: bool,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled; checked against pose_likelihood_numpy in the tests
+    """out[p, y] = S / Smax (module docstring) for every position p and yaw y; float32 terms as in numpy.
+
+    cos_normal, sin_normal: (P, N) of the hit facades' normal bearings; cos_view, sin_view: (Y, K) of yaw plus
+    the image's orientation per bin (their difference is the angle whose |cos| the agreement is).
+    """
+    n_bins = window.shape[1]
+    use_distance = log_distance_hat.shape[0] > 0
+    use_skyline = log_rise.shape[0] > 0
+    use_identity = identity_lut.shape[0] > 0
+    present_sum = 0.0
+    for k in range(n_bins):
+        present_sum += present[k]
+    near_slack = np.float32(DISTANCE_NEAR_SLACK)
+    half = np.float32(-0.5)
+    for p in range(weight.shape[0]):
+        for y in range(window.shape[0]):
+            s = 0.0
+            s_max = present_sum if paper else 0.0
+            for k in range(n_bins):
+                b = window[y, k]
+                w = weight[p, b]
+                if paper:
+                    s_max += (1.0 - present[k]) * w
+                elif hit[p, b]:
+                    s_max += w
+                else:
+                    s_max += present[k]
+                if not hit[p, b] or present[k] == 0.0:
+                    continue
+                agree = abs(cos_normal[p, b] * cos_view[y, k] + sin_normal[p, b] * sin_view[y, k])
+                score = np.float64(w) * agree * np.float64(present[k])
+                if use_distance:
+                    z = (log_distance[p, b] - log_distance_hat[k]) / distance_sigma_log
+                    if np.isfinite(z):
+                        if z < 0:
+                            z = near_slack * z
+                        score *= np.float64(np.exp(half * (z * z)))
+                if use_skyline:
+                    z = (log_distance[p, b] + log_top_hat[k] - log_rise[building[p, b] + 1]) / height_sigma_log
+                    if np.isfinite(z):
+                        if z > 0:
+                            z = np.float32(0.25) * z
+                        score *= np.float64(np.exp(half * (z * z)))
+                if use_identity:
+                    score *= np.float64(identity_lut[k, building[p, b] + 1])
+                s += score
+            out[p, y] = s / max(s_max, 1e-12) if s_max > 0 else 0.0
+
+
+def pose_likelihood_numpy(
+    panoramas: Panoramas,
+    image_model: ImageModel,
+    yaws_deg: np.ndarray | None = None,
+    sigma_m: float = DEFAULT_SIGMA_M,
+    use_identity: bool = True,
+    unknown_weight: float = DEFAULT_UNKNOWN_WEIGHT,
+    normalization: str = "weighted",
+    use_distance: bool = True,
+    distance_sigma_log: float = DEFAULT_DISTANCE_SIGMA_LOG,
+    building_height_m: np.ndarray | None = None,
+    height_sigma_log: float = DEFAULT_HEIGHT_SIGMA_LOG,
+    chunk_elements: int = 8_000_000,
+) -> np.ndarray:
+    """:func:`pose_likelihood` in plain vectorised numpy: (P, Y) arrays of every term, in chunks of positions.
+
+    The specification of the compiled kernel (same arguments, results equal to float32 rounding); the
+    tests and the core benchmark compare the two.
+    """
+    terms = _terms(
+        panoramas,
+        image_model,
+        yaws_deg,
+        use_identity,
+        unknown_weight,
+        normalization,
+        use_distance,
+        building_height_m,
+    )
+    yaws, window, present, theta_hat = terms.yaws, terms.window, terms.present, terms.theta_hat
+    identity_lut, log_distance_hat = terms.identity_lut, terms.log_distance_hat
+    log_rise, log_top_hat = terms.log_rise, terms.log_top_hat
     n_pos = len(panoramas)
     out = np.zeros((n_pos, len(yaws)), dtype=np.float32)
     per_position = max(1, window.size)
@@ -135,8 +318,7 @@ def pose_likelihood(
             # distance too long; one seen too low is rare. So a map facade nearer than the image says costs less.
             z = np.where(z < 0, DISTANCE_NEAR_SLACK * z, z)
             score = score * np.where(np.isfinite(z), np.exp(-0.5 * np.square(np.nan_to_num(z))), 1.0)
-        if skyline is not None:
-            log_rise, log_top_hat = skyline
+        if log_rise is not None and log_top_hat is not None:
             building_hit = panoramas.building_id[sl][:, window]
             # ln(implied rise) - ln(map rise): > 0 where the image's top is higher than the map's building.
             z = (
@@ -160,9 +342,11 @@ def pose_likelihood(
 
 
 def known_building_heights(city_map: CityMap) -> np.ndarray:
-    """(B,) building heights where the map states them (``height`` or ``building:levels``), NaN for defaults."""
-    known = np.array([b.height_source != "default" for b in city_map.buildings], dtype=bool)
-    return np.where(known, np.asarray(city_map.building_height_m, dtype=float), np.nan)
+    """(B,) building heights where the map states them (``height`` or ``building:levels``), NaN for defaults.
+
+    Read-only, computed once per map (:attr:`geoloc.maps.model.CityMap.known_building_height_m`).
+    """
+    return city_map.known_building_height_m
 
 
 def _skyline_logs(

@@ -35,7 +35,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from geoloc.absolute_pose import PoseEstimate, estimate_pose_from_groups
+from geoloc.absolute_pose import PoseEstimate, Proposal, estimate_pose_from_groups, group_proposal
 from geoloc.anchors import MapAnchors
 from geoloc.features import Features
 from geoloc.identity import IdentityMap
@@ -53,6 +53,7 @@ from geoloc.transfer import (
     ReferenceEvidence,
     ReferenceMatch,
     match_features,
+    ratio_matches,
     rerank_by_inliers,
     transfer_identities,
 )
@@ -147,6 +148,14 @@ class ReferenceStore(Protocol):
 
     def load(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, StoredReference]:
         """The stored references of these ids (missing ones are left out)."""
+        ...
+
+    def positions(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, np.ndarray]:
+        """The estimated (2,) positions of these references (NaN when unknown; missing ones left out).
+
+        Read without loading their features: retrieval with a position prior ranks more references than it
+        keeps.
+        """
         ...
 
 
@@ -307,15 +316,18 @@ def retrieve(
     words = vocabulary.words(features.descriptors)
     wanted = config.shortlist * (PRIOR_SHORTLIST_FACTOR if position_prior is not None else 1)
     ranked = store.shortlist(words, wanted)
-    stored = store.load([ref_id for ref_id, _ in ranked])
     if position_prior is not None:
+        # Positions first: only the references kept are loaded (features are the costly part to read).
         reach = config.prior_sigmas * position_prior.sigma_m + config.view_range_m
         centre = np.array([position_prior.x_m, position_prior.y_m])
-        stored = {
-            ref_id: ref
-            for ref_id, ref in stored.items()
-            if not np.all(np.isfinite(ref.position_xy)) or np.hypot(*(ref.position_xy - centre)) <= reach
-        }
+        positions = store.positions([ref_id for ref_id, _ in ranked])
+        ranked = [
+            (ref_id, score)
+            for ref_id, score in ranked
+            if ref_id in positions
+            and (not np.all(np.isfinite(positions[ref_id])) or np.hypot(*(positions[ref_id] - centre)) <= reach)
+        ]
+    stored = store.load([ref_id for ref_id, _ in ranked[: config.shortlist]])
     shortlist = [(ref_id, score) for ref_id, score in ranked if ref_id in stored][: config.shortlist]
     stored = {ref_id: stored[ref_id] for ref_id, _ in shortlist}
     candidates = [(ref_id, score, stored[ref_id].features) for ref_id, score in shortlist]
@@ -347,23 +359,41 @@ def anchored_pose(
     for match in matches:
         ref = stored.get(match.reference_id)
         if ref is not None:
-            pairs_of.append((ref, match_features(query_features, ref.features, config.anchor_ratio)))
+            # The re-ranking's nearest neighbours give the looser ratio's matches without a second search.
+            pairs = (
+                ratio_matches(match.neighbours, config.anchor_ratio)
+                if match.neighbours is not None
+                else match_features(query_features, ref.features, config.anchor_ratio)
+            )
+            pairs_of.append((ref, pairs))
     variants = [False]
     if any(ref.alternative_anchors is not None for ref, _ in pairs_of):
         variants.append(True)
     out = []
+    # A reference without alternative anchors brings the same group to both variants: its RANSAC runs once.
+    proposal_of: dict[tuple[int, bool], Proposal | None] = {}
     for use_alternative in variants:
         groups: list[tuple[np.ndarray, np.ndarray]] = []
         group_refs: list[Hashable] = []
-        for ref, pairs in pairs_of:
-            anchors = ref.alternative_anchors if use_alternative and ref.alternative_anchors else ref.anchors
+        proposals: list[Proposal | None] = []
+        for index, (ref, pairs) in enumerate(pairs_of):
+            alternative_anchors = ref.alternative_anchors if use_alternative else None
+            anchors = alternative_anchors if alternative_anchors is not None else ref.anchors
             valid = anchors.valid[pairs[:, 1]] if len(pairs) else np.zeros(0, bool)
             if valid.sum() < 4:
                 continue
             groups.append((anchors.xyz[pairs[valid, 1]], query_features.xy[pairs[valid, 0]]))
             group_refs.append(ref.reference_id)
+            key = (index, alternative_anchors is not None)
+            if key not in proposal_of:
+                proposal_of[key] = group_proposal(*groups[-1], photo.intrinsics, threshold_px=config.pnp_threshold_px)
+            proposals.append(proposal_of[key])
         estimate, owner = estimate_pose_from_groups(
-            groups, photo.intrinsics, threshold_px=config.pnp_threshold_px, min_inliers=config.pnp_min_inliers
+            groups,
+            photo.intrinsics,
+            threshold_px=config.pnp_threshold_px,
+            min_inliers=config.pnp_min_inliers,
+            proposals=proposals,
         )
         if estimate is not None:
             out.append((estimate, [group_refs[i] for i in np.unique(owner[estimate.inliers])]))
@@ -570,3 +600,7 @@ class InMemoryReferenceStore:
     def load(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, StoredReference]:
         """The references of these ids."""
         return {ref_id: self.references[ref_id] for ref_id in reference_ids if ref_id in self.references}
+
+    def positions(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, np.ndarray]:
+        """The estimated positions of these references."""
+        return {ref_id: self.references[ref_id].position_xy for ref_id in reference_ids if ref_id in self.references}

@@ -5,14 +5,18 @@ hit per bearing (farther facades are occluded): facade id, building id, distance
 bearing of the facade's outward normal. A camera yaw and field of view select a window of the
 panorama (see :func:`panorama_window`), so nothing is re-cast per yaw.
 
-Method (vectorised numpy): facades are binned into square cells (the map's cached
+Method: facades are binned into square cells (the map's cached
 :class:`~geoloc.maps.spatial.FacadeIndex`, built once per map); for a chunk of positions the
 facades within ``max_range_m`` are found through the cells, each (position, facade) pair is
-turned into the range of bearings the facade spans seen from that position, the pairs are
-expanded into (position, bearing, facade) samples, the ray/segment distance is computed for all
-samples at once, and a scatter-min over a packed (distance, facade) integer key picks the
-nearest facade per (position, bearing). Cost grows with the facades near each position, not
-with the size of the map.
+turned into the range of bearings the facade spans seen from that position, the ray/segment
+distance is computed at every bearing of that range, and a minimum over a packed
+(distance, facade) integer key picks the nearest facade per (position, bearing). Cost grows with
+the facades near each position, not with the size of the map.
+
+The per-pair loop is a compiled kernel (numba, :func:`_cast_kernel`): the same arithmetic as the
+vectorised numpy formulation kept beside it (:func:`_cast_tile_numpy`, the specification and the
+tests' reference; the results are identical), without expanding millions of (position, bearing,
+facade) samples into temporary arrays: 6-7x faster on the Helsinki map.
 
 Only facades facing the position (outward normal towards it) are considered: the back of a
 wall cannot be seen from outside, and positions inside buildings are not meaningful camera
@@ -22,7 +26,9 @@ positions.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
+import numba
 import numpy as np
 
 from geoloc.maps.spatial import FacadeIndex
@@ -137,7 +143,105 @@ def _cast_tile(
     max_range_m: float,
     best: np.ndarray,
 ) -> None:
-    """Scatter-min the nearest hits of facades ``near`` seen from ``positions[members]`` into ``best``."""
+    """Min the nearest hits of facades ``near`` seen from ``positions[members]`` into ``best`` (compiled kernel)."""
+    sin_k, cos_k = _ray_directions(n_bearings)
+    origin = positions[members]
+    start, end, normal = facades.start[near], facades.end[near], facades.normal[near]
+    local = np.full((len(members), n_bearings), np.iinfo(np.int64).max, dtype=np.int64)
+    columns = [origin[:, 0], origin[:, 1], start[:, 0], start[:, 1], end[:, 0], end[:, 1], normal[:, 0], normal[:, 1]]
+    px, py, sx, sy, ex, ey, nx, ny = (np.ascontiguousarray(c, dtype=np.float64) for c in columns)
+    _cast_kernel(
+        px,
+        py,
+        sx,
+        sy,
+        ex,
+        ey,
+        nx,
+        ny,
+        np.asarray(near, dtype=np.int64),
+        sin_k,
+        cos_k,
+        n_bearings,
+        360.0 / n_bearings,
+        float(max_range_m),
+        local,
+    )
+    rows = best.reshape(-1, n_bearings)
+    rows[members] = np.minimum(rows[members], local)
+
+
+@lru_cache(maxsize=8)
+def _ray_directions(n_bearings: int) -> tuple[np.ndarray, np.ndarray]:
+    """(sin, cos) of bearing index k * step for k in [0, 2 n + 2): a facade's bearing range may pass 360 deg.
+
+    Computed as the numpy formulation computes them (``np.radians(k * step)``), so rays are the same bits.
+    """
+    theta = np.radians(np.arange(2 * n_bearings + 2) * (360.0 / n_bearings))
+    sin_k, cos_k = np.sin(theta), np.cos(theta)
+    sin_k.flags.writeable = cos_k.flags.writeable = False
+    return sin_k, cos_k
+
+
+@numba.njit(cache=True, nogil=True)
+def _cast_kernel(
+    px: np.ndarray,
+    py: np.ndarray,
+    sx: np.ndarray,
+    sy: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
+    nx: np.ndarray,
+    ny: np.ndarray,
+    facade_id: np.ndarray,
+    sin_k: np.ndarray,
+    cos_k: np.ndarray,
+    n_bearings: int,
+    step: float,
+    max_range_m: float,
+    best: np.ndarray,
+) -> None:  # pragma: no cover - compiled; checked against _cast_tile_numpy in the tests
+    """Per (position i, facade j) pair, the packed hit key at every bearing the facade spans, min into best[i]."""
+    for i in range(px.shape[0]):
+        for j in range(sx.shape[0]):
+            ax = sx[j] - px[i]
+            ay = sy[j] - py[i]
+            bx = ex[j] - px[i]
+            by = ey[j] - py[i]
+            if (-ax) * nx[j] + (-ay) * ny[j] <= 1e-6:  # not facing the position
+                continue
+            abx = bx - ax
+            aby = by - ay
+            t = min(max(-(ax * abx + ay * aby) / (abx * abx + aby * aby), 0.0), 1.0)
+            if np.hypot(ax + t * abx, ay + t * aby) > max_range_m:
+                continue
+            bear_a = np.degrees(np.arctan2(ax, ay)) % 360.0
+            bear_b = np.degrees(np.arctan2(bx, by)) % 360.0
+            lo = min(bear_a, bear_b)
+            hi = max(bear_a, bear_b)
+            if hi - lo > 180.0:
+                lo, hi = hi, lo + 360.0
+            first = int(np.ceil(lo / step - 1e-9))
+            last = int(np.floor(hi / step + 1e-9))
+            numerator = ax * aby - ay * abx
+            for k in range(first, last + 1):
+                s = numerator / (sin_k[k] * aby - cos_k[k] * abx)
+                if np.isfinite(s) and s > 0.0 and s <= max_range_m:
+                    key = (np.int64(np.rint(s * _DIST_SCALE)) << _FACADE_BITS) | facade_id[j]
+                    cell = k % n_bearings
+                    best[i, cell] = min(best[i, cell], key)
+
+
+def _cast_tile_numpy(
+    positions: np.ndarray,
+    members: np.ndarray,
+    facades: Facades,
+    near: np.ndarray,
+    n_bearings: int,
+    max_range_m: float,
+    best: np.ndarray,
+) -> None:
+    """:func:`_cast_tile` in vectorised numpy (the specification; the tests check the kernel against it)."""
     step = 360.0 / n_bearings
     origin = positions[members][:, None, :]  # (p, 1, 2)
     a = facades.start[near][None] - origin  # (p, f, 2) endpoints relative to the camera

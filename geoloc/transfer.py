@@ -103,6 +103,7 @@ class ReferenceMatch:
     model: str  # "F", "H" or "none"
     pairs: np.ndarray = field(repr=False)  # (n_inliers, 2) int (query index, reference index)
     putative: np.ndarray | None = field(default=None, repr=False)  # (n_matches, 2) all ratio-test pairs
+    neighbours: Neighbours | None = field(default=None, repr=False)  # for matches at another ratio
 
     def as_dict(self) -> dict[str, Any]:
         """The match's figures as a JSON-ready dict (no arrays)."""
@@ -154,10 +155,29 @@ def match_features(query: Features, reference: Features, ratio: float = DEFAULT_
 
     Nearest reference descriptor of each query descriptor (RootSIFT, Euclidean = Hellinger); kept when
     ``d1 < ratio * d2`` (Lowe) and when no other query keypoint matches the same reference keypoint closer.
+    The same as ``ratio_matches(nearest_neighbours(query, reference, chunk), ratio)``.
     """
+    return ratio_matches(nearest_neighbours(query, reference, chunk), ratio)
+
+
+@dataclass(frozen=True)
+class Neighbours:
+    """Per query descriptor: index of the nearest reference descriptor and the distances to the two nearest.
+
+    Independent of the ratio test's threshold, so matches at several ratios cost one search
+    (:func:`ratio_matches`).
+    """
+
+    best: np.ndarray  # (Nq,) int64
+    d1: np.ndarray  # (Nq,) float32
+    d2: np.ndarray  # (Nq,) float32
+
+
+def nearest_neighbours(query: Features, reference: Features, chunk: int = 2048) -> Neighbours | None:
+    """The two nearest reference descriptors of each query descriptor (None when there are not two)."""
     nq, nr = len(query), len(reference)
     if nq == 0 or nr < 2:
-        return np.zeros((0, 2), np.int64)
+        return None
     rt = reference.descriptors.T
     best = np.empty(nq, np.int64)
     d1 = np.empty(nq, np.float32)
@@ -172,6 +192,14 @@ def match_features(query: Features, reference: Features, ratio: float = DEFAULT_
         best[start : start + chunk] = first
         d1[start : start + chunk] = np.sqrt(np.maximum(2.0 - 2.0 * s1, 0.0))
         d2[start : start + chunk] = np.sqrt(np.maximum(2.0 - 2.0 * s2, 0.0))
+    return Neighbours(best, d1, d2)
+
+
+def ratio_matches(neighbours: Neighbours | None, ratio: float = DEFAULT_RATIO) -> np.ndarray:
+    """:func:`match_features`'s pairs from the nearest neighbours: Lowe's ratio test, then one-to-one."""
+    if neighbours is None:
+        return np.zeros((0, 2), np.int64)
+    best, d1, d2 = neighbours.best, neighbours.d1, neighbours.d2
     q = np.flatnonzero(d1 < ratio * d2)
     if len(q) == 0:
         return np.zeros((0, 2), np.int64)
@@ -257,7 +285,12 @@ def match_and_verify(
     min_inliers: int = DEFAULT_MIN_INLIERS,
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """Putative matches (K, 2), their inlier mask (K,) and the model: match_features + verify_matches."""
-    pairs = match_features(query, reference, ratio)
+    return _verify_pairs(query, reference, match_features(query, reference, ratio), threshold_px, min_inliers)
+
+
+def _verify_pairs(
+    query: Features, reference: Features, pairs: np.ndarray, threshold_px: float, min_inliers: int
+) -> tuple[np.ndarray, np.ndarray, str]:
     if len(pairs) == 0:
         return pairs, np.zeros(0, bool), "none"
     q_xy = query.xy[pairs[:, 0]] * query.scale
@@ -278,16 +311,20 @@ def rerank_by_inliers(
     """Spatial re-ranking: the ``k`` candidates with the most RANSAC inliers (ties: higher retrieval score).
 
     candidates: (reference id, retrieval score, features) of a longer SBoW shortlist (e.g. 20).
-    Returns their :class:`ReferenceMatch` (pass each as ``ReferenceEvidence.match`` to skip re-matching).
+    Returns their :class:`ReferenceMatch` (pass each as ``ReferenceEvidence.match`` to skip re-matching; its
+    ``neighbours`` give matches at another ratio without a second search).
     Measured on a simulated Helsinki world (60 references, 30 queries): shortlist 20 -> top 8 by inliers
     puts the reference sharing most building area in the top 4 for 54 % of queries instead of 25 %.
     """
     out = []
     for ref_id, score, feats in candidates:
-        pairs, inliers, model = match_and_verify(
-            query, feats, ratio=ratio, threshold_px=threshold_px, min_inliers=min_inliers
+        neighbours = nearest_neighbours(query, feats)
+        pairs, inliers, model = _verify_pairs(query, feats, ratio_matches(neighbours, ratio), threshold_px, min_inliers)
+        out.append(
+            ReferenceMatch(
+                ref_id, float(score), len(pairs), int(inliers.sum()), model, pairs[inliers], pairs, neighbours
+            )
         )
-        out.append(ReferenceMatch(ref_id, float(score), len(pairs), int(inliers.sum()), model, pairs[inliers], pairs))
     order = sorted(range(len(out)), key=lambda i: (-out[i].n_inliers, -out[i].score, i))
     return [out[i] for i in order[:k]]
 

@@ -1,13 +1,28 @@
 """The query stage's reference store backed by the service's database (:class:`geoloc.query.ReferenceStore`).
 
-The SBoW shortlist reads the postings of the query's words from the map's inverted index and ranks with
-:func:`geoloc.retrieval.tfidf_scores`, the formula the evaluation's in-memory index uses, so both rank
-alike; references come back with their stored features, keypoint identities and map anchors.
+Shortlist: each worker process keeps every map's SBoW index in memory (:class:`geoloc.sbow_index.SbowIndex`,
+which ranks exactly as :func:`geoloc.retrieval.tfidf_scores` on the database's postings, the formula the
+evaluation's in-memory index uses too). The database stays the source of truth: the first query on a map
+reads its whole index in one snapshot together with the change log's high-water mark
+(:func:`db.sbow.index_snapshot`); every later query first reads the log past the mark
+(:func:`db.sbow.changes_after`) and reloads the postings of the references changed there (re-indexed
+ones replace theirs, deleted ones leave), so a query sees exactly the references committed before it
+started. The log is read from :data:`LOOKBACK_CHANGES` rows behind the mark, skipping the changes
+already applied: with concurrent writers (PostgreSQL) a sequence number can become visible after a larger
+one, and SQLite's single writer never does that, so there it costs one short read.
+
+Load: references come back with their stored features, keypoint identities and map anchors, decoded
+once per process and kept (:data:`DECODED_CACHE_SIZE` of them, least recently used out) while the
+stored keypoints row is unchanged (its ``created_at``); positions are read without the features.
 """
 
 from __future__ import annotations
 
+import io
+import threading
+from collections import OrderedDict
 from collections.abc import Hashable, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 import sqlite_utils
@@ -17,10 +32,37 @@ from db import sbow
 from geoloc.anchors import MapAnchors
 from geoloc.features import Features
 from geoloc.query import StoredReference
-from geoloc.retrieval import tfidf_scores
+from geoloc.retrieval import DEFAULT_WORDS
+from geoloc.sbow_index import SbowIndex
 
 UNKNOWN_POSITION_SIGMA_M = 10.0
 """Position uncertainty credited to a reference stored before labelling recorded one."""
+LOOKBACK_CHANGES = 256
+"""Change-log rows re-read behind the high-water mark (see the module docstring)."""
+CACHED_MAP_INDEXES = 4
+"""In-memory SBoW indexes kept per process (least recently used maps are dropped)."""
+DECODED_CACHE_SIZE = 64
+"""Decoded references kept per process (~0.8 MB each with 1,500 keypoints)."""
+
+
+@dataclass
+class _LiveIndex:
+    """A map's in-memory SBoW index and how far it has read the change log."""
+
+    index: SbowIndex
+    mark: int
+    applied: set[int] = field(default_factory=set)  # change seqs applied within the look-back window
+
+
+_INDEXES: OrderedDict[tuple[str, int, float], _LiveIndex] = OrderedDict()
+_DECODED: OrderedDict[tuple[str, int], tuple[float, StoredReference]] = OrderedDict()
+_LOCK = threading.Lock()
+
+
+def _database_key(db: sqlite_utils.Database) -> str:
+    """The database file (several databases may live in one process, e.g. in tests)."""
+    rows = db.execute("PRAGMA database_list").fetchall()
+    return str(next((row[2] for row in rows if row[1] == "main"), ""))
 
 
 class DatabaseReferenceStore:
@@ -29,25 +71,102 @@ class DatabaseReferenceStore:
     def __init__(self, db: sqlite_utils.Database, map_id: int) -> None:
         self.db = db
         self.map_id = map_id
+        self._database = _database_key(db)
 
     def shortlist(self, words: np.ndarray, n: int) -> list[tuple[Hashable, float]]:
         """The ``n`` best labelled references of the map for a query's visual words: [(id, score)]."""
-        postings = sbow.postings_for_words(self.db, self.map_id, words)
-        if postings.n_docs == 0 or len(postings.reference_ids) == 0:
+        live = self.live_index()
+        if live is None:
             return []
-        scores = tfidf_scores(words, postings.word, postings.doc, postings.count, postings.doc_lengths, postings.n_docs)
-        order = np.argsort(-scores, kind="stable")[:n]
-        return [(int(postings.reference_ids[i]), float(scores[i])) for i in order if scores[i] > 0]
+        return [(ref_id, score) for ref_id, score in live.index.top(words, n)]
+
+    def live_index(self) -> _LiveIndex | None:
+        """The map's in-memory index, brought up to date with the database (None when the map is gone)."""
+        row = self.db.execute("SELECT created_at FROM maps WHERE id = ?", (self.map_id,)).fetchone()
+        if row is None:
+            return None
+        # The map's creation time tells a map apart from a later one that reuses its id in a new database.
+        key = (self._database, self.map_id, float(row[0]))
+        with _LOCK:
+            live = _INDEXES.get(key)
+            if live is None:
+                live = self._load_index()
+                _INDEXES[key] = live
+                while len(_INDEXES) > CACHED_MAP_INDEXES:
+                    _INDEXES.popitem(last=False)
+            else:
+                self._catch_up(live)
+            _INDEXES.move_to_end(key)
+            return live
+
+    def _load_index(self) -> _LiveIndex:
+        snapshot = sbow.index_snapshot(self.db, self.map_id, lookback=LOOKBACK_CHANGES)
+        n_words = sbow.vocabulary_size(self.db, self.map_id) or DEFAULT_WORDS
+        if len(snapshot.word):
+            n_words = max(n_words, int(snapshot.word.max()) + 1)
+        index = SbowIndex(n_words)
+        index.load(snapshot.ids, snapshot.lengths, snapshot.word, snapshot.doc, snapshot.weight)
+        live = _LiveIndex(index, snapshot.mark)
+        # Changes already in the snapshot (a later read of the window must not apply them twice).
+        live.applied = {seq for seq, _ in snapshot.recent_changes}
+        return live
+
+    def _catch_up(self, live: _LiveIndex) -> None:
+        changes = sbow.changes_after(self.db, self.map_id, live.mark - LOOKBACK_CHANGES)
+        new = [(seq, ref) for seq, ref in changes if seq not in live.applied]
+        if not new:
+            return
+        changed = sorted({ref for _, ref in new})
+        postings = sbow.document_postings(self.db, self.map_id, changed)
+        for reference_id in changed:
+            if reference_id in postings:
+                words, weights, total = postings[reference_id]
+                if len(words) and int(words.max()) >= live.index.n_words:
+                    raise ValueError(f"reference {reference_id} has words beyond the map's vocabulary")
+                live.index.upsert(reference_id, words, weights, total)
+            else:
+                live.index.remove(reference_id, missing_ok=True)
+        live.mark = max([live.mark, *(seq for seq, _ in new)])
+        live.applied.update(seq for seq, _ in new)
+        live.applied = {seq for seq in live.applied if seq > live.mark - LOOKBACK_CHANGES}
 
     def load(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, StoredReference]:
         """The stored references of these ids (ones deleted meanwhile are left out)."""
+        ids = [int(r) for r in reference_ids]  # type: ignore[call-overload]
+        stamps = reference_store.keypoint_stamps(self.db, ids)
         out: dict[Hashable, StoredReference] = {}
-        for reference_id in reference_ids:
-            if not isinstance(reference_id, int | np.integer):
-                raise TypeError(f"this store's reference ids are database row ids (integers), got {reference_id!r}")
-            arrays = reference_store.load_keypoints(self.db, int(reference_id))
-            if arrays is not None:
-                out[reference_id] = stored_reference_from_arrays(reference_id, arrays)
+        for reference_id, original in zip(ids, reference_ids, strict=True):
+            if reference_id not in stamps:
+                continue
+            key = (self._database, reference_id)
+            with _LOCK:
+                cached = _DECODED.get(key)
+                if cached is not None and cached[0] == stamps[reference_id]:
+                    _DECODED.move_to_end(key)
+                    out[original] = cached[1]
+                    continue
+            arrays = reference_store.load_keypoints(self.db, reference_id)
+            if arrays is None:
+                continue
+            stored = stored_reference_from_arrays(original, arrays)
+            with _LOCK:
+                _DECODED[key] = (stamps[reference_id], stored)
+                while len(_DECODED) > DECODED_CACHE_SIZE:
+                    _DECODED.popitem(last=False)
+            out[original] = stored
+        return out
+
+    def positions(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, np.ndarray]:
+        """The estimated positions of these references (NaN when labelled before positions were stored)."""
+        ids = [int(r) for r in reference_ids]  # type: ignore[call-overload]
+        blobs = reference_store.keypoint_blobs(self.db, ids)
+        out: dict[Hashable, np.ndarray] = {}
+        for reference_id, original in zip(ids, reference_ids, strict=True):
+            if reference_id in blobs:
+                with np.load(io.BytesIO(blobs[reference_id]), allow_pickle=False) as npz:
+                    # Only this member is decompressed.
+                    position = npz["position_xy"] if "position_xy" in npz.files else None
+                out[original] = np.full(2, np.nan) if position is None else np.asarray(position, float)
         return out
 
 

@@ -193,6 +193,18 @@ class CityMap:
         return FacadeIndex(self.facades)
 
     @cached_property
+    def known_building_height_m(self) -> np.ndarray:
+        """(B,) read-only building heights where the map states them (``height`` or ``building:levels``).
+
+        NaN where the height is the default; cached, since the likelihood's skyline term asks for it on every
+        call.
+        """
+        known = np.array([b.height_source != "default" for b in self.buildings], dtype=bool)
+        heights = np.where(known, np.asarray(self.building_height_m, dtype=float), np.nan)
+        heights.flags.writeable = False
+        return heights
+
+    @cached_property
     def building_union(self) -> BaseGeometry:
         """Union of all footprints (cached).
 

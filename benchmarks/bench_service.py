@@ -1,0 +1,460 @@
+"""Benchmark: the service end to end through its API, this checkout next to a baseline commit, in one run.
+
+    .venv/bin/python benchmarks/bench_service.py [--baseline REF] [--world DIR] [--workers 2] [--rounds 3]
+                                                 [--workdir DIR] [--json service.json]
+
+Each service is ``geoloc serve --workers N`` on its own fresh data folder (the built models linked in), on
+loopback; ``--baseline`` adds the same service run from another commit of this repository (exported with
+``git archive`` into the work folder, run with the same Python environment), and each ``--variant`` one more
+service of this checkout with other settings (e.g. ``GEOLOC_SEG_THREADS=2``), so that old and new are
+measured side by side under the same load. On each:
+
+1. The Helsinki map is uploaded; the references of the world (``geoloc sim world --map helsinki.osm.pbf
+   --references 60 --queries 30 --seed 1``, made here unless ``--world`` names one) are posted at once and
+   labelled by the pool, one service after the other. Throughput: references per second of wall time per
+   worker, and per CPU-second of the worker processes (``/proc``: what a core does when it is not shared).
+2. Queries, one at a time with the workers warm (one warm-up query per service first): every query photo
+   of the world, ``--rounds`` times, each posted to every service back to back (the order alternating by
+   round). Latency: the client's wall time of ``POST /v1/maps/{id}/queries`` (waiting for the answer), with
+   its median (p50) and p95, the workers' stage timings (``result.timings_ms``, medians) and the worker CPU
+   time per query. Queries per CPU-second of the workers is the per-core throughput.
+3. Concurrent queries: every query photo posted without waiting, the pool answering them together; queries
+   per second of wall time per worker.
+4. Memory: the workers' peak resident memory (``VmHWM``) while labelling and, reset in between
+   (``/proc/PID/clear_refs``), while answering queries.
+5. Answers: each query's ranked locations on every other service next to this checkout's (rank 1 position
+   and heading, the number of locations), which must agree: the speed-ups do not change what the method
+   computes.
+
+The machine is shared: its load average is printed with each phase. Prints a table and writes JSON. Targets
+(issue 14): query p50 <= 400 ms and p95 <= 800 ms, >= 1.5 references and >= 2 queries per second per core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+from geoloc.config import REPO_ROOT, cache_dir, shared_path
+
+TARGET_P50_MS = 400.0
+TARGET_P95_MS = 800.0
+TARGET_REFERENCES_PER_CORE_S = 1.5
+TARGET_QUERIES_PER_CORE_S = 2.0
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _children(pid: int) -> list[int]:
+    """Every descendant process of ``pid``."""
+    parents: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            parents.setdefault(ppid, []).append(int(entry.name))
+    out, todo = [], [pid]
+    while todo:
+        found = parents.get(todo.pop(), [])
+        out += found
+        todo += found
+    return out
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
+def _status_mb(pid: int, key: str) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def load_average() -> float:
+    return round(os.getloadavg()[0], 1)
+
+
+class Service:
+    """``geoloc serve --workers N`` from a source folder, on a fresh data folder."""
+
+    def __init__(self, name: str, source: Path, data_dir: Path, workers: int, env: dict[str, str]) -> None:
+        self.name = name
+        shutil.rmtree(data_dir, ignore_errors=True)
+        data_dir.mkdir(parents=True)
+        models = cache_dir() / "models"
+        (data_dir / "cache").mkdir()
+        (data_dir / "cache" / "models").symlink_to(models, target_is_directory=True)
+        self.data_dir = data_dir
+        self.workers = workers
+        self.port = _free_port()
+        environment = {
+            **os.environ,
+            **env,
+            "GEOLOC_DATA_DIR": str(data_dir),
+            "GEOLOC_WORKER_POLL_MAX_S": "0.05",  # an idle worker picks a query up at once
+            "PYTHONPATH": str(source),
+        }
+        environment.pop("GEOLOC_API_KEYS", None)
+        self.log = (data_dir.parent / f"{name}.log").open("wb")
+        serve = f"serve --host 127.0.0.1 --port {self.port} --workers {workers} --log-level warning".split()
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", "from cli.main import app; app()", *serve],
+            cwd=source,
+            env=environment,
+            stdout=self.log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        self.client = httpx.Client(base_url=f"http://127.0.0.1:{self.port}", timeout=600.0)
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline:
+            try:
+                if self.client.get("/readyz").status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if self.process.poll() is not None:
+                raise SystemExit(f"{name}: geoloc serve exited; see {self.log.name}")
+            time.sleep(0.5)
+        else:
+            raise SystemExit(f"{name}: the service did not become ready in 180 s")
+        self.map_id = 0
+
+    def worker_pids(self) -> list[int]:
+        pids = []
+        for pid in _children(self.process.pid):
+            try:
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if b"workers" in cmdline:
+                pids.append(pid)
+        return pids
+
+    def worker_cpu_s(self) -> float:
+        return sum(_cpu_s(pid) for pid in self.worker_pids())
+
+    def worker_peak_mb(self) -> float:
+        return max(_status_mb(pid, "VmHWM") for pid in self.worker_pids())
+
+    def reset_peaks(self) -> None:
+        for pid in self.worker_pids():
+            Path(f"/proc/{pid}/clear_refs").write_text("5")
+
+    def stop(self) -> None:
+        self.client.close()
+        if self.process.poll() is None:
+            os.killpg(self.process.pid, signal.SIGTERM)
+            try:
+                self.process.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait()
+        self.log.close()
+
+
+def export_commit(ref: str, target: Path) -> str:
+    """``git archive REF`` of this repository into ``target``; returns the commit id."""
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", ref], cwd=REPO_ROOT, capture_output=True, text=True, check=True
+    ).stdout.strip()
+    shutil.rmtree(target, ignore_errors=True)
+    target.mkdir(parents=True)
+    archive = target.parent / f"{target.name}.tar"
+    subprocess.run(["git", "archive", "-o", str(archive), commit], cwd=REPO_ROOT, check=True)
+    with tarfile.open(archive) as tar:
+        tar.extractall(target, filter="data")
+    archive.unlink()
+    return commit
+
+
+def upload_map(service: Service) -> None:
+    with shared_path("data", "osm", "helsinki.osm.pbf").open("rb") as f:
+        response = service.client.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)}, data={"name": "helsinki"})
+    if response.status_code not in (200, 201):
+        raise SystemExit(f"{service.name}: map upload failed: {response.text[:300]}")
+    service.map_id = int(response.json()["id"])
+
+
+def label_references(service: Service, photos: list[Path]) -> dict[str, Any]:
+    """Post every reference at once, wait until the pool has labelled them all: throughput and memory."""
+    service.reset_peaks()
+    cpu0, load0, t0 = service.worker_cpu_s(), load_average(), time.perf_counter()
+    ids = []
+    for photo in photos:
+        response = service.client.post(
+            f"/v1/maps/{service.map_id}/references", files={"image": (photo.name, photo.read_bytes())}
+        )
+        if response.status_code not in (200, 202):
+            raise SystemExit(f"{service.name}: reference {photo.name} refused: {response.text[:300]}")
+        ids.append(response.json()["id"])
+    while True:
+        counts = service.client.get(f"/v1/maps/{service.map_id}/references", params={"limit": 1}).json()["counts"]
+        if counts.get("queued", 0) + counts.get("processing", 0) == 0:
+            break
+        time.sleep(0.2)
+    wall_s = time.perf_counter() - t0
+    cpu_s = service.worker_cpu_s() - cpu0
+    rows = [service.client.get(f"/v1/references/{rid}").json() for rid in ids]
+    totals = [r["timings"]["total"] for r in rows if r.get("timings")]
+    return {
+        "references": len(ids),
+        "labelled": sum(r["status"] == "done" for r in rows),
+        "wall_s": round(wall_s, 1),
+        "worker_cpu_s": round(cpu_s, 1),
+        "per_s_per_worker": round(len(ids) / wall_s / service.workers, 2),
+        "per_cpu_s": round(len(ids) / cpu_s, 2),
+        "job_ms_median": round(statistics.median(totals), 1) if totals else None,
+        "worker_peak_rss_mb": round(service.worker_peak_mb(), 1),
+        "load_average": [load0, load_average()],
+    }
+
+
+def post_query(service: Service, photo: Path, wait_s: float = 300.0) -> httpx.Response:
+    return service.client.post(
+        f"/v1/maps/{service.map_id}/queries",
+        files={"image": (photo.name, photo.read_bytes())},
+        data={"wait_s": str(wait_s)},
+    )
+
+
+def query_once(service: Service, photo: Path) -> dict[str, Any]:
+    cpu0 = service.worker_cpu_s()
+    t0 = time.perf_counter()
+    response = post_query(service, photo)
+    wall_ms = 1e3 * (time.perf_counter() - t0)
+    body = response.json()
+    if response.status_code != 200 or body.get("status") != "done":
+        raise SystemExit(f"{service.name}: query {photo.name}: {response.status_code} {json.dumps(body)[:300]}")
+    result = body["result"]
+    locations = [(loc["lat"], loc["lon"], loc["heading_deg"]) for loc in result["locations"]]
+    return {
+        "photo": photo.name,
+        "wall_ms": wall_ms,
+        "worker_cpu_ms": 1e3 * (service.worker_cpu_s() - cpu0),
+        "timings_ms": result["timings_ms"],
+        "locations": locations,
+    }
+
+
+def concurrent_queries(service: Service, photos: list[Path]) -> dict[str, Any]:
+    """Every photo posted without waiting; the pool answers them together."""
+    cpu0, load0, t0 = service.worker_cpu_s(), load_average(), time.perf_counter()
+    ids = [post_query(service, photo, wait_s=0.0).json()["id"] for photo in photos]
+    pending = set(ids)
+    while pending:
+        for query_id in list(pending):
+            if service.client.get(f"/v1/queries/{query_id}").json()["status"] in ("done", "failed"):
+                pending.discard(query_id)
+        time.sleep(0.1)
+    wall_s = time.perf_counter() - t0
+    cpu_s = service.worker_cpu_s() - cpu0
+    return {
+        "queries": len(ids),
+        "wall_s": round(wall_s, 1),
+        "per_s_per_worker": round(len(ids) / wall_s / service.workers, 2),
+        "per_cpu_s": round(len(ids) / cpu_s, 2),
+        "load_average": [load0, load_average()],
+    }
+
+
+def _distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:
+    dy = (a[0] - b[0]) * 111_195.0
+    dx = (a[1] - b[1]) * 111_195.0 * np.cos(np.radians((a[0] + b[0]) / 2))
+    return float(np.hypot(dx, dy))
+
+
+def compare_answers(other: list[dict[str, Any]], current: list[dict[str, Any]]) -> dict[str, Any]:
+    """How far the rank-1 answers of the same queries lie apart on two services."""
+    pairs = list(zip(other, current, strict=True))
+    gaps = [_distance_m(a["locations"][0][:2], b["locations"][0][:2]) for a, b in pairs if a["locations"]]
+    headings = [
+        abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) for a, b in pairs if a["locations"]
+    ]
+    same = sum(
+        len(a["locations"]) == len(b["locations"])
+        and (not a["locations"] or (_distance_m(a["locations"][0][:2], b["locations"][0][:2]) < 0.05
+                                    and abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) < 0.05))
+        for a, b in pairs
+    )  # fmt: skip
+    return {
+        "same_rank1_pose": f"{same}/{len(pairs)}",
+        "rank1_gap_m_max": round(max(gaps, default=0.0), 3),
+        "rank1_heading_gap_deg_max": round(max(headings, default=0.0), 3),
+    }
+
+
+def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    walls = [r["wall_ms"] for r in runs]
+    stages = sorted({stage for r in runs for stage in r["timings_ms"]}, key=list(runs[0]["timings_ms"]).index)
+    return {
+        "queries": len(walls),
+        "wall_ms_p50": round(float(np.percentile(walls, 50)), 1),
+        "wall_ms_p95": round(float(np.percentile(walls, 95)), 1),
+        "worker_cpu_ms_median": round(statistics.median(r["worker_cpu_ms"] for r in runs), 1),
+        "per_cpu_s": round(len(runs) / (sum(r["worker_cpu_ms"] for r in runs) / 1e3), 2),
+        "stages_ms_median": {s: round(statistics.median(r["timings_ms"].get(s, 0.0) for r in runs), 1) for s in stages},
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--baseline", help="a commit (or branch) of this repository to measure beside this checkout")
+    parser.add_argument("--world", type=Path, help="a simulated Helsinki world (default: made here)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        help="KEY=VALUE[,KEY=VALUE]: one more service of this checkout with these settings (repeatable)",
+    )
+    parser.add_argument("--workdir", type=Path, help="folder for the services and the world (default: temp)")
+    parser.add_argument("--json", type=Path, default=Path("service.json"))
+    args = parser.parse_args()
+
+    workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench-service-"))
+    workdir.mkdir(parents=True, exist_ok=True)
+    figures: dict[str, Any] = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {load_average()} at start",
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+    }
+    print(f"machine: {figures['machine']}; work folder {workdir}")
+    world_dir = args.world
+    if world_dir is None:
+        from geoloc.sim.world import WorldOptions, generate_world
+
+        world_dir = workdir / "world"
+        if not (world_dir / "manifest.json").exists():
+            generate_world(
+                shared_path("data", "osm", "helsinki.osm.pbf"),
+                world_dir,
+                WorldOptions(n_references=60, n_queries=30, seed=1),
+            )
+    from geoloc.sim.world import load_world
+
+    world = load_world(world_dir)
+    references = [im.path for im in world.references]
+    queries = [im.path for im in world.queries]
+    figures["world"] = {"path": str(world_dir), "references": len(references), "queries": len(queries)}
+
+    sources: dict[str, tuple[Path, dict[str, str]]] = {}
+    if args.baseline:
+        commit = export_commit(args.baseline, workdir / "baseline-src")
+        sources[f"baseline {commit}"] = (workdir / "baseline-src", {})
+    for variant in args.variant:
+        sources[f"current {variant}"] = (REPO_ROOT, dict(kv.split("=", 1) for kv in variant.split(",")))
+    sources["current"] = (REPO_ROOT, {})
+    services: dict[str, Service] = {}
+    try:
+        for index, (name, (source, env)) in enumerate(sources.items()):
+            services[name] = Service(name, source, workdir / f"service-{index}" / "data", args.workers, env)
+            upload_map(services[name])
+        names = list(services)
+
+        figures["labelling"] = {}
+        for name, service in services.items():
+            row = label_references(service, references)
+            figures["labelling"][name] = row
+            print(f"{name}: {row['labelled']}/{row['references']} references labelled in {row['wall_s']} s "
+                  f"({row['per_s_per_worker']} per second per worker, {row['per_cpu_s']} per CPU-second; "
+                  f"worker peak {row['worker_peak_rss_mb']:.0f} MB; load {row['load_average']})")  # fmt: skip
+
+        for service in services.values():
+            query_once(service, queries[0])  # warm-up: the worker's first load of the map and its indexes
+            service.reset_peaks()
+        runs: dict[str, list[dict[str, Any]]] = {name: [] for name in names}
+        load0 = load_average()
+        for round_index in range(args.rounds):
+            for photo in queries:
+                for name in names if round_index % 2 == 0 else reversed(names):
+                    runs[name].append(query_once(services[name], photo))
+        figures["queries"] = {name: summarize(runs[name]) for name in names}
+        for name in names:
+            figures["queries"][name]["worker_peak_rss_mb"] = round(services[name].worker_peak_mb(), 1)
+        figures["queries_load_average"] = [load0, load_average()]
+        figures["concurrent_queries"] = {name: concurrent_queries(services[name], queries) for name in names}
+
+        figures["answers"] = {name: compare_answers(runs[name], runs["current"]) for name in names if name != "current"}
+        for name, row in figures["answers"].items():
+            row["speedup_p50"] = round(
+                figures["queries"][name]["wall_ms_p50"] / figures["queries"]["current"]["wall_ms_p50"], 2
+            )
+    finally:
+        for service in services.values():
+            service.stop()
+
+    print(f"\nqueries one at a time ({args.rounds} rounds x {len(queries)} photos, interleaved; "
+          f"load average {figures['queries_load_average']}):")  # fmt: skip
+    width = max(len(n) for n in names) + 2
+    print(f"{'':28s}" + "".join(f"{n:>{width}s}" for n in names))
+    rows = [("wall p50 (ms)", "wall_ms_p50"), ("wall p95 (ms)", "wall_ms_p95"),
+            ("worker CPU per query (ms)", "worker_cpu_ms_median"), ("queries per CPU-second", "per_cpu_s"),
+            ("worker peak memory (MB)", "worker_peak_rss_mb")]  # fmt: skip
+    for label, key in rows:
+        print(f"{label:28s}" + "".join(f"{figures['queries'][n][key]:>{width},}" for n in names))
+    stages = list(figures["queries"][names[-1]]["stages_ms_median"])
+    for stage in stages:
+        values = [figures["queries"][n]["stages_ms_median"].get(stage, float("nan")) for n in names]
+        print(f"{'  ' + stage + ' (ms, median)':28s}" + "".join(f"{v:>{width},}" for v in values))
+    for name in names:
+        c = figures["concurrent_queries"][name]
+        print(f"{name}: {c['queries']} concurrent queries in {c['wall_s']} s: {c['per_s_per_worker']} per second per "
+              f"worker, {c['per_cpu_s']} per CPU-second (load {c['load_average']})")  # fmt: skip
+    for name, answers in figures["answers"].items():
+        print(f"answers of {name} and current: rank 1 the same for {answers['same_rank1_pose']} queries (largest "
+              f"gap {answers['rank1_gap_m_max']} m, {answers['rank1_heading_gap_deg_max']} deg); median latency "
+              f"{answers['speedup_p50']}x current's")  # fmt: skip
+    current = "current"
+    q, lab = figures["queries"][current], figures["labelling"][current]
+    figures["targets"] = {
+        "query_p50_ms": {"value": q["wall_ms_p50"], "target": TARGET_P50_MS, "met": q["wall_ms_p50"] <= TARGET_P50_MS},
+        "query_p95_ms": {"value": q["wall_ms_p95"], "target": TARGET_P95_MS, "met": q["wall_ms_p95"] <= TARGET_P95_MS},
+        "references_per_core_s": {
+            "value": lab["per_cpu_s"],
+            "per_worker_wall": lab["per_s_per_worker"],
+            "target": TARGET_REFERENCES_PER_CORE_S,
+            "met": lab["per_cpu_s"] >= TARGET_REFERENCES_PER_CORE_S,
+        },
+        "queries_per_core_s": {
+            "value": q["per_cpu_s"],
+            "per_worker_wall": figures["concurrent_queries"][current]["per_s_per_worker"],
+            "target": TARGET_QUERIES_PER_CORE_S,
+            "met": q["per_cpu_s"] >= TARGET_QUERIES_PER_CORE_S,
+        },
+    }
+    for name, target in figures["targets"].items():
+        print(f"target {name}: {target['value']} vs {target['target']}: {'met' if target['met'] else 'NOT MET'}")
+    args.json.write_text(json.dumps({**figures, "runs": runs}, indent=2))
+    print(f"figures written to {args.json}")
+
+
+if __name__ == "__main__":
+    main()
