@@ -19,28 +19,30 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import sqlite_utils
 
 from db.blobs import pack_arrays, unpack_arrays
+from db.connection import Database
 
 
-def save_vocabulary(db: sqlite_utils.Database, map_id: int, arrays: dict[str, np.ndarray]) -> None:
+def save_vocabulary(db: Database, map_id: int, arrays: dict[str, np.ndarray]) -> None:
     """Store (replace) a map's vocabulary; ``arrays['centers']`` (W, D) gives the word count."""
     word_count = len(arrays["centers"]) if "centers" in arrays else len(next(iter(arrays.values())))
     db.execute(
-        "INSERT OR REPLACE INTO vocabularies (map_id, word_count, arrays_npz, created_at) VALUES (?, ?, ?, ?)",
+        "INSERT INTO vocabularies (map_id, word_count, arrays_npz, created_at) VALUES (?, ?, ?, ?)"
+        " ON CONFLICT (map_id) DO UPDATE SET word_count = excluded.word_count, arrays_npz = excluded.arrays_npz,"
+        " created_at = excluded.created_at",
         (map_id, word_count, pack_arrays(arrays), time.time()),
     )
 
 
-def load_vocabulary(db: sqlite_utils.Database, map_id: int) -> dict[str, np.ndarray] | None:
+def load_vocabulary(db: Database, map_id: int) -> dict[str, np.ndarray] | None:
     """A map's vocabulary arrays, or None."""
     row = db.execute("SELECT arrays_npz FROM vocabularies WHERE map_id = ?", (map_id,)).fetchone()
     return unpack_arrays(row[0]) if row else None
 
 
 def index_reference(
-    db: sqlite_utils.Database, map_id: int, reference_id: int, word_ids: np.ndarray, weights: np.ndarray
+    db: Database, map_id: int, reference_id: int, word_ids: np.ndarray, weights: np.ndarray
 ) -> int:
     """Replace a reference's postings with (word_id, weight) pairs (duplicates summed); returns the
     number of distinct words. Call inside a transaction."""
@@ -55,14 +57,14 @@ def index_reference(
         "INSERT INTO sbow_documents (reference_id, map_id, word_total, created_at) VALUES (?, ?, ?, ?)",
         (reference_id, map_id, float(summed.sum()), time.time()),
     )
-    db.conn.executemany(
+    db.executemany(
         "INSERT INTO sbow_postings (map_id, word_id, reference_id, weight) VALUES (?, ?, ?, ?)",
         [(map_id, int(w), reference_id, float(s)) for w, s in zip(unique_words, summed, strict=True)],
     )
     return len(unique_words)
 
 
-def document_count(db: sqlite_utils.Database, map_id: int) -> int:
+def document_count(db: Database, map_id: int) -> int:
     """Number of indexed references of a map."""
     return int(db.execute("SELECT COUNT(*) FROM sbow_documents WHERE map_id = ?", (map_id,)).fetchone()[0])
 
@@ -83,7 +85,7 @@ class Postings:
     n_docs: int
 
 
-def postings_for_words(db: sqlite_utils.Database, map_id: int, word_ids: np.ndarray) -> Postings:
+def postings_for_words(db: Database, map_id: int, word_ids: np.ndarray) -> Postings:
     """Every postings row of the given words in a map's index (all of them, so df is exact)."""
     unique_words = np.unique(np.asarray(word_ids, dtype=np.int64).ravel())
     rows: list[tuple[int, int, float]] = []
