@@ -307,6 +307,13 @@ def mark_published(db: Database, job_ids: list[int], now: float | None = None) -
         db.execute(f"UPDATE jobs SET published_at = ? WHERE id IN ({marks})", [now or time.time(), *job_ids])
 
 
+def mark_unpublished(db: Database, job_ids: list[int]) -> None:
+    """Forget a publication that did not happen (the broker refused): the reconciler takes these again."""
+    if job_ids:
+        marks = ", ".join("?" for _ in job_ids)
+        db.execute(f"UPDATE jobs SET published_at = NULL WHERE id IN ({marks})", list(job_ids))
+
+
 def jobs_to_publish(
     db: Database, now: float, *, unpublished_grace_s: float, republish_before: float | None = None, limit: int = 500
 ) -> list[int]:

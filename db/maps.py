@@ -171,9 +171,7 @@ def _options_json(read_options: dict[str, Any] | None) -> str:
     return json.dumps(read_options or {}, sort_keys=True)
 
 
-def find_map_by_sha256(
-    db: Database, sha256: str, read_options: dict[str, Any] | None = None
-) -> dict[str, Any] | None:
+def find_map_by_sha256(db: Database, sha256: str, read_options: dict[str, Any] | None = None) -> dict[str, Any] | None:
     """The oldest map uploaded from a file with this checksum and read with these options, or None."""
     rows = list(
         db.query(

@@ -8,6 +8,9 @@ from typing import Any
 
 from db.connection import Database
 
+QUERY_PHOTOS_LOCK = "geoloc:query-photos"
+"""Held by a transaction that stores a query photo or checks which photos no query uses any more."""
+
 
 def _decode(row: dict[str, Any]) -> dict[str, Any]:
     row = dict(row)
@@ -24,7 +27,9 @@ def insert_query(
     image_path: str | None = None,
     sha256: str | None = None,
 ) -> int:
-    """Insert a queued query; returns its id."""
+    """Insert a queued query; returns its id. Call inside the transaction that puts its photo in the store
+    (it takes :data:`QUERY_PHOTOS_LOCK`, so retention cannot remove that photo meanwhile)."""
+    db.lock(QUERY_PHOTOS_LOCK)
     now = time.time()
     return db.insert_returning_id(
         "INSERT INTO queries (map_id, image_path, sha256, params, status, created_at, updated_at)"
@@ -97,9 +102,11 @@ def delete_expired_queries(db: Database, cutoff: float, *, limit: int = 500) -> 
 def unreferenced_images(db: Database, paths: list[str | None]) -> list[str]:
     """The paths among ``paths`` that no query refers to (the same photo asked twice shares one file).
 
-    Check and remove inside one ``BEGIN IMMEDIATE`` transaction: an upload moves its file into place
-    inside its own such transaction, so it cannot slip in between the check and the removal.
+    Check and remove inside one transaction (this takes :data:`QUERY_PHOTOS_LOCK`): an upload puts its
+    file in place inside its own transaction under the same lock, so it cannot slip in between the check
+    and the removal.
     """
+    db.lock(QUERY_PHOTOS_LOCK)
     wanted = sorted({path for path in paths if path})
     return [
         path for path in wanted if db.execute("SELECT 1 FROM queries WHERE image_path = ?", (path,)).fetchone() is None

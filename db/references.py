@@ -102,9 +102,7 @@ def list_references(db: Database, map_id: int, *, status: str | None = None) -> 
     return [_decode(row) for row in rows]
 
 
-def list_references_after(
-    db: Database, map_id: int, *, after_id: int = 0, limit: int = 100
-) -> list[dict[str, Any]]:
+def list_references_after(db: Database, map_id: int, *, after_id: int = 0, limit: int = 100) -> list[dict[str, Any]]:
     """One page of a map's references: up to ``limit`` with ids above ``after_id``, by id (keyset paging)."""
     rows = db.query(
         "SELECT * FROM reference_images WHERE map_id = ? AND id > ? ORDER BY id LIMIT ?", (map_id, after_id, limit)

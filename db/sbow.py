@@ -41,9 +41,7 @@ def load_vocabulary(db: Database, map_id: int) -> dict[str, np.ndarray] | None:
     return unpack_arrays(row[0]) if row else None
 
 
-def index_reference(
-    db: Database, map_id: int, reference_id: int, word_ids: np.ndarray, weights: np.ndarray
-) -> int:
+def index_reference(db: Database, map_id: int, reference_id: int, word_ids: np.ndarray, weights: np.ndarray) -> int:
     """Replace a reference's postings with (word_id, weight) pairs (duplicates summed); returns the
     number of distinct words. Call inside a transaction."""
     word_ids = np.asarray(word_ids, dtype=np.int64).ravel()

@@ -6,11 +6,10 @@ import threading
 import time
 from typing import Any
 
-import sqlite_utils
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 
-from db import LATEST_VERSION, connect, schema_version
+from db import LATEST_VERSION, Database, connect, schema_version
 from db import jobs as job_store
 from service.auth import require_read
 from service.bounds import JobId
@@ -53,7 +52,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
     problems: list[str] = []
     version, workers = -1, 0
     try:
-        db = connect(settings.database_path, busy_timeout_ms=2000)
+        db = connect(settings.database, busy_timeout_ms=2000)
         try:
             db.execute("SELECT 1").fetchone()
             version = schema_version(db)
@@ -104,7 +103,7 @@ def job_out(job: dict[str, Any]) -> JobOut:
     tags=["jobs"],
     dependencies=[Depends(require_read)],
 )
-def get_job(job_id: JobId, db: sqlite_utils.Database = Depends(get_db)) -> JobOut:
+def get_job(job_id: JobId, db: Database = Depends(get_db)) -> JobOut:
     """A background job: status, attempts, result or last error."""
     job = job_store.get_job(db, job_id)
     if job is None:

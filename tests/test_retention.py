@@ -8,9 +8,8 @@ import time
 from pathlib import Path
 
 import pytest
-import sqlite_utils
 
-from db import connect, migrate, transaction
+from db import Database, connect, migrate, transaction
 from db import jobs as job_store
 from db import queries as query_store
 from db import references as reference_store
@@ -31,7 +30,7 @@ DAY_S = 86400.0
 
 
 def _query(
-    db: sqlite_utils.Database, data_dir: Path, map_id: int, photo: str, *, age_s: float, finished: bool
+    db: Database, data_dir: Path, map_id: int, photo: str, *, age_s: float, finished: bool
 ) -> int:
     (data_dir / photo).parent.mkdir(parents=True, exist_ok=True)
     (data_dir / photo).write_bytes(b"photo")

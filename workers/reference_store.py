@@ -10,10 +10,9 @@ from __future__ import annotations
 from collections.abc import Hashable, Sequence
 
 import numpy as np
-import sqlite_utils
 
+from db import Database, sbow
 from db import references as reference_store
-from db import sbow
 from geoloc.anchors import MapAnchors
 from geoloc.features import Features
 from geoloc.query import StoredReference
@@ -26,7 +25,7 @@ UNKNOWN_POSITION_SIGMA_M = 10.0
 class DatabaseReferenceStore:
     """Labelled references of one map, read from the database."""
 
-    def __init__(self, db: sqlite_utils.Database, map_id: int) -> None:
+    def __init__(self, db: Database, map_id: int) -> None:
         self.db = db
         self.map_id = map_id
 
