@@ -17,6 +17,7 @@ from service.deps import get_db
 from service.errors import ApiError, error_body
 from service.models import ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
 from service.settings import Settings
+from workers.broker import broker_problem
 
 router = APIRouter()
 MODEL_CHECK_TTL_S = 10.0
@@ -46,21 +47,29 @@ def healthz() -> Health:
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": ErrorResponse}}, tags=["system"])
 def readyz(request: Request) -> Readiness | JSONResponse:
-    """Ready when the database answers at the current schema version, the models the workers need are built
-    and current, and a worker heartbeat is recent; else 503 with every reason in ``problems``."""
+    """Ready when the database answers at the current schema version, the broker answers (distributed profile),
+    the models the workers need are built and current, and a worker heartbeat is recent; else 503 with every
+    reason in ``problems``."""
     settings: Settings = request.app.state.settings
     problems: list[str] = []
-    version, workers = -1, 0
+    version, workers, database_ok = -1, 0, False
     try:
         db = connect(settings.database, busy_timeout_ms=2000)
         try:
             db.execute("SELECT 1").fetchone()
             version = schema_version(db)
             workers = len(job_store.live_workers(db, settings.ready_worker_s))
+            database_ok = True
         finally:
             db.close()
     except Exception as exc:  # any failure means "not ready"
         problems.append(f"database unreachable: {exc}")
+    broker = None
+    if settings.broker_url is not None:
+        broker_error = broker_problem(settings.broker_url)
+        broker = "ok" if broker_error is None else "unreachable"
+        if broker_error is not None:
+            problems.append(broker_error)
     if version != LATEST_VERSION and version >= 0:
         problems.append(f"database schema version {version}, expected {LATEST_VERSION}")
     problems += model_problems_cached(settings)
@@ -68,6 +77,9 @@ def readyz(request: Request) -> Readiness | JSONResponse:
         problems.append(f"no worker heartbeat in the last {settings.ready_worker_s:.0f} s")
     readiness = Readiness(
         status="not_ready" if problems else "ready",
+        profile="distributed" if settings.distributed else "embedded",
+        database="ok" if database_ok else "unreachable",
+        broker=broker,
         schema_version=version,
         expected_schema_version=LATEST_VERSION,
         live_workers=workers,

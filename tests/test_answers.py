@@ -129,7 +129,7 @@ def test_a_malformed_answer_fails_the_job_at_once_with_the_reason(
     query = _ask(client, map_id, top_n=top_n)
     assert query["status"] == "failed" and query["result"] is None
     assert "malformed query answer, not stored" in query["error"] and problem in query["error"]
-    job = get_job_row(service.db_path, query["job_id"])
+    job = get_job_row(service.database, query["job_id"])
     assert job["status"] == "failed" and job["attempts"] == 1, "a malformed answer is not retried"
     served = client.get(f"/v1/queries/{query['id']}")
     assert served.status_code == 200 and served.json()["status"] == "failed"

@@ -109,7 +109,7 @@ def test_counts_follow_the_jobs(tmp_path: Path) -> None:
     with running_service(tmp_path / "data", workers=0) as service, service.client(WRITE_KEY) as client:
         map_id = _new_map(client, "statuses")
         accepted = _add_references(client, map_id, 4, seed0=300)
-        db = connect(service.db_path)
+        db = connect(service.database)
         try:  # the job store moves the jobs as a worker would: one running, one failed, one done
             claimed = [
                 job_store.claim_job(db, worker, lease_s=600, kinds=[job_store.LABEL_REFERENCE]) for _ in range(3)

@@ -56,7 +56,7 @@ def upload(client: httpx.Client, path: Path, name: str, options: dict[str, str] 
 
 
 def snapshot(service: RunningProcess) -> tuple[dict[str, int], list[str]]:
-    return table_counts(service.db_path), stored_files(service.data_dir)
+    return table_counts(service.database), stored_files(service.data_dir)
 
 
 GOOD = ["geojson", "geojson.gz", "geojson_3857", "geojson_3857_crs_option", "gpkg", "shapefile.zip", "fgb", "osm.gz"]

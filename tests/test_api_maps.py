@@ -80,12 +80,12 @@ class Unchanged:
 
     def __init__(self, service: RunningProcess) -> None:
         self.service = service
-        self.counts = table_counts(service.db_path)
+        self.counts = table_counts(service.database)
         self.files = stored_files(service.data_dir)
 
     def check(self) -> None:
         assert httpx.get(f"{self.service.base_url}/healthz", timeout=5).status_code == 200, "service still answers"
-        assert table_counts(self.service.db_path) == self.counts, "database unchanged"
+        assert table_counts(self.service.database) == self.counts, "database unchanged"
         assert stored_files(self.service.data_dir) == self.files, "no file stored or left behind"
 
 
@@ -186,7 +186,7 @@ def test_reference_with_exif_gps_is_accepted_then_deleted(
     assert client.delete(f"/v1/references/{accepted['id']}").status_code == 204
     assert client.get(f"/v1/references/{accepted['id']}").status_code == 404
     assert stored_files(service.data_dir) == before.files
-    counts = table_counts(service.db_path)
+    counts = table_counts(service.database)
     assert counts["reference_images"] == before.counts["reference_images"]
 
 
@@ -351,7 +351,7 @@ def test_reads_need_a_read_key_and_unknown_ids_are_404(service: RunningProcess, 
 
 
 def test_data_stays_under_the_data_dir(service: RunningProcess) -> None:
-    assert Path(service.db_path).exists()
+    assert Path(service.database).exists()
     assert not list((service.data_dir / "tmp").glob("upload-*")), "no temp upload left behind"
 
 

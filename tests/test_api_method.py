@@ -124,7 +124,9 @@ def test_killed_worker_and_restarted_service_lose_no_reference(
         first = [_upload_reference(client, map_id, p)["id"] for p in photos[:3]]
 
         def running_job() -> dict | None:
-            rows = read_rows(service.db_path, "SELECT * FROM jobs WHERE status = 'running' AND lease_owner IS NOT NULL")
+            rows = read_rows(
+                service.database, "SELECT * FROM jobs WHERE status = 'running' AND lease_owner IS NOT NULL"
+            )
             return rows[0] if rows else None
 
         job = wait_for(running_job, timeout=120, what="a labelling job to start")
@@ -136,7 +138,7 @@ def test_killed_worker_and_restarted_service_lose_no_reference(
         ids = [a["id"] for a in again]
         done = _wait_done(client, ids)
         assert all(r["status"] == "done" for r in done.values()), [r["error"] for r in done.values()]
-        rows = read_rows(service.db_path, "SELECT id FROM reference_images WHERE map_id = ?", (map_id,))
+        rows = read_rows(service.database, "SELECT id FROM reference_images WHERE map_id = ?", (map_id,))
         assert sorted(r["id"] for r in rows) == sorted(ids)  # nothing lost, nothing duplicated
-        jobs = read_rows(service.db_path, "SELECT reference_id, status FROM jobs WHERE kind = 'label_reference'")
+        jobs = read_rows(service.database, "SELECT reference_id, status FROM jobs WHERE kind = 'label_reference'")
         assert sorted(j["reference_id"] for j in jobs) == sorted(ids)

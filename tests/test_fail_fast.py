@@ -76,7 +76,7 @@ def test_a_model_gone_at_run_time_fails_the_job_at_once(tmp_path: Path, built_mo
             f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=1))}, data=INSIDE_ONE_BUILDING
         ).json()
         job = wait_for(
-            lambda: (row := get_job_row(service.db_path, accepted["job_id"]))["status"] in ("failed", "done") and row,
+            lambda: (row := get_job_row(service.database, accepted["job_id"]))["status"] in ("failed", "done") and row,
             timeout=120,
             what="the labelling job to end",
         )

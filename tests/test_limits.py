@@ -71,7 +71,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
     with ThreadPoolExecutor(WAITING_QUERIES) as pool, queue_service.client(READ_KEY) as reader:
         waiting = [pool.submit(ask, seed) for seed in range(WAITING_QUERIES)]
         wait_for(
-            lambda: read_rows(queue_service.db_path, "SELECT COUNT(*) AS n FROM jobs")[0]["n"] == WAITING_QUERIES,
+            lambda: read_rows(queue_service.database, "SELECT COUNT(*) AS n FROM jobs")[0]["n"] == WAITING_QUERIES,
             timeout=60,
             what="every query to be stored and waiting",
         )
@@ -90,7 +90,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
                 photo = {"image": ("r.jpg", jpeg_bytes(seed=100 + seed))}
                 accepted = writer.post(f"/v1/maps/{map_id}/references", files=photo, data=INSIDE_ONE_BUILDING)
                 assert accepted.status_code == 202, accepted.text
-            before_counts, before_files = table_counts(queue_service.db_path), stored_files(queue_service.data_dir)
+            before_counts, before_files = table_counts(queue_service.database), stored_files(queue_service.data_dir)
             refused = [
                 writer.post(
                     f"/v1/maps/{map_id}/references",
@@ -104,7 +104,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
                 assert _error(response)["code"] == "queue_full" and "nothing was stored" in _error(response)["message"]
                 assert 1 <= int(response.headers["Retry-After"]) <= 120
             assert reader.get(f"/v1/maps/{map_id}").status_code == 200, "reads are never refused for load"
-            assert table_counts(queue_service.db_path) == before_counts
+            assert table_counts(queue_service.database) == before_counts
             assert stored_files(queue_service.data_dir) == before_files
 
         answers = [future.result() for future in waiting]
@@ -120,7 +120,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
 
     # Room again (a queued job is cancelled with its reference): new work is accepted.
     with queue_service.client(WRITE_KEY) as writer:
-        reference_id = read_rows(queue_service.db_path, "SELECT id FROM reference_images LIMIT 1")[0]["id"]
+        reference_id = read_rows(queue_service.database, "SELECT id FROM reference_images LIMIT 1")[0]["id"]
         assert writer.delete(f"/v1/references/{reference_id}").status_code == 204
         again = writer.post(
             f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=200))}, data=INSIDE_ONE_BUILDING

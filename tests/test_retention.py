@@ -98,7 +98,7 @@ def test_workers_apply_the_retention(tmp_path: Path, built_models: Path) -> None
             data={"top_n": "1", "use_exif_gps": "false", "wait_s": "30"},
         ).json()
         assert query["status"] == "done", query
-        photo = read_rows(service.db_path, "SELECT image_path FROM queries WHERE id = ?", (query["id"],))[0]
+        photo = read_rows(service.database, "SELECT image_path FROM queries WHERE id = ?", (query["id"],))[0]
         assert (data_dir / photo["image_path"]).is_file()
         wait_for(lambda: client.get(f"/v1/queries/{query['id']}").status_code == 404, timeout=30,
                  what="the query to expire")  # fmt: skip
@@ -106,5 +106,5 @@ def test_workers_apply_the_retention(tmp_path: Path, built_models: Path) -> None
         assert client.get(f"/v1/jobs/{query['job_id']}").status_code == 404
         kept = client.get(f"/v1/references/{reference['id']}")
         assert kept.status_code == 200, "references are never deleted implicitly"
-        image = read_rows(service.db_path, "SELECT image_path FROM reference_images WHERE id = ?", (reference["id"],))
+        image = read_rows(service.database, "SELECT image_path FROM reference_images WHERE id = ?", (reference["id"],))
         assert (data_dir / image[0]["image_path"]).is_file()
