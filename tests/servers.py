@@ -118,6 +118,12 @@ class PostgresServer:
         self._admin(f"CREATE DATABASE {name} TEMPLATE {self.template}")
         return self.url(name)
 
+    def new_empty_database(self) -> str:
+        """A fresh database with no tables (for migration tests); returns its URL."""
+        name = f"geoloc_{os.getpid()}_{next(self._names)}"
+        self._admin(f"CREATE DATABASE {name} TEMPLATE template0")
+        return self.url(name)
+
     def stop(self) -> None:
         """Stop the cluster (fast shutdown) and remove its folder."""
         with contextlib.suppress(Exception):

@@ -20,6 +20,7 @@ from workers.answers import checked_query_answer, checked_reference_labels
 from workers.handlers import PermanentJobError
 
 from .answer_plugin import WELL_FORMED
+from .conftest import Profile
 from .service_fixtures import WRITE_KEY, RunningProcess, get_job_row, jpeg_bytes, running_service
 
 PLUGIN = Path(__file__).resolve().parent / "answer_plugin.py"
@@ -78,9 +79,10 @@ def test_reference_labels_are_checked_too() -> None:
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path) -> Iterator[RunningProcess]:
+def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path, profile: Profile) -> Iterator[RunningProcess]:
     data_dir = tmp_path_factory.mktemp("answers") / "data"
-    with running_service(data_dir, models=built_models, GEOLOC_WORKER_PLUGINS=str(PLUGIN)) as running:
+    env = {"GEOLOC_WORKER_PLUGINS": str(PLUGIN), **profile.new_env()}
+    with running_service(data_dir, models=built_models, **env) as running:
         yield running
 
 

@@ -17,6 +17,7 @@ from PIL import Image
 
 from geoloc.config import shared_path
 
+from .conftest import Profile
 from .service_fixtures import (
     READ_KEY,
     REPO_ROOT,
@@ -42,11 +43,12 @@ LUND = (55.7047, 13.1910)
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path) -> Iterator[RunningProcess]:
+def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path, profile: Profile) -> Iterator[RunningProcess]:
     with running_service(
         tmp_path_factory.mktemp("api") / "data",
         workers=1,
         models=built_models,
+        **profile.new_env(),
         GEOLOC_MAX_MAP_BYTES=str(MAX_MAP_BYTES),
         GEOLOC_MAX_IMAGE_BYTES=str(MAX_IMAGE_BYTES),
         GEOLOC_MAX_IMAGE_PIXELS=str(MAX_IMAGE_PIXELS),

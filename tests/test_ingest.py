@@ -24,6 +24,7 @@ from cli.ingest import IngestAbortError, ingest_folder
 from geoloc.config import shared_path
 from geoloc.exif import write_jpeg
 
+from .conftest import Profile
 from .service_fixtures import (
     READ_KEY,
     REPO_ROOT,
@@ -40,8 +41,8 @@ INSIDE_HELSINKI = [(60.1716, 24.9443), (60.1700, 24.9450), (60.1690, 24.9420)]
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningProcess]:
-    with running_service(tmp_path_factory.mktemp("ingest") / "data", workers=0) as running:
+def service(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Iterator[RunningProcess]:
+    with running_service(tmp_path_factory.mktemp("ingest") / "data", workers=0, **profile.new_env()) as running:
         yield running
 
 

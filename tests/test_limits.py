@@ -13,6 +13,7 @@ from typing import Any
 import httpx
 import pytest
 
+from .conftest import Profile
 from .service_fixtures import (
     INSIDE_ONE_BUILDING,
     ONE_BUILDING,
@@ -47,12 +48,11 @@ def _error(response: httpx.Response) -> dict[str, Any]:
 
 
 @pytest.fixture(scope="module")
-def queue_service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningProcess]:
+def queue_service(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Iterator[RunningProcess]:
     """No workers (jobs stay queued), a queue limit just above the waiting queries, a rate limit out of the way."""
     data_dir = tmp_path_factory.mktemp("limits") / "data"
-    with running_service(
-        data_dir, workers=0, GEOLOC_MAX_QUEUED_JOBS=str(QUEUE_LIMIT), GEOLOC_RATE_LIMIT_PER_MIN="100000"
-    ) as running:
+    limits = {"GEOLOC_MAX_QUEUED_JOBS": str(QUEUE_LIMIT), "GEOLOC_RATE_LIMIT_PER_MIN": "100000"}
+    with running_service(data_dir, workers=0, **limits, **profile.new_env()) as running:
         yield running
 
 
@@ -160,8 +160,8 @@ def test_openapi_documents_the_running_configuration(queue_service: RunningProce
     assert "queue_full" in uploads["429"]["description"] and "rate_limited" not in uploads["429"]["description"]
 
 
-def test_a_key_past_its_rate_limit_gets_429_others_go_on(tmp_path: Path) -> None:
-    with running_service(tmp_path / "data", workers=0, GEOLOC_RATE_LIMIT_PER_MIN="5") as service:
+def test_a_key_past_its_rate_limit_gets_429_others_go_on(tmp_path: Path, profile: Profile) -> None:
+    with running_service(tmp_path / "data", workers=0, GEOLOC_RATE_LIMIT_PER_MIN="5", **profile.new_env()) as service:
         with service.client(WRITE_KEY) as writer, service.client(READ_KEY) as reader:
             assert [writer.get("/v1/maps").status_code for _ in range(5)] == [200] * 5
             limited = writer.get("/v1/maps")
@@ -172,3 +172,19 @@ def test_a_key_past_its_rate_limit_gets_429_others_go_on(tmp_path: Path) -> None
             assert writer.get("/healthz").status_code == 200, "health checks are not limited"
         with service.client(None) as anonymous:
             assert anonymous.get("/v1/maps").status_code == 401, "no key is 401, not a rate-limit answer"
+
+
+def test_two_api_processes_share_a_keys_rate_limit(tmp_path: Path, postgres_server: Any, redis_server: Any) -> None:
+    """Distributed profile: the buckets live in Redis, so a key's limit holds across API processes."""
+    env = Profile("distributed", postgres_server, redis_server).new_env()
+    data_dir = tmp_path / "data"
+    with (
+        running_service(data_dir, workers=0, GEOLOC_RATE_LIMIT_PER_MIN="6", **env) as first,
+        running_service(data_dir, workers=0, GEOLOC_RATE_LIMIT_PER_MIN="6", **env) as second,
+        first.client(WRITE_KEY) as one,
+        second.client(WRITE_KEY) as other,
+    ):
+        assert [c.get("/v1/maps").status_code for c in (one, other, one, other, one, other)] == [200] * 6
+        assert one.get("/v1/maps").status_code == 429 and other.get("/v1/maps").status_code == 429
+        with first.client(READ_KEY) as reader:
+            assert reader.get("/v1/maps").status_code == 200, "the limit is per key"

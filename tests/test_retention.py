@@ -15,6 +15,7 @@ from db import queries as query_store
 from db import references as reference_store
 from workers.retention import purge_expired_queries
 
+from .conftest import Profile
 from .service_fixtures import (
     INSIDE_ONE_BUILDING,
     ONE_BUILDING,
@@ -82,11 +83,13 @@ def test_purge_deletes_only_old_finished_queries_and_photos_no_one_uses(tmp_path
 
 
 @pytest.mark.slow
-def test_workers_apply_the_retention(tmp_path: Path, built_models: Path) -> None:
+def test_workers_apply_the_retention(tmp_path: Path, built_models: Path, profile: Profile) -> None:
     data_dir = tmp_path / "data"
-    with running_service(
-        data_dir, workers=1, models=built_models, GEOLOC_QUERY_RETENTION_S="3", GEOLOC_WORKER_PLUGINS=str(PLUGIN)
-    ) as service, service.client(WRITE_KEY) as client:
+    env = {"GEOLOC_QUERY_RETENTION_S": "3", "GEOLOC_WORKER_PLUGINS": str(PLUGIN), **profile.new_env()}
+    with (
+        running_service(data_dir, workers=1, models=built_models, **env) as service,
+        service.client(WRITE_KEY) as client,
+    ):
         files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
         map_id = client.post("/v1/maps", files=files, data={"name": "hall"}).json()["id"]
         reference = client.post(
