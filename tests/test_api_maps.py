@@ -352,8 +352,9 @@ def test_reads_need_a_read_key_and_unknown_ids_are_404(service: RunningProcess, 
         assert error_of(reader.get("/v1/no-such-route"))["code"] == "not_found"
 
 
-def test_data_stays_under_the_data_dir(service: RunningProcess) -> None:
-    assert Path(service.database).exists()
+def test_data_stays_under_the_data_dir(service: RunningProcess, profile: Profile) -> None:
+    sqlite_file = service.data_dir / "geoloc.sqlite3"
+    assert sqlite_file.exists() != profile.distributed, "SQLite only in the embedded profile"
     assert not list((service.data_dir / "tmp").glob("upload-*")), "no temp upload left behind"
 
 
