@@ -15,8 +15,10 @@ message says no more than "job N may be claimable now". So:
 
 Delivery is therefore at least once; the handlers are idempotent (they compute first and write once,
 with replace semantics), so a job delivered twice never stores a reference or an answer twice.
-Messages are acknowledged late (``acks_late``) with a prefetch of one, so a worker holds only the
-message it runs.
+A message is acknowledged when a worker process starts its task (early acknowledgement, prefetch of
+one per process): a worker killed mid-job is recovered by the job's lease in the database, not by the
+broker redelivering, so no acknowledgement is ever owed to a broker that restarted meanwhile (a late
+acknowledgement that failed during a Redis outage left the Celery consumer stuck in our fault test).
 
 The embedded profile has no broker: its workers claim straight from the table (:class:`NoPublisher`).
 """
@@ -48,7 +50,8 @@ REPUBLISH_AFTER_S = 5.0
 RECONCILE_INTERVAL_S = 1.0
 """How often each worker process reconciles the table with the broker."""
 VISIBILITY_TIMEOUT_S = 3600
-"""Redis gives an unacknowledged message to another worker after this long (its job's lease decides)."""
+"""Redis gives a message reserved but not yet acknowledged (its worker died before starting it) to another
+worker after this long; the reconciler usually publishes such a job again much sooner."""
 
 
 class JobPublisher(Protocol):
@@ -72,8 +75,8 @@ def celery_app(broker_url: str) -> Celery:
     app = Celery("geoloc", broker=broker_url, set_as_current=False)
     app.conf.update(
         task_default_queue=QUEUE,
-        task_acks_late=True,
-        task_reject_on_worker_lost=False,  # a job whose worker died comes back through its lease, not the broker
+        task_acks_late=False,  # a job whose worker died comes back through its lease, not the broker
+        worker_cancel_long_running_tasks_on_connection_loss=False,  # a running job keeps its lease
         task_ignore_result=True,
         task_serializer="json",
         accept_content=["json"],
@@ -134,8 +137,12 @@ def redis_client(url: str) -> Any:
     client = _redis_clients.get(url)
     if client is None:
         import redis
+        from redis.backoff import NoBackoff
+        from redis.retry import Retry
 
-        client = redis.Redis.from_url(url, socket_connect_timeout=2, socket_timeout=5, health_check_interval=30)
+        client = redis.Redis.from_url(  # no retries: a caller that finds Redis away carries on without it
+            url, socket_connect_timeout=2, socket_timeout=5, health_check_interval=30, retry=Retry(NoBackoff(), 0)
+        )
         _redis_clients[url] = client
     return client
 

@@ -16,6 +16,12 @@ A process killed mid-job (SIGKILL, OOM) stops renewing its lease: once the lease
 publishes the job again and another process claims it (the attempt counts). On SIGTERM Celery stops
 taking messages and lets running jobs finish (a warm shutdown); a job still running when the process is
 killed after that comes back through its lease the same way.
+
+A watchdog in the main process (:func:`watch_consumer`) restarts the worker when its consumer stalls:
+messages wait in the queue while a pool process is free, for :data:`CONSUMER_STALL_S`. Measured: when an
+acknowledgement fails during a Redis outage, Celery 5.7's Redis consumer logs "Couldn't ack" and never
+takes another message; the supervisor starts a fresh worker instead, and leases bring back any job the
+restart interrupts.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
 import socket
 import sys
 import threading
@@ -38,6 +45,11 @@ from workers.retention import purge_interval_s
 from workers.worker import Worker
 
 log = logging.getLogger("geoloc.worker")
+
+CONSUMER_STALL_S = 30.0
+"""Messages waiting this long while a pool process is free: the consumer is stuck, restart the worker."""
+WATCHDOG_INTERVAL_S = 5.0
+STALL_EXIT_CODE = 75
 
 
 class ProcessState:
@@ -116,9 +128,34 @@ class ProcessState:
 _state: ProcessState | None = None
 
 
-def create_app(settings: Settings) -> Any:
-    """The Celery app with the ``run_job`` task and the per-process start and stop hooks."""
-    from celery.signals import worker_process_init, worker_process_shutdown
+def watch_consumer(publisher: CeleryPublisher, concurrency: int, stop: threading.Event) -> None:
+    """Exit the worker (its supervisor starts another) when its consumer stalls; runs in the main process.
+
+    Stalled: the broker's queue has messages and fewer than ``concurrency`` tasks run here, continuously for
+    :data:`CONSUMER_STALL_S` (any healthy worker would have taken one).
+    """
+    from celery.worker import state
+
+    stalled_s = 0.0
+    while not stop.wait(WATCHDOG_INTERVAL_S):
+        try:
+            waiting = publisher.queue_length()
+        except Exception:  # the broker is away: the consumer's own reconnection handles that
+            stalled_s = 0.0
+            continue
+        stalled_s = stalled_s + WATCHDOG_INTERVAL_S if waiting and len(state.active_requests) < concurrency else 0.0
+        if stalled_s >= CONSUMER_STALL_S:
+            log.error(
+                "consumer stalled: %d message(s) waiting for %.0f s with a free process; restarting", waiting, stalled_s
+            )
+            if os.getpgid(0) == os.getpid():  # our own process group (the supervisor's child): the pool goes too
+                os.killpg(os.getpid(), signal.SIGKILL)
+            os._exit(STALL_EXIT_CODE)
+
+
+def create_app(settings: Settings, concurrency: int = 1) -> Any:
+    """The Celery app with the ``run_job`` task, the per-process start and stop hooks and the consumer watchdog."""
+    from celery.signals import worker_process_init, worker_process_shutdown, worker_ready, worker_shutting_down
 
     assert settings.broker_url is not None
     app = celery_app(settings.broker_url)
@@ -139,6 +176,18 @@ def create_app(settings: Settings) -> Any:
     def _process_stopped(**_: Any) -> None:
         if _state is not None:
             _state.stop()
+
+    watchdog_stop = threading.Event()
+
+    @worker_ready.connect(weak=False)  # type: ignore[misc]
+    def _start_watchdog(**_: Any) -> None:
+        publisher = CeleryPublisher(settings.broker_url or "")
+        args = (publisher, concurrency, watchdog_stop)
+        threading.Thread(target=watch_consumer, args=args, name="geoloc-watchdog", daemon=True).start()
+
+    @worker_shutting_down.connect(weak=False)  # type: ignore[misc]
+    def _stop_watchdog(**_: Any) -> None:
+        watchdog_stop.set()
 
     return app
 
@@ -174,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         os.nice(settings.worker_nice)
     load_builtin_handlers()
     load_plugins(settings.worker_plugins)
-    app = create_app(settings)
+    app = create_app(settings, max(args.concurrency, 1))
     app.worker_main(
         [
             "worker",
