@@ -27,8 +27,11 @@ def insert_query(
     image_path: str | None = None,
     sha256: str | None = None,
 ) -> int:
-    """Insert a queued query; returns its id. Call inside the transaction that puts its photo in the store
-    (it takes :data:`QUERY_PHOTOS_LOCK`, so retention cannot remove that photo meanwhile)."""
+    """Insert a queued query; returns its id.
+
+    Call inside the transaction that puts its photo in the store (it takes :data:`QUERY_PHOTOS_LOCK`, so
+    retention cannot remove that photo meanwhile).
+    """
     db.lock(QUERY_PHOTOS_LOCK)
     now = time.time()
     return db.insert_returning_id(

@@ -160,32 +160,32 @@ def create_app(settings: Settings, concurrency: int = 1) -> Any:
     assert settings.broker_url is not None
     app = celery_app(settings.broker_url)
 
-    @app.task(name=RUN_JOB_TASK, ignore_result=True)  # type: ignore[misc]
+    @app.task(name=RUN_JOB_TASK, ignore_result=True)  # type: ignore[untyped-decorator]
     def run_job(job_id: int) -> None:
         assert _state is not None
         outcome = _state.run_job(int(job_id))
         log.debug("message for job %s: %s", job_id, outcome)
 
-    @worker_process_init.connect(weak=False)  # type: ignore[misc]
+    @worker_process_init.connect(weak=False)  # type: ignore[untyped-decorator]
     def _process_started(**_: Any) -> None:
         global _state
         _state = ProcessState(settings)
         _state.start()
 
-    @worker_process_shutdown.connect(weak=False)  # type: ignore[misc]
+    @worker_process_shutdown.connect(weak=False)  # type: ignore[untyped-decorator]
     def _process_stopped(**_: Any) -> None:
         if _state is not None:
             _state.stop()
 
     watchdog_stop = threading.Event()
 
-    @worker_ready.connect(weak=False)  # type: ignore[misc]
+    @worker_ready.connect(weak=False)  # type: ignore[untyped-decorator]
     def _start_watchdog(**_: Any) -> None:
         publisher = CeleryPublisher(settings.broker_url or "")
         args = (publisher, concurrency, watchdog_stop)
         threading.Thread(target=watch_consumer, args=args, name="geoloc-watchdog", daemon=True).start()
 
-    @worker_shutting_down.connect(weak=False)  # type: ignore[misc]
+    @worker_shutting_down.connect(weak=False)  # type: ignore[untyped-decorator]
     def _stop_watchdog(**_: Any) -> None:
         watchdog_stop.set()
 
