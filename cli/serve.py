@@ -51,8 +51,11 @@ def worker(
     concurrency: int = typer.Option(1, "--concurrency", "-c", min=1, help="Worker processes to run."),
     log_level: str = typer.Option("info", help="Log level (debug, info, warning, error)."),
 ) -> None:
-    """Run worker processes alone (the API may run elsewhere): a Celery worker on GEOLOC_BROKER_URL and
-    GEOLOC_DATABASE_URL in the distributed profile, else the built-in pool on the SQLite file in GEOLOC_DATA_DIR."""
+    """Run worker processes alone (the API may run elsewhere).
+
+    A Celery worker on GEOLOC_BROKER_URL and GEOLOC_DATABASE_URL in the distributed profile, else the
+    built-in pool on the SQLite file in GEOLOC_DATA_DIR.
+    """
     from workers.supervisor import Supervisor
 
     settings = _start(log_level)
@@ -112,8 +115,10 @@ def _setup_logging(level: str) -> None:
 
 
 def _prepare_database(target: Path | str) -> None:
-    """Apply migrations once before the children start (they re-check, idempotently); exit 2 when the
-    database cannot be reached."""
+    """Apply migrations once before the children start (they re-check, idempotently).
+
+    Exits with code 2 when the database cannot be reached.
+    """
     from db import connect, migrate
 
     try:

@@ -91,8 +91,9 @@ class QueryForm:
 def _store_query(
     settings: Settings, store: FileStore, publisher: JobPublisher, map_id: int, image: UploadFile, form: QueryForm
 ) -> tuple[int, int]:
-    """Check the request, store the photo, the query and its job in one transaction, then hand the job to the
-    workers; returns their ids.
+    """Store a query and hand its job to the workers; returns their ids.
+
+    Checks the request, stores the photo, the query and its job in one transaction, then publishes the job.
 
     Blocking (file and database work): run it in a worker thread.
     """

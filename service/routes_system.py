@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
+from typing import Any, Literal
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
@@ -47,9 +47,11 @@ def healthz() -> Health:
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": ErrorResponse}}, tags=["system"])
 def readyz(request: Request) -> Readiness | JSONResponse:
-    """Ready when the database answers at the current schema version, the broker answers (distributed profile),
-    the models the workers need are built and current, and a worker heartbeat is recent; else 503 with every
-    reason in ``problems``."""
+    """Report whether the service can take work; 503 with every reason in ``problems`` when not.
+
+    Ready when the database answers at the current schema version, the broker answers (distributed profile),
+    the models the workers need are built and current, and a worker heartbeat is recent.
+    """
     settings: Settings = request.app.state.settings
     problems: list[str] = []
     version, workers, database_ok = -1, 0, False
@@ -64,7 +66,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
             db.close()
     except Exception as exc:  # any failure means "not ready"
         problems.append(f"database unreachable: {exc}")
-    broker = None
+    broker: Literal["ok", "unreachable"] | None = None
     if settings.broker_url is not None:
         broker_error = broker_problem(settings.broker_url)
         broker = "ok" if broker_error is None else "unreachable"

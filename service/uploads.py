@@ -1,5 +1,8 @@
-"""Receiving uploaded files: streamed to a temp file in the file store's ``tmp/`` with a size limit and
-a sha256, then put under their key only as part of a successful database transaction."""
+"""Receiving uploaded files.
+
+An upload is streamed to a temp file in the file store's ``tmp/`` with a size limit and a sha256, then put
+under its key only as part of a successful database transaction.
+"""
 
 from __future__ import annotations
 
@@ -39,8 +42,11 @@ class ReceivedFile:
 
 @contextlib.contextmanager
 def received_upload(upload: UploadFile, store: FileStore, max_bytes: int, what: str) -> Iterator[ReceivedFile]:
-    """Receive an upload (:func:`receive_upload`) for the duration of a block: if the block fails, a file it
-    put in the store is removed again (nothing half-stored); the temp file is always removed."""
+    """Receive an upload (:func:`receive_upload`) for the duration of a block.
+
+    If the block fails, a file it put in the store is removed again (nothing half-stored); the temp file is
+    always removed.
+    """
     received = receive_upload(upload, store, max_bytes, what)
     try:
         yield received
@@ -100,9 +106,12 @@ def clean_stale_temp_files(store: FileStore, older_than_s: float = STALE_TEMP_S)
 
 
 def clean_orphan_files(store: FileStore, referenced: set[str], older_than_s: float = STALE_TEMP_S) -> int:
-    """Delete stored files no row refers to (left by a crash between the file move and the commit,
-    or between a delete's commit and the file removal); only files older than ``older_than_s``, in case
-    another API process is still writing one."""
+    """Delete stored files no row refers to; returns how many.
+
+    Such files are left by a crash between the file move and the commit, or between a delete's commit and
+    the file removal. Only files older than ``older_than_s`` go, in case another API process is still
+    writing one.
+    """
     orphans = [key for key in store.stored_keys(older_than_s) if key not in referenced]
     store.delete(*orphans)
     return len(orphans)

@@ -49,8 +49,10 @@ class Profile:
         return {"GEOLOC_DATABASE_URL": self.postgres.new_database(), "GEOLOC_BROKER_URL": self.redis.new_url()}
 
     def new_deployment(self, data_dir: Path) -> tuple[Path | str, dict[str, str]]:
-        """A fresh, migrated database for a deployment with data folder ``data_dir``, and the settings of its
-        processes: (SQLite file in ``data_dir``, ``{}``) or (PostgreSQL URL, :meth:`new_env`)."""
+        """A fresh, migrated database for a deployment with data folder ``data_dir``, and its settings.
+
+        Returns (SQLite file in ``data_dir``, ``{}``) or (PostgreSQL URL, :meth:`new_env`).
+        """
         env = self.new_env()
         target: Path | str = env.get("GEOLOC_DATABASE_URL") or data_dir / "geoloc.sqlite3"
         from db import connect, migrate

@@ -1,5 +1,8 @@
-"""Database, on both engines (SQLite and PostgreSQL): migrations, connection settings, map/reference storage,
-the SBoW index's consistency, job states and concurrent claims."""
+"""Database, on both engines (SQLite and PostgreSQL).
+
+Migrations, connection settings, map/reference storage, the SBoW index's consistency, job states and
+concurrent claims.
+"""
 
 from __future__ import annotations
 

@@ -1,6 +1,9 @@
-"""The worker pool against a real database with real worker processes, in both profiles (the built-in pool on
-SQLite; Celery workers on Redis and PostgreSQL, fed by the reconciler since these jobs are enqueued straight
-into the table): atomic claims, crash recovery after SIGKILL, retry limits, graceful shutdown."""
+"""The worker pool against a real database with real worker processes, in both profiles.
+
+The built-in pool on SQLite; Celery workers on Redis and PostgreSQL, fed by the reconciler since these jobs
+are enqueued straight into the table. Atomic claims, crash recovery after SIGKILL, retry limits, graceful
+shutdown.
+"""
 
 from __future__ import annotations
 
@@ -111,8 +114,11 @@ def test_retries_stop_at_the_limit_and_keep_the_error(tmp_path: Path, built_mode
 
 
 def test_sigterm_releases_a_long_job_back_to_the_queue(tmp_path: Path, built_models: Path) -> None:
-    """The built-in worker hands a job back after its grace period (a Celery worker instead lets running jobs
-    finish on SIGTERM; one killed after that comes back through its lease, as in the SIGKILL test)."""
+    """The built-in worker hands a job back after its grace period.
+
+    A Celery worker instead lets running jobs finish on SIGTERM; one killed after that comes back through its
+    lease, as in the SIGKILL test.
+    """
     data_dir = tmp_path / "data"
     db, _ = new_database(Profile("embedded"), data_dir)
     log = tmp_path / "sleep.log"

@@ -1,5 +1,7 @@
-"""The query stage sees the same references whether they come from the database (either engine) or from memory,
-and SBoW retrieval ranks alike on SQLite and PostgreSQL."""
+"""The query stage sees the same references from the database (either engine) as from memory.
+
+SBoW retrieval ranks alike on SQLite and PostgreSQL.
+"""
 
 from __future__ import annotations
 
@@ -32,8 +34,10 @@ def _reference(rng: np.random.Generator, reference_id: int, n: int = 50) -> Stor
 
 
 def _store_references(db: Database, seed: int = 0, count: int = 25) -> tuple[int, Vocabulary, InMemoryReferenceStore]:
-    """A map with ``count`` random references stored and indexed in ``db`` (the same ones for the same seed), and
-    the same references in memory."""
+    """Store and index ``count`` random references of a new map in ``db``; the same ones for the same seed.
+
+    Returns the map id, the vocabulary and the same references in memory.
+    """
     rng = np.random.default_rng(seed)
     map_id = add_map(db)
     # A small vocabulary, so that references share words and ranks depend on counts and idf.

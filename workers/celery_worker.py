@@ -125,7 +125,8 @@ class ProcessState:
             db.close()
 
 
-_state: ProcessState | None = None
+_process: dict[str, ProcessState] = {}
+"""This worker process's :class:`ProcessState` (under ``"state"``), set when Celery starts the process."""
 
 
 def watch_consumer(publisher: CeleryPublisher, concurrency: int, stop: threading.Event) -> None:
@@ -162,20 +163,18 @@ def create_app(settings: Settings, concurrency: int = 1) -> Any:
 
     @app.task(name=RUN_JOB_TASK, ignore_result=True)  # type: ignore[untyped-decorator]
     def run_job(job_id: int) -> None:
-        assert _state is not None
-        outcome = _state.run_job(int(job_id))
+        outcome = _process["state"].run_job(int(job_id))
         log.debug("message for job %s: %s", job_id, outcome)
 
     @worker_process_init.connect(weak=False)  # type: ignore[untyped-decorator]
     def _process_started(**_: Any) -> None:
-        global _state
-        _state = ProcessState(settings)
-        _state.start()
+        state = _process["state"] = ProcessState(settings)
+        state.start()
 
     @worker_process_shutdown.connect(weak=False)  # type: ignore[untyped-decorator]
     def _process_stopped(**_: Any) -> None:
-        if _state is not None:
-            _state.stop()
+        if "state" in _process:
+            _process["state"].stop()
 
     watchdog_stop = threading.Event()
 

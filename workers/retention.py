@@ -32,9 +32,11 @@ def purge_interval_s(retention_s: float) -> float:
 def purge_expired_queries(
     db: Database, store: FileStore | Path, retention_s: float, *, now: float | None = None
 ) -> int:
-    """Delete finished queries created more than ``retention_s`` seconds before ``now`` (Unix s, default
-    the current time) with their jobs and photos (in ``store``, or the store folder at that path);
-    returns how many queries were deleted."""
+    """Delete finished queries older than the retention with their jobs and photos; returns how many.
+
+    A query goes when it was created more than ``retention_s`` seconds before ``now`` (Unix s, default the
+    current time); its photo is removed from ``store`` (or the store folder at that path) once no query uses it.
+    """
     if isinstance(store, Path):
         store = open_store(store)
     cutoff = (time.time() if now is None else now) - retention_s
