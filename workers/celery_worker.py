@@ -133,12 +133,18 @@ def watch_consumer(publisher: CeleryPublisher, concurrency: int, stop: threading
     """Exit the worker (its supervisor starts another) when its consumer stalls; runs in the main process.
 
     Stalled: the broker's queue has messages and fewer than ``concurrency`` tasks run here, continuously for
-    :data:`CONSUMER_STALL_S` (any healthy worker would have taken one).
+    :data:`CONSUMER_STALL_S` (any healthy worker would have taken one). Also stops the worker (SIGTERM to
+    itself, a warm shutdown) when the supervisor that started it is gone.
     """
     from celery.worker import state
 
+    parent = os.environ.get("GEOLOC_SUPERVISOR_PID")
     stalled_s = 0.0
     while not stop.wait(WATCHDOG_INTERVAL_S):
+        if parent and os.getppid() != int(parent):  # the supervisor died: stop as its built-in workers do
+            log.warning("supervisor gone; stopping (warm shutdown)")
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
         try:
             waiting = publisher.queue_length()
         except Exception:  # the broker is away: the consumer's own reconnection handles that
