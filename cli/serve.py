@@ -1,9 +1,15 @@
-"""``geoloc serve`` (API + workers) and ``geoloc worker`` (workers alone), both supervised."""
+"""``geoloc serve`` (API + workers) and ``geoloc worker`` (workers alone), both supervised.
+
+The profile follows the settings: with ``GEOLOC_DATABASE_URL`` and ``GEOLOC_BROKER_URL`` the workers are
+a Celery worker (:mod:`workers.celery_worker`) on that broker and database; without them they are the
+built-in pool on the SQLite file in ``GEOLOC_DATA_DIR``.
+"""
 
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -21,7 +27,7 @@ def serve(
 ) -> None:
     """Start the REST API and N worker processes; restart any that die; stop all on Ctrl-C/SIGTERM."""
     from service.settings import is_loopback_host
-    from workers.supervisor import Supervisor, api_spec, worker_spec
+    from workers.supervisor import Supervisor, api_spec
 
     settings = _start(log_level)
     if not settings.auth_enabled and not is_loopback_host(host):
@@ -33,9 +39,13 @@ def serve(
         raise typer.Exit(2)
     if workers > 0:
         _require_models()
-    _prepare_database(settings.database_path)
-    typer.echo(f"geoloc: API on http://{host}:{port} with {workers} worker(s); data in {settings.data_dir}", err=True)
-    specs = [api_spec(host, port, log_level), *(worker_spec(i, log_level) for i in range(workers))]
+    _prepare_database(settings.database)
+    typer.echo(
+        f"geoloc: API on http://{host}:{port} with {workers} worker(s), {_profile(settings)}; data in "
+        f"{settings.data_dir}",
+        err=True,
+    )
+    specs = [api_spec(host, port, log_level), *_worker_specs(settings, workers, log_level)]
     raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
 
 
@@ -43,15 +53,37 @@ def worker(
     concurrency: int = typer.Option(1, "--concurrency", "-c", min=1, help="Worker processes to run."),
     log_level: str = typer.Option("info", help="Log level (debug, info, warning, error)."),
 ) -> None:
-    """Run worker processes alone against the database in GEOLOC_DATA_DIR (the API may run elsewhere)."""
-    from workers.supervisor import Supervisor, worker_spec
+    """Run worker processes alone (the API may run elsewhere).
+
+    A Celery worker on GEOLOC_BROKER_URL and GEOLOC_DATABASE_URL in the distributed profile, else the
+    built-in pool on the SQLite file in GEOLOC_DATA_DIR.
+    """
+    from workers.supervisor import Supervisor
 
     settings = _start(log_level)
     _require_models()
-    _prepare_database(settings.database_path)
-    typer.echo(f"geoloc: {concurrency} worker(s) on {settings.database_path}", err=True)
-    specs = [worker_spec(i, log_level) for i in range(concurrency)]
+    _prepare_database(settings.database)
+    typer.echo(f"geoloc: {concurrency} worker(s), {_profile(settings)}", err=True)
+    specs = _worker_specs(settings, concurrency, log_level)
     raise typer.Exit(Supervisor(specs, stop_timeout_s=settings.worker_grace_s + 10).run())
+
+
+def _profile(settings: Settings) -> str:
+    """The profile in words, for the start-up line (no password)."""
+    if settings.distributed:
+        return "distributed profile (PostgreSQL, Celery on Redis)"
+    return f"embedded profile (SQLite at {settings.database_path})"
+
+
+def _worker_specs(settings: Settings, count: int, log_level: str) -> list[Any]:
+    """``count`` built-in worker processes, or one Celery worker with ``count`` processes (distributed)."""
+    from workers.supervisor import celery_worker_spec, worker_spec
+
+    if count <= 0:
+        return []
+    if settings.distributed:
+        return [celery_worker_spec(count, log_level)]
+    return [worker_spec(i, log_level) for i in range(count)]
 
 
 def _start(log_level: str) -> Settings:
@@ -84,11 +116,18 @@ def _setup_logging(level: str) -> None:
     logging.basicConfig(level=level.upper(), format="%(asctime)s %(levelname)s [supervisor] %(message)s")
 
 
-def _prepare_database(path: Path) -> None:
-    """Apply migrations once before the children start (they re-check, idempotently)."""
+def _prepare_database(target: Path | str) -> None:
+    """Apply migrations once before the children start (they re-check, idempotently).
+
+    Exits with code 2 when the database cannot be reached.
+    """
     from db import connect, migrate
 
-    db = connect(path)
+    try:
+        db = connect(target)
+    except Exception as exc:
+        typer.echo(f"error: cannot open the database: {exc}", err=True)
+        raise typer.Exit(2) from exc
     try:
         migrate(db)
     finally:

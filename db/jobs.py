@@ -16,9 +16,7 @@ import math
 import time
 from typing import Any, overload
 
-import sqlite_utils
-
-from db.connection import transaction
+from db.connection import Database, transaction
 
 JOB_STATUSES = ("queued", "running", "done", "failed", "cancelled")
 FINAL_STATUSES = ("done", "failed", "cancelled")
@@ -33,6 +31,10 @@ RETRY_AFTER_UNKNOWN_S = 10
 """``Retry-After`` when no job finished recently (nothing to estimate the drain rate from)."""
 THROUGHPUT_SAMPLE = 20
 """How many of the most recently finished jobs estimate the queue's drain rate."""
+ENQUEUE_LOCK = "geoloc:enqueue"
+"""Lock taken by transactions that check the queue's depth before enqueueing (see :meth:`Database.lock`)."""
+_CLAIMABLE = "((status = 'queued' AND run_after <= ?) OR (status = 'running' AND lease_expires_at < ?))"
+"""A job a worker may take now: queued and due, or running with an expired lease (its worker died)."""
 
 
 class QueueFullError(Exception):
@@ -62,7 +64,7 @@ def _decode(row: dict[str, Any] | None) -> dict[str, Any] | None:
 
 
 def enqueue_job(
-    db: sqlite_utils.Database,
+    db: Database,
     kind: str,
     payload: dict[str, Any],
     *,
@@ -75,26 +77,26 @@ def enqueue_job(
     """Add a queued job; returns its id. Joins the caller's transaction if one is open.
 
     With ``max_queued``, raise :class:`QueueFullError` instead when that many jobs already wait
-    (inside the caller's ``BEGIN IMMEDIATE`` transaction the count cannot change before the insert).
+    (inside the caller's transaction, under :data:`ENQUEUE_LOCK`, the count cannot change before the
+    insert).
     """
     if max_queued is not None:
+        db.lock(ENQUEUE_LOCK)
         check_queue_capacity(db, max_queued)
     now = time.time()
-    cursor = db.execute(
+    return db.insert_returning_id(
         "INSERT INTO jobs (kind, payload, status, priority, max_attempts, map_id, reference_id,"
         " created_at, updated_at) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?)",
         (kind, json.dumps(payload), priority, max_attempts, map_id, reference_id, now, now),
     )
-    assert cursor.lastrowid is not None  # an INSERT always sets it
-    return cursor.lastrowid
 
 
-def queue_depth(db: sqlite_utils.Database) -> int:
+def queue_depth(db: Database) -> int:
     """Jobs waiting to run (``queued``, including retries waiting for their delay)."""
     return int(db.execute("SELECT COUNT(*) FROM jobs WHERE status = 'queued'").fetchone()[0])
 
 
-def check_queue_capacity(db: sqlite_utils.Database, max_queued: int) -> None:
+def check_queue_capacity(db: Database, max_queued: int) -> None:
     """Raise :class:`QueueFullError` when ``max_queued`` or more jobs are waiting.
 
     Called before accepting new work and again inside the transaction that enqueues it, so the
@@ -105,7 +107,7 @@ def check_queue_capacity(db: sqlite_utils.Database, max_queued: int) -> None:
         raise QueueFullError(depth, max_queued, retry_after_s(db, depth - max_queued + 1))
 
 
-def retry_after_s(db: sqlite_utils.Database, excess: int) -> int:
+def retry_after_s(db: Database, excess: int) -> int:
     """Seconds until ``excess`` queue slots are likely free, from the drain rate of recent jobs.
 
     The rate is the number of the last :data:`THROUGHPUT_SAMPLE` finished jobs over the time since
@@ -124,7 +126,7 @@ def retry_after_s(db: sqlite_utils.Database, excess: int) -> int:
     return int(min(max(math.ceil(excess / jobs_per_s), low), high))
 
 
-def job_statuses(db: sqlite_utils.Database, job_ids: list[int]) -> dict[int, str]:
+def job_statuses(db: Database, job_ids: list[int]) -> dict[int, str]:
     """The status of each of ``job_ids`` that exists (one query, for the API's waiters)."""
     if not job_ids:
         return {}
@@ -133,13 +135,13 @@ def job_statuses(db: sqlite_utils.Database, job_ids: list[int]) -> dict[int, str
     return {int(job_id): str(status) for job_id, status in rows}
 
 
-def get_job(db: sqlite_utils.Database, job_id: int) -> dict[str, Any] | None:
+def get_job(db: Database, job_id: int) -> dict[str, Any] | None:
     """One job as a dict (payload and result decoded), or None."""
     rows = list(db.query("SELECT * FROM jobs WHERE id = ?", (job_id,)))
     return _decode(rows[0]) if rows else None
 
 
-def list_jobs(db: sqlite_utils.Database, *, status: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
+def list_jobs(db: Database, *, status: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
     """Most recent jobs first, optionally of one status."""
     if status is None:
         rows = db.query("SELECT * FROM jobs ORDER BY id DESC LIMIT ?", (limit,))
@@ -148,13 +150,46 @@ def list_jobs(db: sqlite_utils.Database, *, status: str | None = None, limit: in
     return [_decode(row) for row in rows]
 
 
-def claim_job(
-    db: sqlite_utils.Database, worker_id: str, lease_s: float, kinds: list[str] | None = None
-) -> dict[str, Any] | None:
+def fail_exhausted_jobs(db: Database, now: float) -> int:
+    """Fail the running jobs whose lease expired with their attempts used up; returns how many.
+
+    Their worker died on the last attempt: the job is not taken again. Runs inside the claim (and the
+    reconciler's) transaction.
+    """
+    cursor = db.execute(
+        "UPDATE jobs SET status = 'failed', finished_at = ?, updated_at = ?, lease_owner = NULL,"
+        " error = COALESCE(error || ?, '') || 'worker lost: lease expired after attempt '"
+        " || attempts || ' of ' || max_attempts"
+        " WHERE status = 'running' AND lease_expires_at < ? AND attempts >= max_attempts",
+        (now, now, "\n", now),
+    )
+    return int(cursor.rowcount)
+
+
+def _claim(db: Database, where: str, params: list[Any], worker_id: str, lease_s: float) -> dict[str, Any] | None:
+    """Take the first claimable job matching ``where`` (under the claim's transaction)."""
+    now = time.time()
+    with transaction(db):
+        fail_exhausted_jobs(db, now)
+        cursor = db.execute(
+            "UPDATE jobs SET status = 'running', attempts = attempts + 1, lease_owner = ?,"
+            " lease_expires_at = ?, heartbeat_at = ?, started_at = ?, updated_at = ?"
+            f" WHERE id = (SELECT id FROM jobs WHERE {_CLAIMABLE}{where}"
+            f" ORDER BY priority DESC, id LIMIT 1{db.skip_locked})"
+            f" AND {_CLAIMABLE} RETURNING *",
+            [worker_id, now + lease_s, now, now, now, now, now, *params, now, now],
+        )
+        columns = [d[0] for d in cursor.description]
+        fetched = cursor.fetchone()
+    return _decode(dict(zip(columns, fetched, strict=True))) if fetched else None
+
+
+def claim_job(db: Database, worker_id: str, lease_s: float, kinds: list[str] | None = None) -> dict[str, Any] | None:
     """Atomically take the next runnable job (queued and due, or running with an expired lease).
 
-    One ``UPDATE ... WHERE id = (SELECT ...) RETURNING *`` inside ``BEGIN IMMEDIATE``: two workers
-    can never claim the same job. Expired jobs whose attempts are used up are failed first.
+    One ``UPDATE ... WHERE id = (SELECT ...) RETURNING *`` in a transaction: under SQLite's write lock,
+    or with ``FOR UPDATE SKIP LOCKED`` and the condition checked again on the row in PostgreSQL, so two
+    workers can never claim the same job. Expired jobs whose attempts are used up are failed first.
     """
     now = time.time()
     kind_filter = ""
@@ -162,38 +197,22 @@ def claim_job(
     if kinds:
         kind_filter = f" AND kind IN ({', '.join('?' for _ in kinds)})"
         params = list(kinds)
-    due = db.execute(
-        "SELECT EXISTS (SELECT 1 FROM jobs WHERE"
-        " ((status = 'queued' AND run_after <= ?) OR (status = 'running' AND lease_expires_at < ?))"
-        f"{kind_filter})",
-        [now, now, *params],
-    ).fetchone()[0]
-    if not due:  # cheap read first: idle workers do not take the write lock
+    due = db.execute(f"SELECT EXISTS (SELECT 1 FROM jobs WHERE {_CLAIMABLE}{kind_filter})", [now, now, *params])
+    if not due.fetchone()[0]:  # cheap read first: idle workers do not take the write lock
         return None
-    with transaction(db):
-        db.execute(
-            "UPDATE jobs SET status = 'failed', finished_at = ?, updated_at = ?, lease_owner = NULL,"
-            " error = COALESCE(error || char(10), '') || 'worker lost: lease expired after attempt '"
-            " || attempts || ' of ' || max_attempts"
-            " WHERE status = 'running' AND lease_expires_at < ? AND attempts >= max_attempts",
-            (now, now, now),
-        )
-        row = db.execute(
-            "UPDATE jobs SET status = 'running', attempts = attempts + 1, lease_owner = ?,"
-            " lease_expires_at = ?, heartbeat_at = ?, started_at = ?, updated_at = ?"
-            " WHERE id = (SELECT id FROM jobs WHERE"
-            " ((status = 'queued' AND run_after <= ?) OR (status = 'running' AND lease_expires_at < ?))"
-            f"{kind_filter} ORDER BY priority DESC, id LIMIT 1)"
-            " RETURNING *",
-            [worker_id, now + lease_s, now, now, now, now, now, *params],
-        )
-        columns = [d[0] for d in row.description]
-        rows = row.fetchall()
-        fetched = rows[0] if rows else None
-    return _decode(dict(zip(columns, fetched, strict=True))) if fetched else None
+    return _claim(db, kind_filter, params, worker_id, lease_s)
 
 
-def heartbeat_job(db: sqlite_utils.Database, job_id: int, worker_id: str, lease_s: float) -> bool:
+def claim_job_by_id(db: Database, job_id: int, worker_id: str, lease_s: float) -> dict[str, Any] | None:
+    """Take job ``job_id`` if it is claimable now (the broker delivered its id); else None.
+
+    None means another worker runs it (a duplicate delivery), it is finished, cancelled or gone, or it
+    waits for its retry delay (the reconciler publishes it again when it is due).
+    """
+    return _claim(db, " AND id = ?", [job_id], worker_id, lease_s)
+
+
+def heartbeat_job(db: Database, job_id: int, worker_id: str, lease_s: float) -> bool:
     """Extend the lease; False when this worker no longer owns the job."""
     now = time.time()
     cursor = db.execute(
@@ -204,7 +223,7 @@ def heartbeat_job(db: sqlite_utils.Database, job_id: int, worker_id: str, lease_
     return cursor.rowcount == 1
 
 
-def complete_job(db: sqlite_utils.Database, job_id: int, worker_id: str, result: dict[str, Any]) -> bool:
+def complete_job(db: Database, job_id: int, worker_id: str, result: dict[str, Any]) -> bool:
     """Mark done with its result; False when the lease was lost (the result is then dropped)."""
     now = time.time()
     cursor = db.execute(
@@ -216,7 +235,7 @@ def complete_job(db: sqlite_utils.Database, job_id: int, worker_id: str, result:
 
 
 def fail_job(
-    db: sqlite_utils.Database,
+    db: Database,
     job_id: int,
     worker_id: str,
     error: str,
@@ -241,7 +260,7 @@ def fail_job(
     return rows[0][0] if rows else None
 
 
-def deleted_subject(db: sqlite_utils.Database, job: dict[str, Any]) -> str | None:
+def deleted_subject(db: Database, job: dict[str, Any]) -> str | None:
     """What of the job's subject was deleted (its map, its reference), or None while both exist.
 
     A job whose map or reference is gone cannot succeed on a retry, whatever error its attempt hit.
@@ -255,11 +274,12 @@ def deleted_subject(db: sqlite_utils.Database, job: dict[str, Any]) -> str | Non
     return None
 
 
-def release_job(db: sqlite_utils.Database, job_id: int, worker_id: str) -> bool:
+def release_job(db: Database, job_id: int, worker_id: str) -> bool:
     """Give a running job back to the queue without counting the attempt (graceful shutdown)."""
     now = time.time()
     cursor = db.execute(
-        "UPDATE jobs SET status = 'queued', attempts = MAX(attempts - 1, 0), lease_owner = NULL,"
+        "UPDATE jobs SET status = 'queued', attempts = CASE WHEN attempts > 0 THEN attempts - 1 ELSE 0 END,"
+        " lease_owner = NULL,"
         " lease_expires_at = NULL, run_after = ?, updated_at = ?"
         " WHERE id = ? AND lease_owner = ? AND status = 'running'",
         (now, now, job_id, worker_id),
@@ -267,7 +287,7 @@ def release_job(db: sqlite_utils.Database, job_id: int, worker_id: str) -> bool:
     return cursor.rowcount == 1
 
 
-def cancel_queued_jobs(db: sqlite_utils.Database, *, map_id: int | None = None, reference_id: int | None = None) -> int:
+def cancel_queued_jobs(db: Database, *, map_id: int | None = None, reference_id: int | None = None) -> int:
     """Cancel the queued jobs of a map or reference being deleted; returns how many."""
     now = time.time()
     if reference_id is not None:
@@ -283,19 +303,71 @@ def cancel_queued_jobs(db: sqlite_utils.Database, *, map_id: int | None = None, 
     return cursor.rowcount
 
 
+# --- publication to a broker (distributed profile) ------------------------------------------------
+
+
+def mark_published(db: Database, job_ids: list[int], now: float | None = None) -> None:
+    """Record that these jobs' ids were just handed to the broker."""
+    if job_ids:
+        marks = ", ".join("?" for _ in job_ids)
+        db.execute(f"UPDATE jobs SET published_at = ? WHERE id IN ({marks})", [now or time.time(), *job_ids])
+
+
+def mark_unpublished(db: Database, job_ids: list[int]) -> None:
+    """Forget a publication that did not happen (the broker refused): the reconciler takes these again."""
+    if job_ids:
+        marks = ", ".join("?" for _ in job_ids)
+        db.execute(f"UPDATE jobs SET published_at = NULL WHERE id IN ({marks})", list(job_ids))
+
+
+def jobs_to_publish(
+    db: Database, now: float, *, unpublished_grace_s: float, republish_before: float | None = None, limit: int = 500
+) -> list[int]:
+    """Claim the right to (re)publish claimable jobs that no message will bring to a worker; returns their ids.
+
+    A claimable job (queued and due, or running with an expired lease) is taken when
+
+    - it was never published and is older than ``unpublished_grace_s`` (the API crashed between its commit
+      and the publish, or the broker refused the message);
+    - it became claimable after its last publication (a retry whose delay passed; a lease that expired
+      because its worker died);
+    - with ``republish_before``, it was last published before that time (the caller saw the broker's
+      queue empty: the message was lost with a broker restart).
+
+    Their ``published_at`` is set in the same statement, so reconcilers running at once never take the
+    same job. Call inside a transaction; publish the ids after it commits.
+    """
+    stale = " OR published_at < ?" if republish_before is not None else ""
+    params: list[Any] = [now, now, now, now - unpublished_grace_s]
+    if republish_before is not None:
+        params.append(republish_before)
+    rows = db.execute(
+        f"UPDATE jobs SET published_at = ? WHERE id IN (SELECT id FROM jobs WHERE {_CLAIMABLE} AND ("
+        " (published_at IS NULL AND created_at < ?)"
+        " OR (status = 'queued' AND published_at < run_after)"
+        f" OR (status = 'running' AND published_at < lease_expires_at){stale})"
+        f" ORDER BY priority DESC, id LIMIT ?{db.skip_locked}) RETURNING id",
+        [*params, limit],
+    ).fetchall()
+    return sorted(int(row[0]) for row in rows)
+
+
 # --- worker registry (for /readyz and for finding who runs what) ---------------------------------
 
 
-def register_worker(db: sqlite_utils.Database, worker_id: str, pid: int, hostname: str) -> None:
+def register_worker(db: Database, worker_id: str, pid: int, hostname: str) -> None:
     """Record a worker process as alive."""
     now = time.time()
     db.execute(
-        "INSERT OR REPLACE INTO workers (worker_id, pid, hostname, started_at, heartbeat_at) VALUES (?, ?, ?, ?, ?)",
+        "INSERT INTO workers (worker_id, pid, hostname, started_at, heartbeat_at) VALUES (?, ?, ?, ?, ?)"
+        " ON CONFLICT (worker_id) DO UPDATE SET pid = excluded.pid, hostname = excluded.hostname,"
+        " started_at = excluded.started_at, heartbeat_at = excluded.heartbeat_at, stopped_at = NULL,"
+        " current_job_id = NULL",
         (worker_id, pid, hostname, now, now),
     )
 
 
-def heartbeat_worker(db: sqlite_utils.Database, worker_id: str, current_job_id: int | None) -> None:
+def heartbeat_worker(db: Database, worker_id: str, current_job_id: int | None) -> None:
     """Refresh the worker's liveness and current job."""
     db.execute(
         "UPDATE workers SET heartbeat_at = ?, current_job_id = ? WHERE worker_id = ?",
@@ -303,7 +375,7 @@ def heartbeat_worker(db: sqlite_utils.Database, worker_id: str, current_job_id: 
     )
 
 
-def stop_worker(db: sqlite_utils.Database, worker_id: str) -> None:
+def stop_worker(db: Database, worker_id: str) -> None:
     """Mark a worker as stopped (clean exit)."""
     db.execute(
         "UPDATE workers SET stopped_at = ?, current_job_id = NULL WHERE worker_id = ?",
@@ -311,7 +383,7 @@ def stop_worker(db: sqlite_utils.Database, worker_id: str) -> None:
     )
 
 
-def live_workers(db: sqlite_utils.Database, within_s: float) -> list[dict[str, Any]]:
+def live_workers(db: Database, within_s: float) -> list[dict[str, Any]]:
     """Workers not stopped whose heartbeat is at most ``within_s`` old."""
     return list(
         db.query(

@@ -17,9 +17,9 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
-import sqlite_utils
 
 from db.blobs import pack_arrays, unpack_arrays
+from db.connection import Database
 from db.jobs import cancel_queued_jobs
 
 
@@ -99,7 +99,7 @@ def _decode_map(row: dict[str, Any]) -> dict[str, Any]:
 
 
 def insert_map(
-    db: sqlite_utils.Database,
+    db: Database,
     *,
     name: str,
     source_filename: str,
@@ -116,7 +116,7 @@ def insert_map(
     """
     min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
     facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
-    cursor = db.execute(
+    map_id = db.insert_returning_id(
         "INSERT INTO maps (name, source_filename, source_format, source_path, sha256, size_bytes,"
         " min_lat, min_lon, max_lat, max_lon, origin_lat, origin_lon, building_count, facade_count,"
         " repair_report, read_options, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
@@ -140,9 +140,7 @@ def insert_map(
             time.time(),
         ),
     )
-    assert cursor.lastrowid is not None
-    map_id = int(cursor.lastrowid)
-    db.conn.executemany(
+    db.executemany(
         "INSERT INTO buildings (map_id, building_id, osm_id, name, height_m, footprint_geojson,"
         " footprint_local_wkb) VALUES (?, ?, ?, ?, ?, ?, ?)",
         [
@@ -165,7 +163,7 @@ def insert_map(
     return map_id
 
 
-def get_map(db: sqlite_utils.Database, map_id: int) -> dict[str, Any] | None:
+def get_map(db: Database, map_id: int) -> dict[str, Any] | None:
     """One map row (decoded), or None."""
     rows = list(db.query("SELECT * FROM maps WHERE id = ?", (map_id,)))
     return _decode_map(rows[0]) if rows else None
@@ -175,9 +173,7 @@ def _options_json(read_options: dict[str, Any] | None) -> str:
     return json.dumps(read_options or {}, sort_keys=True)
 
 
-def find_map_by_sha256(
-    db: sqlite_utils.Database, sha256: str, read_options: dict[str, Any] | None = None
-) -> dict[str, Any] | None:
+def find_map_by_sha256(db: Database, sha256: str, read_options: dict[str, Any] | None = None) -> dict[str, Any] | None:
     """The oldest map uploaded from a file with this checksum and read with these options, or None."""
     rows = list(
         db.query(
@@ -188,18 +184,18 @@ def find_map_by_sha256(
     return _decode_map(rows[0]) if rows else None
 
 
-def list_maps(db: sqlite_utils.Database) -> list[dict[str, Any]]:
+def list_maps(db: Database) -> list[dict[str, Any]]:
     """All maps, oldest first."""
     return [_decode_map(row) for row in db.query("SELECT * FROM maps ORDER BY id")]
 
 
-def map_reference_counts(db: sqlite_utils.Database, map_id: int) -> dict[str, int]:
+def map_reference_counts(db: Database, map_id: int) -> dict[str, int]:
     """Number of references of a map per status."""
     rows = db.query("SELECT status, COUNT(*) AS n FROM reference_images WHERE map_id = ? GROUP BY status", (map_id,))
     return {row["status"]: int(row["n"]) for row in rows}
 
 
-def list_buildings(db: sqlite_utils.Database, map_id: int, decode: bool = True) -> list[dict[str, Any]]:
+def list_buildings(db: Database, map_id: int, decode: bool = True) -> list[dict[str, Any]]:
     """Buildings of a map (no WKB), by building id.
 
     ``footprint_geojson`` is decoded, or left as its JSON text with ``decode=False``.
@@ -218,13 +214,13 @@ def list_buildings(db: sqlite_utils.Database, map_id: int, decode: bool = True) 
     return out
 
 
-def get_facade_arrays(db: sqlite_utils.Database, map_id: int) -> dict[str, np.ndarray] | None:
+def get_facade_arrays(db: Database, map_id: int) -> dict[str, np.ndarray] | None:
     """The facade arrays of a map, or None."""
     row = db.execute("SELECT arrays_npz FROM facades WHERE map_id = ?", (map_id,)).fetchone()
     return unpack_arrays(row[0]) if row else None
 
 
-def delete_map(db: sqlite_utils.Database, map_id: int) -> dict[str, Any] | None:
+def delete_map(db: Database, map_id: int) -> dict[str, Any] | None:
     """Delete a map and everything under it; call inside a transaction.
 
     Buildings, facades, references, labels, index and queries cascade; queued jobs are cancelled.

@@ -6,7 +6,10 @@ import json
 import time
 from typing import Any
 
-import sqlite_utils
+from db.connection import Database
+
+QUERY_PHOTOS_LOCK = "geoloc:query-photos"
+"""Held by a transaction that stores a query photo or checks which photos no query uses any more."""
 
 
 def _decode(row: dict[str, Any]) -> dict[str, Any]:
@@ -17,37 +20,40 @@ def _decode(row: dict[str, Any]) -> dict[str, Any]:
 
 
 def insert_query(
-    db: sqlite_utils.Database,
+    db: Database,
     *,
     map_id: int,
     params: dict[str, Any],
     image_path: str | None = None,
     sha256: str | None = None,
 ) -> int:
-    """Insert a queued query; returns its id."""
+    """Insert a queued query; returns its id.
+
+    Call inside the transaction that puts its photo in the store (it takes :data:`QUERY_PHOTOS_LOCK`, so
+    retention cannot remove that photo meanwhile).
+    """
+    db.lock(QUERY_PHOTOS_LOCK)
     now = time.time()
-    cursor = db.execute(
+    return db.insert_returning_id(
         "INSERT INTO queries (map_id, image_path, sha256, params, status, created_at, updated_at)"
         " VALUES (?, ?, ?, ?, 'queued', ?, ?)",
         (map_id, image_path, sha256, json.dumps(params), now, now),
     )
-    assert cursor.lastrowid is not None  # an INSERT always sets it
-    return cursor.lastrowid
 
 
-def set_query_job(db: sqlite_utils.Database, query_id: int, job_id: int) -> None:
+def set_query_job(db: Database, query_id: int, job_id: int) -> None:
     """Link a query to the job that answers it."""
     db.execute("UPDATE queries SET job_id = ?, updated_at = ? WHERE id = ?", (job_id, time.time(), query_id))
 
 
-def get_query(db: sqlite_utils.Database, query_id: int) -> dict[str, Any] | None:
+def get_query(db: Database, query_id: int) -> dict[str, Any] | None:
     """One query (params and result decoded), or None."""
     rows = list(db.query("SELECT * FROM queries WHERE id = ?", (query_id,)))
     return _decode(rows[0]) if rows else None
 
 
 def update_query_result(
-    db: sqlite_utils.Database,
+    db: Database,
     query_id: int,
     *,
     status: str,
@@ -62,7 +68,7 @@ def update_query_result(
     return cursor.rowcount == 1
 
 
-def delete_query(db: sqlite_utils.Database, query_id: int) -> dict[str, Any] | None:
+def delete_query(db: Database, query_id: int) -> dict[str, Any] | None:
     """Delete a query; returns its row (``image_path`` to remove after commit), or None."""
     row = get_query(db, query_id)
     if row is not None:
@@ -70,7 +76,7 @@ def delete_query(db: sqlite_utils.Database, query_id: int) -> dict[str, Any] | N
     return row
 
 
-def delete_expired_queries(db: sqlite_utils.Database, cutoff: float, *, limit: int = 500) -> list[str | None]:
+def delete_expired_queries(db: Database, cutoff: float, *, limit: int = 500) -> list[str | None]:
     """Delete up to ``limit`` finished queries created before ``cutoff`` (Unix s) with their jobs.
 
     A query is finished when its row says ``done``/``failed`` or its job is ``done``, ``failed`` or
@@ -96,12 +102,14 @@ def delete_expired_queries(db: sqlite_utils.Database, cutoff: float, *, limit: i
     return [row[1] for row in rows]
 
 
-def unreferenced_images(db: sqlite_utils.Database, paths: list[str | None]) -> list[str]:
+def unreferenced_images(db: Database, paths: list[str | None]) -> list[str]:
     """The paths among ``paths`` that no query refers to (the same photo asked twice shares one file).
 
-    Check and remove inside one ``BEGIN IMMEDIATE`` transaction: an upload moves its file into place
-    inside its own such transaction, so it cannot slip in between the check and the removal.
+    Check and remove inside one transaction (this takes :data:`QUERY_PHOTOS_LOCK`): an upload puts its
+    file in place inside its own transaction under the same lock, so it cannot slip in between the check
+    and the removal.
     """
+    db.lock(QUERY_PHOTOS_LOCK)
     wanted = sorted({path for path in paths if path})
     return [
         path for path in wanted if db.execute("SELECT 1 FROM queries WHERE image_path = ?", (path,)).fetchone() is None

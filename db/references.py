@@ -14,9 +14,9 @@ import time
 from typing import Any, Literal
 
 import numpy as np
-import sqlite_utils
 
 from db.blobs import pack_arrays, unpack_arrays
+from db.connection import Database
 from db.jobs import cancel_queued_jobs
 from db.sbow import log_change
 
@@ -31,7 +31,7 @@ def _decode(row: dict[str, Any]) -> dict[str, Any]:
 
 
 def insert_reference(
-    db: sqlite_utils.Database,
+    db: Database,
     *,
     map_id: int,
     image_path: str,
@@ -49,7 +49,7 @@ def insert_reference(
 ) -> int:
     """Insert a queued reference; returns its id. Call inside a transaction."""
     now = time.time()
-    cursor = db.execute(
+    return db.insert_returning_id(
         "INSERT INTO reference_images (map_id, image_path, original_filename, sha256, size_bytes,"
         " image_format, width, height, gps_lat, gps_lon, position_source, prior_heading_deg,"
         " focal_length_35mm, status, created_at, updated_at)"
@@ -72,11 +72,9 @@ def insert_reference(
             now,
         ),
     )
-    assert cursor.lastrowid is not None  # an INSERT always sets it
-    return cursor.lastrowid
 
 
-def set_reference_job(db: sqlite_utils.Database, reference_id: int, job_id: int) -> None:
+def set_reference_job(db: Database, reference_id: int, job_id: int) -> None:
     """Link a reference to the job that processes it."""
     db.execute(
         "UPDATE reference_images SET job_id = ?, updated_at = ? WHERE id = ?",
@@ -84,19 +82,19 @@ def set_reference_job(db: sqlite_utils.Database, reference_id: int, job_id: int)
     )
 
 
-def get_reference(db: sqlite_utils.Database, reference_id: int) -> dict[str, Any] | None:
+def get_reference(db: Database, reference_id: int) -> dict[str, Any] | None:
     """One reference (JSON columns decoded), or None."""
     rows = list(db.query("SELECT * FROM reference_images WHERE id = ?", (reference_id,)))
     return _decode(rows[0]) if rows else None
 
 
-def find_reference_by_sha256(db: sqlite_utils.Database, map_id: int, sha256: str) -> dict[str, Any] | None:
+def find_reference_by_sha256(db: Database, map_id: int, sha256: str) -> dict[str, Any] | None:
     """The reference of this map with this image checksum, or None."""
     rows = list(db.query("SELECT * FROM reference_images WHERE map_id = ? AND sha256 = ?", (map_id, sha256)))
     return _decode(rows[0]) if rows else None
 
 
-def list_references(db: sqlite_utils.Database, map_id: int, *, status: str | None = None) -> list[dict[str, Any]]:
+def list_references(db: Database, map_id: int, *, status: str | None = None) -> list[dict[str, Any]]:
     """References of a map, oldest first, optionally of one status."""
     if status is None:
         rows = db.query("SELECT * FROM reference_images WHERE map_id = ? ORDER BY id", (map_id,))
@@ -105,9 +103,7 @@ def list_references(db: sqlite_utils.Database, map_id: int, *, status: str | Non
     return [_decode(row) for row in rows]
 
 
-def list_references_after(
-    db: sqlite_utils.Database, map_id: int, *, after_id: int = 0, limit: int = 100
-) -> list[dict[str, Any]]:
+def list_references_after(db: Database, map_id: int, *, after_id: int = 0, limit: int = 100) -> list[dict[str, Any]]:
     """One page of a map's references: up to ``limit`` with ids above ``after_id``, by id (keyset paging)."""
     rows = db.query(
         "SELECT * FROM reference_images WHERE map_id = ? AND id > ? ORDER BY id LIMIT ?", (map_id, after_id, limit)
@@ -115,7 +111,7 @@ def list_references_after(
     return [_decode(row) for row in rows]
 
 
-def effective_status_counts(db: sqlite_utils.Database, map_id: int) -> dict[str, int]:
+def effective_status_counts(db: Database, map_id: int) -> dict[str, int]:
     """Number of a map's references per reported status (:func:`effective_status`, from row and job)."""
     rows = db.query(
         "SELECT r.status AS status, r.error AS error, j.status AS job_status, j.attempts AS attempts,"
@@ -133,7 +129,7 @@ def effective_status_counts(db: sqlite_utils.Database, map_id: int) -> dict[str,
 
 
 def update_reference_result(
-    db: sqlite_utils.Database,
+    db: Database,
     reference_id: int,
     *,
     status: str,
@@ -181,7 +177,7 @@ def effective_status(reference: dict[str, Any], job: dict[str, Any] | None) -> t
     return reference["status"], reference.get("error")
 
 
-def delete_reference(db: sqlite_utils.Database, reference_id: int) -> dict[str, Any] | None:
+def delete_reference(db: Database, reference_id: int) -> dict[str, Any] | None:
     """Delete a reference and cancel its queued jobs; call inside a transaction.
 
     Its labels, keypoints and index postings cascade. Returns the deleted row (its ``image_path`` is
@@ -197,36 +193,39 @@ def delete_reference(db: sqlite_utils.Database, reference_id: int) -> dict[str, 
     return row
 
 
-def save_labels(db: sqlite_utils.Database, reference_id: int, arrays: dict[str, np.ndarray]) -> None:
+def save_labels(db: Database, reference_id: int, arrays: dict[str, np.ndarray]) -> None:
     """Store (replace) a reference's identity map arrays."""
     db.execute(
-        "INSERT OR REPLACE INTO labels (reference_id, identity_npz, created_at) VALUES (?, ?, ?)",
+        "INSERT INTO labels (reference_id, identity_npz, created_at) VALUES (?, ?, ?) ON CONFLICT (reference_id)"
+        " DO UPDATE SET identity_npz = excluded.identity_npz, created_at = excluded.created_at",
         (reference_id, pack_arrays(arrays), time.time()),
     )
 
 
-def load_labels(db: sqlite_utils.Database, reference_id: int) -> dict[str, np.ndarray] | None:
+def load_labels(db: Database, reference_id: int) -> dict[str, np.ndarray] | None:
     """A reference's identity map arrays, or None."""
     row = db.execute("SELECT identity_npz FROM labels WHERE reference_id = ?", (reference_id,)).fetchone()
     return unpack_arrays(row[0]) if row else None
 
 
-def save_keypoints(db: sqlite_utils.Database, reference_id: int, arrays: dict[str, np.ndarray]) -> None:
+def save_keypoints(db: Database, reference_id: int, arrays: dict[str, np.ndarray]) -> None:
     """Store (replace) a reference's keypoints: positions, descriptors, identity probabilities."""
     count = len(next(iter(arrays.values()))) if arrays else 0
     db.execute(
-        "INSERT OR REPLACE INTO keypoints (reference_id, keypoint_count, arrays_npz, created_at) VALUES (?, ?, ?, ?)",
+        "INSERT INTO keypoints (reference_id, keypoint_count, arrays_npz, created_at) VALUES (?, ?, ?, ?)"
+        " ON CONFLICT (reference_id) DO UPDATE SET keypoint_count = excluded.keypoint_count,"
+        " arrays_npz = excluded.arrays_npz, created_at = excluded.created_at",
         (reference_id, count, pack_arrays(arrays), time.time()),
     )
 
 
-def load_keypoints(db: sqlite_utils.Database, reference_id: int) -> dict[str, np.ndarray] | None:
+def load_keypoints(db: Database, reference_id: int) -> dict[str, np.ndarray] | None:
     """A reference's keypoint arrays, or None."""
     row = db.execute("SELECT arrays_npz FROM keypoints WHERE reference_id = ?", (reference_id,)).fetchone()
     return unpack_arrays(row[0]) if row else None
 
 
-def keypoint_stamps(db: sqlite_utils.Database, reference_ids: list[int]) -> dict[int, float]:
+def keypoint_stamps(db: Database, reference_ids: list[int]) -> dict[int, float]:
     """{reference id: when its keypoints were stored} for those of these references that have keypoints.
 
     A re-labelled reference gets a new time: a cached decoded copy is then stale.
@@ -240,7 +239,7 @@ def keypoint_stamps(db: sqlite_utils.Database, reference_ids: list[int]) -> dict
     return out
 
 
-def keypoint_blobs(db: sqlite_utils.Database, reference_ids: list[int]) -> dict[int, bytes]:
+def keypoint_blobs(db: Database, reference_ids: list[int]) -> dict[int, bytes]:
     """{reference id: its keypoints' ``.npz`` blob} for those of these references that have keypoints.
 
     For reading a few arrays without decoding the rest.

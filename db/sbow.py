@@ -29,29 +29,29 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
-import sqlite_utils
 
 from db.blobs import pack_arrays, unpack_arrays
+from db.connection import Database
 
 
-def save_vocabulary(db: sqlite_utils.Database, map_id: int, arrays: dict[str, np.ndarray]) -> None:
+def save_vocabulary(db: Database, map_id: int, arrays: dict[str, np.ndarray]) -> None:
     """Store (replace) a map's vocabulary; ``arrays['centers']`` (W, D) gives the word count."""
     word_count = len(arrays["centers"]) if "centers" in arrays else len(next(iter(arrays.values())))
     db.execute(
-        "INSERT OR REPLACE INTO vocabularies (map_id, word_count, arrays_npz, created_at) VALUES (?, ?, ?, ?)",
+        "INSERT INTO vocabularies (map_id, word_count, arrays_npz, created_at) VALUES (?, ?, ?, ?)"
+        " ON CONFLICT (map_id) DO UPDATE SET word_count = excluded.word_count, arrays_npz = excluded.arrays_npz,"
+        " created_at = excluded.created_at",
         (map_id, word_count, pack_arrays(arrays), time.time()),
     )
 
 
-def load_vocabulary(db: sqlite_utils.Database, map_id: int) -> dict[str, np.ndarray] | None:
+def load_vocabulary(db: Database, map_id: int) -> dict[str, np.ndarray] | None:
     """A map's vocabulary arrays, or None."""
     row = db.execute("SELECT arrays_npz FROM vocabularies WHERE map_id = ?", (map_id,)).fetchone()
     return unpack_arrays(row[0]) if row else None
 
 
-def index_reference(
-    db: sqlite_utils.Database, map_id: int, reference_id: int, word_ids: np.ndarray, weights: np.ndarray
-) -> int:
+def index_reference(db: Database, map_id: int, reference_id: int, word_ids: np.ndarray, weights: np.ndarray) -> int:
     """Replace a reference's postings with (word_id, weight) pairs; call inside a transaction.
 
     Duplicate words are summed. Returns the number of distinct words.
@@ -67,7 +67,7 @@ def index_reference(
         "INSERT INTO sbow_documents (reference_id, map_id, word_total, created_at) VALUES (?, ?, ?, ?)",
         (reference_id, map_id, float(summed.sum()), time.time()),
     )
-    db.conn.executemany(
+    db.executemany(
         "INSERT INTO sbow_postings (map_id, word_id, reference_id, weight) VALUES (?, ?, ?, ?)",
         [(map_id, int(w), reference_id, float(s)) for w, s in zip(unique_words, summed, strict=True)],
     )
@@ -75,7 +75,7 @@ def index_reference(
     return len(unique_words)
 
 
-def log_change(db: sqlite_utils.Database, map_id: int, reference_id: int) -> None:
+def log_change(db: Database, map_id: int, reference_id: int) -> None:
     """Record that a reference's postings changed (indexed, re-indexed or deleted).
 
     Call inside the transaction that changes them.
@@ -86,13 +86,13 @@ def log_change(db: sqlite_utils.Database, map_id: int, reference_id: int) -> Non
     )
 
 
-def change_mark(db: sqlite_utils.Database, map_id: int) -> int:
+def change_mark(db: Database, map_id: int) -> int:
     """The high-water mark of a map's change log (0 when nothing was ever indexed)."""
     row = db.execute("SELECT MAX(seq) FROM sbow_changes WHERE map_id = ?", (map_id,)).fetchone()
     return int(row[0] or 0)
 
 
-def changes_after(db: sqlite_utils.Database, map_id: int, after_seq: int) -> list[tuple[int, int]]:
+def changes_after(db: Database, map_id: int, after_seq: int) -> list[tuple[int, int]]:
     """(seq, reference_id) of a map's index changes with ``seq > after_seq``, oldest first."""
     rows = db.execute(
         "SELECT seq, reference_id FROM sbow_changes WHERE map_id = ? AND seq > ? ORDER BY seq", (map_id, after_seq)
@@ -101,9 +101,10 @@ def changes_after(db: sqlite_utils.Database, map_id: int, after_seq: int) -> lis
 
 
 @contextmanager
-def _read_snapshot(db: sqlite_utils.Database) -> Iterator[None]:
+def _read_snapshot(db: Database) -> Iterator[None]:
     """Statements inside see one state of the database (a deferred transaction: no write lock)."""
-    db.execute("BEGIN")
+    # PostgreSQL's default READ COMMITTED would let each statement see another state.
+    db.execute("BEGIN ISOLATION LEVEL REPEATABLE READ" if db.is_postgres else "BEGIN")
     try:
         yield
     finally:
@@ -128,7 +129,7 @@ class IndexSnapshot:
 
 
 def index_snapshot(
-    db: sqlite_utils.Database, map_id: int, *, lookback: int = 0, chunk_rows: int = 1 << 20
+    db: Database, map_id: int, *, lookback: int = 0, chunk_rows: int = 1 << 20
 ) -> IndexSnapshot:
     """Every document and postings row of a map's index, read in one snapshot with the log's mark.
 
@@ -146,7 +147,7 @@ def index_snapshot(
         ).fetchall()
         ids = np.array([r[0] for r in documents], np.int64)
         lengths = np.array([r[1] for r in documents], np.float64)
-        cursor = db.conn.execute(
+        cursor = db.execute(
             "SELECT word_id, reference_id, weight FROM sbow_postings WHERE map_id = ?"
             " ORDER BY map_id, word_id, reference_id",
             (map_id,),
@@ -170,7 +171,7 @@ def index_snapshot(
 
 
 def document_postings(
-    db: sqlite_utils.Database, map_id: int, reference_ids: list[int]
+    db: Database, map_id: int, reference_ids: list[int]
 ) -> dict[int, tuple[np.ndarray, np.ndarray, float]]:
     """The current postings of some references of a map: {reference id: (words, weights, word total)}.
 
@@ -203,13 +204,13 @@ def document_postings(
     return out
 
 
-def vocabulary_size(db: sqlite_utils.Database, map_id: int) -> int | None:
+def vocabulary_size(db: Database, map_id: int) -> int | None:
     """Number of words of a map's stored vocabulary, or None."""
     row = db.execute("SELECT word_count FROM vocabularies WHERE map_id = ?", (map_id,)).fetchone()
     return int(row[0]) if row else None
 
 
-def document_count(db: sqlite_utils.Database, map_id: int) -> int:
+def document_count(db: Database, map_id: int) -> int:
     """Number of indexed references of a map."""
     return int(db.execute("SELECT COUNT(*) FROM sbow_documents WHERE map_id = ?", (map_id,)).fetchone()[0])
 
@@ -230,7 +231,7 @@ class Postings:
     n_docs: int
 
 
-def postings_for_words(db: sqlite_utils.Database, map_id: int, word_ids: np.ndarray) -> Postings:
+def postings_for_words(db: Database, map_id: int, word_ids: np.ndarray) -> Postings:
     """Every postings row of the given words in a map's index (all of them, so df is exact)."""
     unique_words = np.unique(np.asarray(word_ids, dtype=np.int64).ravel())
     rows: list[tuple[int, int, float]] = []

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import sqlite_utils
+from db.connection import Database
 
 COUNTED_TABLES = (
     "maps",
@@ -19,12 +19,12 @@ COUNTED_TABLES = (
 )
 
 
-def table_counts(db: sqlite_utils.Database) -> dict[str, int]:
+def table_counts(db: Database) -> dict[str, int]:
     """Number of rows per data table."""
     return {table: int(db.execute(f"SELECT COUNT(*) FROM {table}").fetchone()[0]) for table in COUNTED_TABLES}
 
 
-def stored_file_paths(db: sqlite_utils.Database) -> set[str]:
+def stored_file_paths(db: Database) -> set[str]:
     """Every file path (relative to the data dir) that a row refers to.
 
     Map sources, reference images and query images.

@@ -19,7 +19,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict
 
@@ -89,9 +89,30 @@ class Settings(BaseSettings):
     )
     data_dir: Path = Field(
         default=Path.home() / ".local" / "share" / "geoloc",
-        description="the database (`geoloc.sqlite3`), stored maps and photos, temporary uploads (`tmp/`), "
-        "and caches (`cache/models`: ONNX, vocabulary; `cache/maps`: loaded maps for the workers)",
+        description="the embedded database (`geoloc.sqlite3`), stored maps and photos (unless "
+        "`GEOLOC_STORE_DIR`), temporary uploads (`tmp/`), and caches (`cache/models`: ONNX, vocabulary; "
+        "`cache/maps`: loaded maps for the workers)",
         json_schema_extra=_shown("`~/.local/share/geoloc`"),
+    )
+    database_url: str | None = Field(
+        default=None,
+        description="`postgresql://USER:PASSWORD@HOST:PORT/DB`: the catalogue, jobs and SBoW index live in "
+        "PostgreSQL instead of `GEOLOC_DATA_DIR/geoloc.sqlite3` (the distributed profile; set together "
+        "with `GEOLOC_BROKER_URL`)",
+        json_schema_extra=_shown("(none: SQLite)"),
+    )
+    broker_url: str | None = Field(
+        default=None,
+        description="`redis://HOST:PORT/N`: jobs run on Celery workers (`geoloc worker`) fed through this Redis, "
+        "which also holds the API keys' rate limits (the distributed profile; set together with "
+        "`GEOLOC_DATABASE_URL`)",
+        json_schema_extra=_shown("(none: built-in pool)"),
+    )
+    store_dir: Path | None = Field(
+        default=None,
+        description="where uploaded maps and photos are kept (`maps/`, `images/`, `queries/`, uploads in "
+        "`tmp/`); in the distributed profile a volume every API and worker machine mounts",
+        json_schema_extra=_shown("`GEOLOC_DATA_DIR`"),
     )
     api_keys: Annotated[dict[str, frozenset[str]], NoDecode] = Field(
         default_factory=dict,
@@ -169,10 +190,38 @@ class Settings(BaseSettings):
     )
     log_level: str = Field(default="INFO", description="log level of the workers")
 
-    @field_validator("shared", "data_dir", mode="after")
+    @field_validator("shared", "data_dir", "store_dir", mode="after")
     @classmethod
-    def _absolute(cls, path: Path) -> Path:
-        return path.expanduser().resolve()
+    def _absolute(cls, path: Path | None) -> Path | None:
+        return path.expanduser().resolve() if path is not None else None
+
+    @field_validator("database_url", mode="after")
+    @classmethod
+    def _postgres_url(cls, url: str | None) -> str | None:
+        if url is not None and not url.startswith(("postgresql://", "postgres://")):
+            raise ValueError("must be a PostgreSQL URL, postgresql://USER:PASSWORD@HOST:PORT/DATABASE")
+        return url
+
+    @field_validator("broker_url", mode="after")
+    @classmethod
+    def _redis_url(cls, url: str | None) -> str | None:
+        if url is not None and not url.startswith(("redis://", "rediss://")):
+            raise ValueError("must be a Redis URL, redis://HOST:PORT/DB (or rediss:// for TLS)")
+        return url
+
+    @model_validator(mode="after")
+    def _one_profile(self) -> Settings:
+        if (self.database_url is None) != (self.broker_url is None):
+            given, missing = (
+                ("GEOLOC_DATABASE_URL", "GEOLOC_BROKER_URL")
+                if self.broker_url is None
+                else ("GEOLOC_BROKER_URL", "GEOLOC_DATABASE_URL")
+            )
+            raise ValueError(
+                f"{given} is set but {missing} is not: the distributed profile needs both "
+                "(PostgreSQL and Redis); unset both for the embedded one (SQLite, built-in workers)"
+            )
+        return self
 
     @field_validator("api_keys", mode="before")
     @classmethod
@@ -209,8 +258,23 @@ class Settings(BaseSettings):
 
     @property
     def database_path(self) -> Path:
-        """The SQLite database: ``data_dir/geoloc.sqlite3``."""
+        """The embedded profile's SQLite database: ``data_dir/geoloc.sqlite3``."""
         return self.data_dir / "geoloc.sqlite3"
+
+    @property
+    def database(self) -> str | Path:
+        """What :func:`db.connect` opens: ``database_url`` in the distributed profile, else :attr:`database_path`."""
+        return self.database_url or self.database_path
+
+    @property
+    def distributed(self) -> bool:
+        """Whether this is the distributed profile (PostgreSQL and a Celery broker), not the embedded one."""
+        return self.broker_url is not None
+
+    @property
+    def file_store_dir(self) -> Path:
+        """Where stored maps and photos live: ``store_dir``, else ``data_dir``."""
+        return self.store_dir or self.data_dir
 
     @property
     def auth_enabled(self) -> bool:
@@ -241,8 +305,11 @@ def _validated(settings_cls: type[Settings], values: dict[str, Any]) -> Settings
     except ValidationError as exc:
         problems = []
         for error in exc.errors(include_url=False):
-            name = ENV_PREFIX + str(error["loc"][0]).upper() if error["loc"] else "settings"
             message = str(error["msg"]).removeprefix("Value error, ")
+            if not error["loc"]:  # a rule across settings: its message names them
+                problems.append(message)
+                continue
+            name = ENV_PREFIX + str(error["loc"][0]).upper()
             problems.append(f"{name}={error['input']!r}: {message}")
         raise SettingsError("invalid setting: " + "; ".join(problems)) from None
 

@@ -16,6 +16,7 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from db import connect, migrate
+from db.files import open_store
 from db.jobs import QueueFullError
 from db.stats import stored_file_paths
 from service.errors import error_body, error_response, install_error_handlers
@@ -24,6 +25,7 @@ from service.settings import Settings, get_settings
 from service.spec import install_openapi
 from service.uploads import clean_orphan_files, clean_stale_temp_files
 from service.waiting import JobWaiter
+from workers.broker import publisher_for
 
 log = logging.getLogger("geoloc.api")
 
@@ -136,12 +138,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # This connection stays open while the API runs: SQLite deletes the WAL and its index when the last
         # connection closes, and re-creating them needs disk space; held open, requests can still open the
         # database (and read) on a full disk.
-        db = connect(settings.database_path)
+        db = connect(settings.database)
         try:
             version = migrate(db)
             referenced = stored_file_paths(db)
-            removed = clean_stale_temp_files(settings.data_dir) + clean_orphan_files(settings.data_dir, referenced)
-            log.info("database %s at schema %d (%d stale files removed)", settings.database_path, version, removed)
+            store = app.state.file_store
+            removed = clean_stale_temp_files(store) + clean_orphan_files(store, referenced)
+            where = "PostgreSQL" if settings.database_url else settings.database_path
+            log.info("database %s at schema %d (%d stale files removed)", where, version, removed)
             await app.state.job_waiter.start()
             try:
                 yield
@@ -172,7 +176,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.rate_limiter = rate_limiter_for(settings)
-    app.state.job_waiter = JobWaiter(settings.database_path)
+    app.state.job_waiter = JobWaiter(settings.database)
+    app.state.file_store = open_store(settings.file_store_dir)
+    app.state.job_publisher = publisher_for(settings)
     install_error_handlers(app)
     install_openapi(app, settings)
 

@@ -5,11 +5,12 @@ from __future__ import annotations
 import hmac
 from collections.abc import Awaitable, Callable
 
+import anyio.to_thread
 from fastapi import Request, Security
 from fastapi.security import APIKeyHeader
 
 from service.errors import ApiError
-from service.limits import RateLimiter, rate_limited
+from service.limits import RateLimiter, RedisRateLimiter, rate_limited
 from service.settings import Settings
 
 api_key_header = APIKeyHeader(
@@ -37,8 +38,8 @@ def require_scope(scope: str) -> Callable[..., Awaitable[None]]:
     Everyone is admitted when auth is off; rate limits are :mod:`service.limits`.
 
     The scope is declared on the security requirement, so the OpenAPI schema shows it per operation
-    (and :mod:`service.spec` drops it when no keys are configured). Async: it does no I/O, so it needs
-    no worker thread.
+    (and :mod:`service.spec` drops it when no keys are configured). Async: in the embedded profile it does
+    no I/O and needs no worker thread; the distributed profile's shared rate limit asks Redis from one.
     """
 
     async def dependency(request: Request, api_key: str | None = Security(api_key_header, scopes=[scope])) -> None:
@@ -50,9 +51,14 @@ def require_scope(scope: str) -> Callable[..., Awaitable[None]]:
         scopes = _scopes_of(settings, api_key)
         if scopes is None:
             raise ApiError(401, "unauthorized", "invalid API key")
-        limiter: RateLimiter | None = request.app.state.rate_limiter
-        if limiter is not None and (wait_s := limiter.acquire(api_key)) is not None:
-            raise rate_limited(limiter, wait_s)
+        limiter: RateLimiter | RedisRateLimiter | None = request.app.state.rate_limiter
+        if limiter is not None:
+            if limiter.blocking:
+                wait_s = await anyio.to_thread.run_sync(limiter.acquire, api_key)
+            else:
+                wait_s = limiter.acquire(api_key)
+            if wait_s is not None:
+                raise rate_limited(limiter, wait_s)
         if scope not in scopes:
             raise ApiError(403, "forbidden", f"this API key lacks the '{scope}' scope")
 

@@ -10,6 +10,7 @@ import sqlite3
 from pathlib import Path
 from typing import Any
 
+import psycopg
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -108,16 +109,18 @@ DISK_FULL_MESSAGE = (
 def is_disk_full(exc: BaseException, data_dir: Path | None = None) -> bool:
     """Whether ``exc`` (or an exception it was raised from) means the disk or quota is full.
 
-    Covers ``OSError`` ENOSPC/EDQUOT (writing an upload, creating a folder) and SQLite's ``SQLITE_FULL``
-    ("database or disk is full"). SQLite reports some writes that found no space (growing the WAL index,
-    for one) as a generic I/O error; such an error counts as a full disk when the file system of
-    ``data_dir`` has less than :data:`NEARLY_FULL_BYTES` left.
+    Covers ``OSError`` ENOSPC/EDQUOT (writing an upload, creating a folder), SQLite's ``SQLITE_FULL``
+    ("database or disk is full") and PostgreSQL's ``disk_full`` (SQLSTATE 53100). SQLite reports some
+    writes that found no space (growing the WAL index, for one) as a generic I/O error; such an error
+    counts as a full disk when the file system of ``data_dir`` has less than :data:`NEARLY_FULL_BYTES` left.
     """
     seen: set[int] = set()
     current: BaseException | None = exc
     while current is not None and id(current) not in seen:
         seen.add(id(current))
         if isinstance(current, OSError) and current.errno in DISK_FULL_ERRNOS:
+            return True
+        if isinstance(current, psycopg.errors.DiskFull):
             return True
         if isinstance(current, sqlite3.Error):
             code = getattr(current, "sqlite_errorcode", None)
@@ -182,6 +185,7 @@ def install_error_handlers(app: FastAPI) -> None:
 
     app.add_exception_handler(OSError, _storage_error)
     app.add_exception_handler(sqlite3.Error, _storage_error)
+    app.add_exception_handler(psycopg.Error, _storage_error)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:

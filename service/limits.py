@@ -3,9 +3,11 @@
 - :class:`RateLimiter`: a token bucket per API key, ``GEOLOC_RATE_LIMIT_PER_MIN`` tokens refilled
   evenly over a minute (so a key may burst up to a minute's worth). Past it a request gets ``429``
   ``rate_limited`` with ``Retry-After``: the seconds until one token is back. Only keys are limited:
-  with no keys configured the service listens on loopback only and serves its one local user. The
-  buckets live in the API process (one per ``geoloc serve``); several API processes would each
-  apply the limit.
+  with no keys configured the service listens on loopback only and serves its one local user. In the
+  embedded profile the buckets live in the API process; in the distributed profile
+  (:class:`RedisRateLimiter`) they live in the broker's Redis, updated by one atomic script per
+  request, so every API process draws from the same bucket of a key. If Redis cannot be reached the
+  request is let through (logged): the limit protects the service, it must not take it down.
 - :func:`require_queue_capacity`: new work (a reference upload, a query) is refused with ``429``
   ``queue_full`` and ``Retry-After`` while ``GEOLOC_MAX_QUEUED_JOBS`` jobs are waiting. The check
   runs before the upload is processed and again in the transaction that enqueues the job
@@ -15,10 +17,13 @@
 
 from __future__ import annotations
 
+import hashlib
+import logging
 import math
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 from fastapi import Request
 
@@ -28,10 +33,14 @@ from service.errors import ApiError
 from service.settings import Settings
 
 SECONDS_PER_MINUTE = 60.0
+log = logging.getLogger("geoloc.api")
 
 
 class RateLimiter:
-    """Token buckets per key: ``per_minute`` requests a minute, refilled continuously; thread-safe."""
+    """Token buckets per key in this process: ``per_minute`` requests a minute, refilled continuously; thread-safe."""
+
+    blocking = False
+    """Whether :meth:`acquire` does network I/O (then the API calls it from a worker thread)."""
 
     def __init__(self, per_minute: int, clock: Callable[[], float] = time.monotonic) -> None:
         self.per_minute = per_minute
@@ -53,14 +62,66 @@ class RateLimiter:
             return max(1, math.ceil((1.0 - tokens) / self.refill_per_s))
 
 
-def rate_limiter_for(settings: Settings) -> RateLimiter | None:
-    """The app's limiter: None when auth is off or the limit is 0."""
+_TOKEN_BUCKET_LUA = """
+local capacity = tonumber(ARGV[1])
+local refill_per_s = tonumber(ARGV[2])
+local clock = redis.call('TIME')
+local now = tonumber(clock[1]) + tonumber(clock[2]) / 1000000
+local state = redis.call('HMGET', KEYS[1], 'tokens', 'updated')
+local tokens = tonumber(state[1]) or capacity
+local updated = tonumber(state[2]) or now
+tokens = math.min(capacity, tokens + math.max(now - updated, 0) * refill_per_s)
+local allowed = 0
+if tokens >= 1 then
+    tokens = tokens - 1
+    allowed = 1
+end
+redis.call('HSET', KEYS[1], 'tokens', tostring(tokens), 'updated', tostring(now))
+redis.call('EXPIRE', KEYS[1], math.ceil(capacity / refill_per_s) + 60)
+return {allowed, tostring(tokens)}
+"""
+
+
+class RedisRateLimiter:
+    """The same token buckets as :class:`RateLimiter`, kept in Redis so that all API processes share them.
+
+    A bucket is a hash ``geoloc:rate:<sha256 of the key>`` (the key itself is never stored) updated by one
+    Lua script, atomic on the server, on the server's clock; it expires once it would be full again.
+    """
+
+    blocking = True
+    """:meth:`acquire` talks to Redis: the API calls it from a worker thread."""
+
+    def __init__(self, per_minute: int, redis_url: str) -> None:
+        from workers.broker import redis_client
+
+        self.per_minute = per_minute
+        self.refill_per_s = per_minute / SECONDS_PER_MINUTE
+        self._script: Any = redis_client(redis_url).register_script(_TOKEN_BUCKET_LUA)
+
+    def acquire(self, key: str) -> int | None:
+        """Take one token for ``key``: None when the request may go on, else the seconds to wait."""
+        bucket = "geoloc:rate:" + hashlib.sha256(key.encode()).hexdigest()
+        try:
+            allowed, tokens = self._script(keys=[bucket], args=[self.per_minute, self.refill_per_s])
+        except Exception as exc:  # Redis unreachable: let the request through rather than fail it
+            log.warning("rate limit not checked, Redis unreachable: %s", exc)
+            return None
+        if int(allowed):
+            return None
+        return max(1, math.ceil((1.0 - float(tokens)) / self.refill_per_s))
+
+
+def rate_limiter_for(settings: Settings) -> RateLimiter | RedisRateLimiter | None:
+    """The app's limiter: None when auth is off or the limit is 0; shared through Redis when distributed."""
     if not settings.auth_enabled or settings.rate_limit_per_min <= 0:
         return None
+    if settings.broker_url is not None:
+        return RedisRateLimiter(settings.rate_limit_per_min, settings.broker_url)
     return RateLimiter(settings.rate_limit_per_min)
 
 
-def rate_limited(limiter: RateLimiter, wait_s: int) -> ApiError:
+def rate_limited(limiter: RateLimiter | RedisRateLimiter, wait_s: int) -> ApiError:
     """The ``429`` for a key past its limit."""
     return ApiError(
         429,
@@ -86,7 +147,7 @@ def queue_full(exc: job_store.QueueFullError) -> ApiError:
 def require_queue_capacity(request: Request) -> None:
     """Dependency of the routes that enqueue jobs: ``429 queue_full`` while the queue is at its limit."""
     settings: Settings = request.app.state.settings
-    db = connect(settings.database_path)
+    db = connect(settings.database)
     try:
         job_store.check_queue_capacity(db, settings.max_queued_jobs)
     except job_store.QueueFullError as exc:

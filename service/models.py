@@ -240,12 +240,19 @@ class Health(BaseModel):
 
 
 class Readiness(BaseModel):
-    """Readiness: whether the service can answer, and every reason when it cannot."""
+    """What ``/readyz`` checked: the database, the broker (distributed profile), the models, live workers."""
 
     status: Literal["ready", "not_ready"]
+    profile: Literal["embedded", "distributed"] = Field(
+        description="`embedded` (SQLite, built-in workers) or `distributed` (PostgreSQL, Celery on Redis)"
+    )
+    database: Literal["ok", "unreachable"]
+    broker: Literal["ok", "unreachable"] | None = Field(
+        default=None, description="The Celery broker (Redis); null in the embedded profile, which has none"
+    )
     schema_version: int
     expected_schema_version: int
-    live_workers: int
+    live_workers: int = Field(description="Worker processes with a heartbeat within `GEOLOC_READY_WORKER_S`")
     problems: list[str] = Field(default_factory=list)
 
 

@@ -7,25 +7,24 @@ instead of parsing the source again (they rebuild it from the source if it is mi
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 from typing import Annotated, Any
 
-import sqlite_utils
 from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
 from fastapi.responses import JSONResponse
 
+from db import Database, transaction
 from db import maps as map_store
-from db import transaction
+from db.files import FileStore
 from service.answers import BoundingBox, LatLon
 from service.auth import require_read, require_write
 from service.bounds import MapId
-from service.deps import get_db, get_settings
+from service.deps import get_db, get_settings, get_store
 from service.errors import ApiError
 from service.models import MapList, MapOut, error_responses, timestamp
 from service.settings import Settings
-from service.uploads import received_upload, remove_quietly
+from service.uploads import received_upload
 
 log = logging.getLogger("geoloc.api")
 router = APIRouter(prefix="/v1/maps", tags=["maps"])
@@ -70,7 +69,7 @@ def map_out(row: dict[str, Any], *, reference_count: int = 0, duplicate: bool = 
     )
 
 
-def require_map(db: sqlite_utils.Database, map_id: int) -> dict[str, Any]:
+def require_map(db: Database, map_id: int) -> dict[str, Any]:
     """The map row, or 404."""
     row = map_store.get_map(db, map_id)
     if row is None:
@@ -119,8 +118,9 @@ def upload_map(
             "declares; for files that declare none and are not WGS84 lon/lat",
         ),
     ] = None,
-    db: sqlite_utils.Database = Depends(get_db),
+    db: Database = Depends(get_db),
     settings: Settings = Depends(get_settings),
+    store: FileStore = Depends(get_store),
 ) -> MapOut | JSONResponse:
     """Upload a map: buildings and facades are extracted and stored.
 
@@ -140,7 +140,7 @@ def upload_map(
         except MapLoadError as exc:
             raise ApiError(422, "invalid_request", f"crs: {exc}") from exc
     read_options = options.as_dict()
-    with received_upload(file, settings.data_dir, settings.max_map_bytes, "the map file") as received:
+    with received_upload(file, store, settings.max_map_bytes, "the map file") as received:
         existing = map_store.find_map_by_sha256(db, received.sha256, read_options)
         if existing is not None:
             out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
@@ -158,11 +158,11 @@ def upload_map(
             ) from exc
         source_format = city_map.report.format
         relative = f"maps/{received.sha256}{SOURCE_EXTENSIONS.get(source_format, '.map')}"
-        final_path = settings.data_dir / relative
-        with transaction(db):  # BEGIN IMMEDIATE: the duplicate check and the insert are atomic
+        with transaction(db):  # the duplicate check and the insert are atomic
+            db.lock(f"geoloc:map:{received.sha256}")  # the same file sent twice at once
             existing = map_store.find_map_by_sha256(db, received.sha256, read_options)
             if existing is None:
-                received.move_to(final_path)
+                received.move_to(relative)
                 map_id = map_store.insert_map(
                     db,
                     name=name.strip(),
@@ -207,12 +207,12 @@ def _read_options(
     return MapReadOptions(**{k: v.strip() for k, v in given.items() if v is not None and v.strip()})
 
 
-def _reference_total(db: sqlite_utils.Database, map_id: int) -> int:
+def _reference_total(db: Database, map_id: int) -> int:
     return sum(map_store.map_reference_counts(db, map_id).values())
 
 
 @router.get("", response_model=MapList, dependencies=[Depends(require_read)])
-def list_maps(db: sqlite_utils.Database = Depends(get_db)) -> MapList:
+def list_maps(db: Database = Depends(get_db)) -> MapList:
     """All maps, oldest first."""
     return MapList(
         maps=[map_out(row, reference_count=_reference_total(db, row["id"])) for row in map_store.list_maps(db)]
@@ -220,7 +220,7 @@ def list_maps(db: sqlite_utils.Database = Depends(get_db)) -> MapList:
 
 
 @router.get("/{map_id}", response_model=MapOut, responses=error_responses(404), dependencies=[Depends(require_read)])
-def get_map(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) -> MapOut:
+def get_map(map_id: MapId, db: Database = Depends(get_db)) -> MapOut:
     """One map."""
     return map_out(require_map(db, map_id), reference_count=_reference_total(db, map_id))
 
@@ -233,7 +233,7 @@ def get_map(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) -> MapOu
     },
     dependencies=[Depends(require_read)],
 )
-def get_buildings(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) -> Response:
+def get_buildings(map_id: MapId, db: Database = Depends(get_db)) -> Response:
     """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat).
 
     Each feature has its building id, OSM id, name and height.
@@ -256,7 +256,10 @@ def get_buildings(map_id: MapId, db: sqlite_utils.Database = Depends(get_db)) ->
     dependencies=[Depends(require_write)],
 )
 def delete_map(
-    map_id: MapId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    map_id: MapId,
+    db: Database = Depends(get_db),
+    settings: Settings = Depends(get_settings),
+    store: FileStore = Depends(get_store),
 ) -> Response:
     """Delete a map with its buildings, references, labels, index entries and queries."""
     with transaction(db):
@@ -265,13 +268,11 @@ def delete_map(
         raise ApiError(404, "not_found", f"map {map_id} not found")
     from geoloc.maps import MapReadOptions, map_cache_dir, remove_cached_map
 
-    remove_quietly(*(settings.data_dir / p for p in deleted["image_paths"]))
+    store.delete(*deleted["image_paths"])
     if not deleted["source_shared"]:  # the same file read with other options is another map
-        remove_quietly(settings.data_dir / deleted["source_path"])
+        store.delete(deleted["source_path"])
     remove_cached_map(
         map_cache_dir(settings.data_dir), deleted["sha256"], MapReadOptions.from_dict(deleted["read_options"])
     )
-    for folder in (settings.data_dir / "images" / str(map_id), settings.data_dir / "queries" / str(map_id)):
-        with contextlib.suppress(OSError):
-            folder.rmdir()
+    store.remove_empty_folders(f"images/{map_id}", f"queries/{map_id}")
     return Response(status_code=status.HTTP_204_NO_CONTENT)

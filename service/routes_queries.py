@@ -17,17 +17,17 @@ from dataclasses import dataclass
 from typing import Annotated, Any
 
 import numpy as np
-import sqlite_utils
 from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
-from db import connect, transaction
+from db import Database, connect, transaction
 from db import jobs as job_store
 from db import queries as query_store
+from db.files import FileStore
 from service.auth import require_read, require_write
 from service.bounds import MapId, QueryId, check_bounds, documented
-from service.deps import get_db, get_settings
+from service.deps import get_db, get_settings, get_store
 from service.errors import ApiError
 from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
 from service.limits import require_queue_capacity
@@ -36,8 +36,9 @@ from service.routes_maps import require_map
 from service.routes_references import READ_ERRORS
 from service.settings import Settings
 from service.spec import QUEUE_FULL_RESPONSE
-from service.uploads import received_upload, remove_quietly
+from service.uploads import received_upload
 from service.waiting import JobWaiter
+from workers.broker import JobPublisher
 
 router = APIRouter(tags=["queries"])
 DEFAULT_PRIOR_RADIUS_M = 50.0
@@ -64,7 +65,7 @@ def query_out(row: dict[str, Any], job: dict[str, Any] | None) -> QueryOut:
     )
 
 
-def _load(db: sqlite_utils.Database, query_id: int) -> tuple[dict[str, Any], dict[str, Any] | None]:
+def _load(db: Database, query_id: int) -> tuple[dict[str, Any], dict[str, Any] | None]:
     row = query_store.get_query(db, query_id)
     if row is None:
         raise ApiError(404, "not_found", f"query {query_id} not found")
@@ -87,19 +88,23 @@ class QueryForm:
     wait_s: float
 
 
-def _store_query(settings: Settings, map_id: int, image: UploadFile, form: QueryForm) -> tuple[int, int]:
-    """Check the request, store the photo, the query and its job in one transaction; returns their ids.
+def _store_query(
+    settings: Settings, store: FileStore, publisher: JobPublisher, map_id: int, image: UploadFile, form: QueryForm
+) -> tuple[int, int]:
+    """Store a query and hand its job to the workers; returns their ids.
+
+    Checks the request, stores the photo, the query and its job in one transaction, then publishes the job.
 
     Blocking (file and database work): run it in a worker thread.
     """
-    db = connect(settings.database_path)
+    db = connect(settings.database)
     try:
         map_row = require_map(db, map_id)
         for name in ("lat", "lon", "radius_m", "heading_deg", "focal_length_35mm", "top_n", "k", "wait_s"):
             check_bounds(name, getattr(form, name))
         if (form.lat is None) != (form.lon is None):
             raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
-        with received_upload(image, settings.data_dir, settings.max_image_bytes, "the image") as received:
+        with received_upload(image, store, settings.max_image_bytes, "the image") as received:
             info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
             prior: dict[str, Any] | None = None
             if form.lat is not None and form.lon is not None:
@@ -132,10 +137,10 @@ def _store_query(settings: Settings, map_id: int, image: UploadFile, form: Query
             }
             relative = f"queries/{map_id}/{received.sha256}.{info.extension}"
             with transaction(db):
-                received.move_to(settings.data_dir / relative)
                 query_id = query_store.insert_query(
                     db, map_id=map_id, params=params, image_path=relative, sha256=received.sha256
                 )
+                received.move_to(relative)  # after insert_query took the query-photo lock
                 job_id = job_store.enqueue_job(
                     db,
                     job_store.LOCALIZE_QUERY,
@@ -145,13 +150,14 @@ def _store_query(settings: Settings, map_id: int, image: UploadFile, form: Query
                     max_queued=settings.max_queued_jobs,
                 )
                 query_store.set_query_job(db, query_id, job_id)
+        publisher.publish(db, [job_id])
         return query_id, job_id
     finally:
         db.close()
 
 
 def _load_query(settings: Settings, query_id: int) -> QueryOut:
-    db = connect(settings.database_path)
+    db = connect(settings.database)
     try:
         return query_out(*_load(db, query_id))
     finally:
@@ -210,7 +216,10 @@ async def create_query(
     429 while the job queue is full (retry after ``Retry-After`` seconds).
     """
     form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, focal_length_35mm, top_n, k, wait_s)
-    query_id, job_id = await run_in_threadpool(_store_query, settings, map_id, image, form)
+    state = request.app.state
+    query_id, job_id = await run_in_threadpool(
+        _store_query, settings, state.file_store, state.job_publisher, map_id, image, form
+    )
     waiter: JobWaiter = request.app.state.job_waiter
     await waiter.wait(job_id, wait_s)
     out = await run_in_threadpool(_load_query, settings, query_id)
@@ -247,7 +256,7 @@ async def get_query(
     return out
 
 
-def _done_result(db: sqlite_utils.Database, query_id: int) -> dict[str, Any]:
+def _done_result(db: Database, query_id: int) -> dict[str, Any]:
     row, _ = _load(db, query_id)
     if row["status"] != "done" or not row["result"]:
         raise ApiError(409, "not_ready", f"query {query_id} has no answer yet (status {row['status']})")
@@ -260,7 +269,7 @@ def _done_result(db: sqlite_utils.Database, query_id: int) -> dict[str, Any]:
     response_class=Response,
     dependencies=[Depends(require_read)],
 )
-def get_heatmap_png(query_id: QueryId, db: sqlite_utils.Database = Depends(get_db)) -> Response:
+def get_heatmap_png(query_id: QueryId, db: Database = Depends(get_db)) -> Response:
     """The probability map as a PNG (north up, one pixel block per grid cell, the best location marked)."""
     import cv2
 
@@ -278,7 +287,7 @@ def get_heatmap_png(query_id: QueryId, db: sqlite_utils.Database = Depends(get_d
     responses={200: {"content": {"application/geo+json": {}}}, **error_responses(404, 409)},
     dependencies=[Depends(require_read)],
 )
-def get_answer_geojson(query_id: QueryId, db: sqlite_utils.Database = Depends(get_db)) -> JSONResponse:
+def get_answer_geojson(query_id: QueryId, db: Database = Depends(get_db)) -> JSONResponse:
     """The ranked locations as GeoJSON points (properties: rank, heading, probabilities)."""
     result = _done_result(db, query_id)
     features = [
@@ -299,16 +308,14 @@ def get_answer_geojson(query_id: QueryId, db: sqlite_utils.Database = Depends(ge
     responses=error_responses(404),
     dependencies=[Depends(require_write)],
 )
-def delete_query(
-    query_id: QueryId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
-) -> Response:
+def delete_query(query_id: QueryId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)) -> Response:
     """Delete a query and its stored photo."""
     with transaction(db):
         deleted = query_store.delete_query(db, query_id)
     if deleted is None:
         raise ApiError(404, "not_found", f"query {query_id} not found")
     with transaction(db):  # the same photo asked again shares the file: remove it only when unreferenced
-        remove_quietly(*(settings.data_dir / p for p in query_store.unreferenced_images(db, [deleted["image_path"]])))
+        store.delete(*query_store.unreferenced_images(db, [deleted["image_path"]]))
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
@@ -319,10 +326,10 @@ def delete_query(
     dependencies=[Depends(require_read)],
 )
 def get_query_image(
-    query_id: QueryId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    query_id: QueryId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)
 ) -> FileResponse:
     """The query photo as uploaded (its stored bytes, with the media type of its format)."""
     row, _ = _load(db, query_id)
     if not row.get("image_path"):
         raise ApiError(404, "not_found", f"query {query_id} has no stored photo")
-    return stored_photo_response(settings.data_dir / row["image_path"])
+    return stored_photo_response(store.local_path(row["image_path"]))

@@ -5,17 +5,17 @@ from __future__ import annotations
 import logging
 from typing import Annotated, Any
 
-import sqlite_utils
 from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile, status
 from fastapi.responses import FileResponse, JSONResponse
 
+from db import Database, transaction
 from db import jobs as job_store
 from db import references as reference_store
-from db import transaction
+from db.files import FileStore
 from service.answers import EstimatedPose
 from service.auth import require_read, require_write
 from service.bounds import MapId, ReferenceId, check_bounds, documented
-from service.deps import get_db, get_settings
+from service.deps import get_db, get_publisher, get_settings, get_store
 from service.errors import ApiError
 from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
 from service.limits import require_queue_capacity
@@ -30,7 +30,8 @@ from service.models import (
 from service.routes_maps import require_map
 from service.settings import Settings
 from service.spec import QUEUE_FULL_RESPONSE
-from service.uploads import received_upload, remove_quietly
+from service.uploads import received_upload
+from workers.broker import JobPublisher
 
 log = logging.getLogger("geoloc.api")
 router = APIRouter(tags=["references"])
@@ -88,8 +89,10 @@ def upload_reference(
             json_schema_extra=documented("focal_length_35mm"),
         ),
     ] = None,
-    db: sqlite_utils.Database = Depends(get_db),
+    db: Database = Depends(get_db),
     settings: Settings = Depends(get_settings),
+    store: FileStore = Depends(get_store),
+    publisher: JobPublisher = Depends(get_publisher),
 ) -> ReferenceAccepted | JSONResponse:
     """Add a geo-tagged reference photo and queue its labelling.
 
@@ -102,7 +105,7 @@ def upload_reference(
     map_row = require_map(db, map_id)
     check_bounds("heading_deg", heading_deg)
     check_bounds("focal_length_35mm", focal_length_35mm)
-    with received_upload(image, settings.data_dir, settings.max_image_bytes, "the image") as received:
+    with received_upload(image, store, settings.max_image_bytes, "the image") as received:
         info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
         ref_lat, ref_lon, source = resolve_position(lat, lon, info.gps_lat, info.gps_lon)
         distance = distance_outside_bbox_m(ref_lat, ref_lon, map_row["bbox_wgs84"])
@@ -120,11 +123,11 @@ def upload_reference(
                 },
             )
         relative = f"images/{map_id}/{received.sha256}.{info.extension}"
-        final_path = settings.data_dir / relative
-        with transaction(db):  # BEGIN IMMEDIATE: duplicate check, rows and job are one unit
+        with transaction(db):  # duplicate check, rows and job are one unit
+            db.lock(f"geoloc:reference:{map_id}:{received.sha256}")  # the same photo sent twice at once
             existing = reference_store.find_reference_by_sha256(db, map_id, received.sha256)
             if existing is None:
-                received.move_to(final_path)
+                received.move_to(relative)
                 reference_id = reference_store.insert_reference(
                     db,
                     map_id=map_id,
@@ -161,6 +164,7 @@ def upload_reference(
             duplicate=True,
         )
         return JSONResponse(out.model_dump(mode="json"), status_code=200)
+    publisher.publish(db, [job_id])
     log.info("reference %d stored for map %d, job %d", reference_id, map_id, job_id)
     return ReferenceAccepted(id=reference_id, map_id=map_id, job_id=job_id, status="queued", sha256=received.sha256)
 
@@ -200,7 +204,7 @@ def reference_out(row: dict[str, Any], job: dict[str, Any] | None) -> ReferenceO
     responses=error_responses(404),
     dependencies=[Depends(require_read)],
 )
-def get_reference(reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db)) -> ReferenceOut:
+def get_reference(reference_id: ReferenceId, db: Database = Depends(get_db)) -> ReferenceOut:
     """A reference: its status (queued, processing, done, failed).
 
     When done, also the estimated pose, the buildings seen and timings.
@@ -219,14 +223,14 @@ def get_reference(reference_id: ReferenceId, db: sqlite_utils.Database = Depends
     dependencies=[Depends(require_write)],
 )
 def delete_reference(
-    reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    reference_id: ReferenceId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)
 ) -> Response:
     """Delete a reference with its labels, keypoints and index entries (its queued job is cancelled)."""
     with transaction(db):
         deleted = reference_store.delete_reference(db, reference_id)
     if deleted is None:
         raise ApiError(404, "not_found", f"reference {reference_id} not found")
-    remove_quietly(settings.data_dir / deleted["image_path"])
+    store.delete(deleted["image_path"])
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
@@ -237,7 +241,7 @@ def delete_reference(
     dependencies=[Depends(require_read)],
 )
 def get_labels_png(
-    reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    reference_id: ReferenceId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)
 ) -> Response:
     """The photo with its building pixels coloured by identity; 409 until the reference is labelled.
 
@@ -251,7 +255,7 @@ def get_labels_png(
     arrays = reference_store.load_labels(db, reference_id)
     if arrays is None:
         raise ApiError(409, "not_ready", f"reference {reference_id} is not labelled yet (status {row['status']})")
-    png = identity_overlay_png(settings.data_dir / row["image_path"], arrays)
+    png = identity_overlay_png(store.local_path(row["image_path"]), arrays)
     return Response(png, media_type="image/png")
 
 
@@ -267,7 +271,7 @@ def list_map_references(
         int, Query(ge=0, le=2**63 - 1, description="Return references with ids above this (paging cursor)")
     ] = 0,
     limit: Annotated[int, Query(ge=1, le=500, description="Most references in this page")] = 100,
-    db: sqlite_utils.Database = Depends(get_db),
+    db: Database = Depends(get_db),
 ) -> ReferenceList:
     """A map's references, oldest first, a page at a time (follow ``next_after_id``).
 
@@ -297,10 +301,10 @@ def list_map_references(
     dependencies=[Depends(require_read)],
 )
 def get_reference_image(
-    reference_id: ReferenceId, db: sqlite_utils.Database = Depends(get_db), settings: Settings = Depends(get_settings)
+    reference_id: ReferenceId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)
 ) -> FileResponse:
     """The reference photo as uploaded (its stored bytes, with the media type of its format)."""
     row = reference_store.get_reference(db, reference_id)
     if row is None:
         raise ApiError(404, "not_found", f"reference {reference_id} not found")
-    return stored_photo_response(settings.data_dir / row["image_path"])
+    return stored_photo_response(store.local_path(row["image_path"]))

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
+from typing import Any, Literal
 
-import sqlite_utils
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 
-from db import LATEST_VERSION, connect, schema_version
+from db import LATEST_VERSION, Database, connect, schema_version
 from db import jobs as job_store
 from service.auth import require_read
 from service.bounds import JobId
@@ -18,6 +17,7 @@ from service.deps import get_db
 from service.errors import ApiError, error_body
 from service.models import ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
 from service.settings import Settings
+from workers.broker import broker_problem
 
 router = APIRouter()
 MODEL_CHECK_TTL_S = 10.0
@@ -47,24 +47,31 @@ def healthz() -> Health:
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": ErrorResponse}}, tags=["system"])
 def readyz(request: Request) -> Readiness | JSONResponse:
-    """Readiness: 200 when the service can answer, else 503 with every reason in ``problems``.
+    """Report whether the service can take work; 503 with every reason in ``problems`` when not.
 
-    Ready when the database answers at the current schema version, the models the workers need are
-    built and current, and a worker heartbeat is recent.
+    Ready when the database answers at the current schema version, the broker answers (distributed
+    profile), the models the workers need are built and current, and a worker heartbeat is recent.
     """
     settings: Settings = request.app.state.settings
     problems: list[str] = []
-    version, workers = -1, 0
+    version, workers, database_ok = -1, 0, False
     try:
-        db = connect(settings.database_path, busy_timeout_ms=2000)
+        db = connect(settings.database, busy_timeout_ms=2000)
         try:
             db.execute("SELECT 1").fetchone()
             version = schema_version(db)
             workers = len(job_store.live_workers(db, settings.ready_worker_s))
+            database_ok = True
         finally:
             db.close()
     except Exception as exc:  # any failure means "not ready"
         problems.append(f"database unreachable: {exc}")
+    broker: Literal["ok", "unreachable"] | None = None
+    if settings.broker_url is not None:
+        broker_error = broker_problem(settings.broker_url)
+        broker = "ok" if broker_error is None else "unreachable"
+        if broker_error is not None:
+            problems.append(broker_error)
     if version != LATEST_VERSION and version >= 0:
         problems.append(f"database schema version {version}, expected {LATEST_VERSION}")
     problems += model_problems_cached(settings)
@@ -72,6 +79,9 @@ def readyz(request: Request) -> Readiness | JSONResponse:
         problems.append(f"no worker heartbeat in the last {settings.ready_worker_s:.0f} s")
     readiness = Readiness(
         status="not_ready" if problems else "ready",
+        profile="distributed" if settings.distributed else "embedded",
+        database="ok" if database_ok else "unreachable",
+        broker=broker,
         schema_version=version,
         expected_schema_version=LATEST_VERSION,
         live_workers=workers,
@@ -107,7 +117,7 @@ def job_out(job: dict[str, Any]) -> JobOut:
     tags=["jobs"],
     dependencies=[Depends(require_read)],
 )
-def get_job(job_id: JobId, db: sqlite_utils.Database = Depends(get_db)) -> JobOut:
+def get_job(job_id: JobId, db: Database = Depends(get_db)) -> JobOut:
     """A background job: status, attempts, result or last error."""
     job = job_store.get_job(db, job_id)
     if job is None:

@@ -1,14 +1,13 @@
 """Receiving uploaded files.
 
-Streamed to a temp file under ``DATA_DIR/tmp`` with a size limit and a sha256, then moved into
-place only as part of a successful database transaction.
+An upload is streamed to a temp file in the file store's ``tmp/`` with a size limit and a sha256, then put
+under its key only as part of a successful database transaction.
 """
 
 from __future__ import annotations
 
 import contextlib
 import hashlib
-import os
 import secrets
 import time
 from collections.abc import Iterator
@@ -17,6 +16,7 @@ from pathlib import Path
 
 from fastapi import UploadFile
 
+from db.files import FileStore
 from service.errors import ApiError
 
 CHUNK_BYTES = 1024 * 1024
@@ -25,47 +25,41 @@ STALE_TEMP_S = 3600.0
 
 @dataclass
 class ReceivedFile:
-    """An upload saved to a temp file; :meth:`move_to` puts it in its final place."""
+    """An upload saved to a temp file; :meth:`move_to` puts it in the store under its key."""
 
     path: Path
     sha256: str
     size_bytes: int
     filename: str | None
-    placed: list[Path] = field(default_factory=list)
+    store: FileStore
+    placed: list[str] = field(default_factory=list)
 
-    def move_to(self, final_path: Path) -> None:
-        """Move the temp file to ``final_path`` (call inside the database transaction that records it)."""
-        if move_into_place(self.path, final_path):
-            self.placed.append(final_path)
+    def move_to(self, key: str) -> None:
+        """Put the temp file in the store as ``key`` (call inside the database transaction that records it)."""
+        if self.store.put(self.path, key):
+            self.placed.append(key)
 
 
 @contextlib.contextmanager
-def received_upload(upload: UploadFile, data_dir: Path, max_bytes: int, what: str) -> Iterator[ReceivedFile]:
+def received_upload(upload: UploadFile, store: FileStore, max_bytes: int, what: str) -> Iterator[ReceivedFile]:
     """Receive an upload (:func:`receive_upload`) for the duration of a block.
 
-    If the block fails, a file it moved into place is removed again (nothing half-stored); the temp
-    file is always removed.
+    If the block fails, a file it put in the store is removed again (nothing half-stored); the temp file is
+    always removed.
     """
-    received = receive_upload(upload, data_dir, max_bytes, what)
+    received = receive_upload(upload, store, max_bytes, what)
     try:
         yield received
     except BaseException:
-        remove_quietly(*received.placed)
+        store.delete(*received.placed)
         raise
     finally:
         remove_quietly(received.path)
 
 
-def temp_dir(data_dir: Path) -> Path:
-    """``DATA_DIR/tmp`` (same file system as the final place, so the move is a rename)."""
-    path = data_dir / "tmp"
-    path.mkdir(parents=True, exist_ok=True)
-    return path
-
-
-def receive_upload(upload: UploadFile, data_dir: Path, max_bytes: int, what: str) -> ReceivedFile:
-    """Copy an upload to a temp file; 413 past ``max_bytes``, 422 when empty."""
-    path = temp_dir(data_dir) / f"upload-{secrets.token_hex(8)}.part"
+def receive_upload(upload: UploadFile, store: FileStore, max_bytes: int, what: str) -> ReceivedFile:
+    """Copy an upload to a temp file in the store's temp folder; 413 past ``max_bytes``, 422 when empty."""
+    path = store.temp_dir() / f"upload-{secrets.token_hex(8)}.part"
     digest = hashlib.sha256()
     size = 0
     try:
@@ -87,19 +81,7 @@ def receive_upload(upload: UploadFile, data_dir: Path, max_bytes: int, what: str
     except BaseException:
         path.unlink(missing_ok=True)
         raise
-    return ReceivedFile(path, digest.hexdigest(), size, upload.filename)
-
-
-def move_into_place(temp_path: Path, final_path: Path) -> bool:
-    """Rename ``temp_path`` to ``final_path``; True if that created the file.
-
-    False: the same content was already there. Call inside the database transaction; on failure
-    delete it again.
-    """
-    final_path.parent.mkdir(parents=True, exist_ok=True)
-    existed = final_path.exists()
-    os.replace(temp_path, final_path)
-    return not existed
+    return ReceivedFile(path, digest.hexdigest(), size, upload.filename, store)
 
 
 def remove_quietly(*paths: Path) -> None:
@@ -109,11 +91,11 @@ def remove_quietly(*paths: Path) -> None:
             path.unlink(missing_ok=True)
 
 
-def clean_stale_temp_files(data_dir: Path, older_than_s: float = STALE_TEMP_S) -> int:
+def clean_stale_temp_files(store: FileStore, older_than_s: float = STALE_TEMP_S) -> int:
     """Delete temp uploads left by a crash; returns how many."""
     removed = 0
     cutoff = time.time() - older_than_s
-    for path in temp_dir(data_dir).glob("upload-*.part"):
+    for path in store.temp_dir().glob("upload-*.part"):
         try:
             if path.stat().st_mtime < cutoff:
                 path.unlink()
@@ -123,27 +105,13 @@ def clean_stale_temp_files(data_dir: Path, older_than_s: float = STALE_TEMP_S) -
     return removed
 
 
-def clean_orphan_files(data_dir: Path, referenced: set[str], older_than_s: float = STALE_TEMP_S) -> int:
-    """Delete stored files older than ``older_than_s`` that no row refers to.
+def clean_orphan_files(store: FileStore, referenced: set[str], older_than_s: float = STALE_TEMP_S) -> int:
+    """Delete stored files no row refers to; returns how many.
 
-    Such files are left by a crash between the file move and the commit, or between a delete's
-    commit and the file removal.
+    Such files are left by a crash between the file move and the commit, or between a delete's commit and
+    the file removal. Only files older than ``older_than_s`` go, in case another API process is still
+    writing one.
     """
-    removed = 0
-    cutoff = time.time() - older_than_s
-    for folder in ("maps", "images", "queries"):
-        root = data_dir / folder
-        if not root.is_dir():
-            continue
-        for path in root.rglob("*"):
-            try:
-                if (
-                    path.is_file()
-                    and str(path.relative_to(data_dir)) not in referenced
-                    and path.stat().st_mtime < cutoff
-                ):
-                    path.unlink()
-                    removed += 1
-            except OSError:
-                continue
-    return removed
+    orphans = [key for key in store.stored_keys(older_than_s) if key not in referenced]
+    store.delete(*orphans)
+    return len(orphans)

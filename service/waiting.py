@@ -16,9 +16,8 @@ import logging
 from pathlib import Path
 
 import anyio.to_thread
-import sqlite_utils
 
-from db import connect
+from db import Database, connect
 from db import jobs as job_store
 
 log = logging.getLogger("geoloc.api")
@@ -32,13 +31,13 @@ ERROR_BACKOFF_S = 1.0
 class JobWaiter:
     """Resolves ``await wait(job_id, timeout_s)`` calls when their jobs finish."""
 
-    def __init__(self, database_path: Path, poll_s: float = POLL_S) -> None:
-        self.database_path = database_path
+    def __init__(self, database: Path | str, poll_s: float = POLL_S) -> None:
+        self.database = database
         self.poll_s = poll_s
         self._waiting: dict[int, list[asyncio.Future[None]]] = {}
         self._wakeup: asyncio.Event | None = None
         self._task: asyncio.Task[None] | None = None
-        self._db: sqlite_utils.Database | None = None
+        self._db: Database | None = None
 
     async def start(self) -> None:
         """Start the polling task (call from the app's lifespan)."""
@@ -51,9 +50,7 @@ class JobWaiter:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
-        if self._db is not None:
-            self._db.close()
-            self._db = None
+        self._forget_connection()
 
     async def wait(self, job_id: int, timeout_s: float) -> bool:
         """Wait until job ``job_id`` is done, failed, cancelled or gone; False if ``timeout_s`` passed first."""
@@ -75,9 +72,16 @@ class JobWaiter:
             if not futures:
                 self._waiting.pop(job_id, None)
 
+    def _forget_connection(self) -> None:
+        """Drop the connection after a failure (a restarted database server): the next lookup opens another."""
+        if self._db is not None:
+            with contextlib.suppress(Exception):
+                self._db.close()
+            self._db = None
+
     def _statuses(self, job_ids: list[int]) -> dict[int, str]:
         if self._db is None:
-            self._db = connect(self.database_path, busy_timeout_ms=2000)
+            self._db = connect(self.database, busy_timeout_ms=2000)
         return job_store.job_statuses(self._db, job_ids)
 
     async def _run(self) -> None:
@@ -92,6 +96,7 @@ class JobWaiter:
                 statuses = await anyio.to_thread.run_sync(self._statuses, job_ids)
             except Exception:  # a busy or unreachable database: waiters keep waiting, up to their timeout
                 log.exception("looking up awaited jobs failed; retrying in %.0f s", ERROR_BACKOFF_S)
+                self._forget_connection()
                 await asyncio.sleep(ERROR_BACKOFF_S)
                 continue
             for job_id in job_ids:

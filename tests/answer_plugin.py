@@ -12,10 +12,8 @@ import copy
 import math
 from typing import Any
 
-import sqlite_utils
-
+from db import Database, transaction
 from db import queries as query_store
-from db import transaction
 from db.jobs import LOCALIZE_QUERY
 from workers.answers import checked_query_answer
 from workers.handlers import PermanentJobError, register
@@ -73,7 +71,7 @@ def _answer(top_n: int) -> dict[str, Any]:
 
 
 @register(LOCALIZE_QUERY)
-def answer_by_top_n(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[str, Any]:
+def answer_by_top_n(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
     """Build the answer chosen by the query's ``top_n``, check it and store it like the real handler."""
     query_id = int(payload["query_id"])
     query = query_store.get_query(db, query_id)

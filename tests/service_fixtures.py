@@ -15,7 +15,6 @@ import json
 import os
 import signal
 import socket
-import sqlite3
 import struct
 import subprocess
 import sys
@@ -107,16 +106,16 @@ def service_env(data_dir: Path, **overrides: str) -> dict[str, str]:
 
 @dataclass
 class RunningProcess:
-    """A supervised ``geoloc`` process with its data folder and log file."""
+    """A supervised ``geoloc`` process with its data folder, database and log file.
+
+    The database is a SQLite path or a PostgreSQL URL.
+    """
 
     process: subprocess.Popen
     data_dir: Path
     log_path: Path
+    database: Path | str
     base_url: str | None = None
-
-    @property
-    def db_path(self) -> Path:
-        return self.data_dir / "geoloc.sqlite3"
 
     def client(self, api_key: str | None = WRITE_KEY, timeout: float = 60.0) -> httpx.Client:
         headers = {"X-API-Key": api_key} if api_key else {}
@@ -140,9 +139,13 @@ class RunningProcess:
 
 
 def start_process(args: list[str], data_dir: Path, env: dict[str, str]) -> RunningProcess:
-    """Start ``geoloc ARGS`` in its own process group, output to ``data_dir/../<name>.log``."""
+    """Start ``geoloc ARGS`` in its own process group, output to ``data_dir/../<name>-<command>[-n].log``."""
     data_dir.mkdir(parents=True, exist_ok=True)
     log_path = data_dir.parent / f"{data_dir.name}-{args[0]}.log"
+    for n in range(2, 100):  # a second process on the same data folder (two API processes) gets its own log
+        if not log_path.exists():
+            break
+        log_path = data_dir.parent / f"{data_dir.name}-{args[0]}-{n}.log"
     log_file = log_path.open("ab")
     process = subprocess.Popen(
         [*geoloc_command(), *args],
@@ -153,7 +156,7 @@ def start_process(args: list[str], data_dir: Path, env: dict[str, str]) -> Runni
         start_new_session=True,
     )
     log_file.close()
-    return RunningProcess(process, data_dir, log_path)
+    return RunningProcess(process, data_dir, log_path, env.get("GEOLOC_DATABASE_URL") or data_dir / "geoloc.sqlite3")
 
 
 def wait_for(predicate: Any, timeout: float, interval: float = 0.1, what: Any = "condition") -> Any:
@@ -245,22 +248,23 @@ def running_workers(
 # --- database inspection ------------------------------------------------------------------------
 
 
-def read_rows(db_path: Path, sql: str, params: tuple = ()) -> list[dict[str, Any]]:
-    """Rows of a query on a (possibly live) database, as dicts."""
-    conn = sqlite3.connect(str(db_path), timeout=30)
-    conn.row_factory = sqlite3.Row
+def read_rows(database: Path | str, sql: str, params: tuple[Any, ...] = ()) -> list[dict[str, Any]]:
+    """Rows of a query (``?`` placeholders) on a (possibly live) database, SQLite path or PostgreSQL URL, as dicts."""
+    from db import connect
+
+    db = connect(database)
     try:
-        return [dict(row) for row in conn.execute(sql, params)]
+        return list(db.query(sql, params))
     finally:
-        conn.close()
+        db.close()
 
 
-def table_counts(db_path: Path) -> dict[str, int]:
+def table_counts(database: Path | str) -> dict[str, int]:
     """Rows per data table (db.stats)."""
     from db import connect
     from db.stats import table_counts as counts
 
-    db = connect(db_path)
+    db = connect(database)
     try:
         return counts(db)
     finally:
@@ -278,9 +282,9 @@ def stored_files(data_dir: Path) -> list[str]:
     )
 
 
-def get_job_row(db_path: Path, job_id: int) -> dict[str, Any]:
+def get_job_row(database: Path | str, job_id: int) -> dict[str, Any]:
     """One job row with its payload decoded."""
-    row = read_rows(db_path, "SELECT * FROM jobs WHERE id = ?", (job_id,))[0]
+    row = read_rows(database, "SELECT * FROM jobs WHERE id = ?", (job_id,))[0]
     row["payload"] = json.loads(row["payload"])
     return row
 

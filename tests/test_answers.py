@@ -20,6 +20,7 @@ from workers.answers import checked_query_answer, checked_reference_labels
 from workers.handlers import PermanentJobError
 
 from .answer_plugin import WELL_FORMED
+from .conftest import Profile
 from .service_fixtures import WRITE_KEY, RunningProcess, get_job_row, jpeg_bytes, running_service
 
 PLUGIN = Path(__file__).resolve().parent / "answer_plugin.py"
@@ -78,9 +79,10 @@ def test_reference_labels_are_checked_too() -> None:
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path) -> Iterator[RunningProcess]:
+def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path, profile: Profile) -> Iterator[RunningProcess]:
     data_dir = tmp_path_factory.mktemp("answers") / "data"
-    with running_service(data_dir, models=built_models, GEOLOC_WORKER_PLUGINS=str(PLUGIN)) as running:
+    env = {"GEOLOC_WORKER_PLUGINS": str(PLUGIN), **profile.new_env()}
+    with running_service(data_dir, models=built_models, **env) as running:
         yield running
 
 
@@ -129,7 +131,7 @@ def test_a_malformed_answer_fails_the_job_at_once_with_the_reason(
     query = _ask(client, map_id, top_n=top_n)
     assert query["status"] == "failed" and query["result"] is None
     assert "malformed query answer, not stored" in query["error"] and problem in query["error"]
-    job = get_job_row(service.db_path, query["job_id"])
+    job = get_job_row(service.database, query["job_id"])
     assert job["status"] == "failed" and job["attempts"] == 1, "a malformed answer is not retried"
     served = client.get(f"/v1/queries/{query['id']}")
     assert served.status_code == 200 and served.json()["status"] == "failed"

@@ -15,6 +15,7 @@ from typing import Any
 import httpx
 import pytest
 
+from .conftest import Profile
 from .service_fixtures import READ_KEY, WRITE_KEY, RunningProcess, jpeg_bytes, running_service
 
 pytestmark = pytest.mark.slow
@@ -45,8 +46,8 @@ TOWN = {
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningProcess]:
-    with running_service(tmp_path_factory.mktemp("listing") / "data", workers=0) as running:
+def service(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Iterator[RunningProcess]:
+    with running_service(tmp_path_factory.mktemp("listing") / "data", workers=0, **profile.new_env()) as running:
         yield running
 
 
@@ -102,16 +103,17 @@ def test_references_come_page_by_page_with_counts_for_the_whole_map(client: http
     assert first["original_filename"] == "ref_0.jpg" and first["position"]["source"] == "exif"
 
 
-def test_counts_follow_the_jobs(tmp_path: Path) -> None:
+def test_counts_follow_the_jobs(tmp_path: Path, profile: Profile) -> None:
     from db import connect
     from db import jobs as job_store
     from db import references as reference_store
 
     worker = "test-worker:1"
-    with running_service(tmp_path / "data", workers=0) as service, service.client(WRITE_KEY) as client:
+    env = profile.new_env()
+    with running_service(tmp_path / "data", workers=0, **env) as service, service.client(WRITE_KEY) as client:
         map_id = _new_map(client, "statuses")
         accepted = _add_references(client, map_id, 4, seed0=300)
-        db = connect(service.db_path)
+        db = connect(service.database)
         try:  # the job store moves the jobs as a worker would: one running, one failed, one done
             claimed = [
                 job_store.claim_job(db, worker, lease_s=600, kinds=[job_store.LABEL_REFERENCE]) for _ in range(3)

@@ -19,6 +19,7 @@ from geoloc.config import shared_path
 from geoloc.maps import MapReadOptions, map_cache_dir, map_cache_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
+from .conftest import Profile
 from .map_files import MapFiles, write_map_files
 from .model_fixtures import link_models
 from .service_fixtures import (
@@ -39,10 +40,10 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> MapFiles:
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path) -> Iterator[RunningProcess]:
+def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path, profile: Profile) -> Iterator[RunningProcess]:
     data_dir = tmp_path_factory.mktemp("api-formats") / "data"
     link_models(data_dir, built_models)
-    with running_service(data_dir, workers=1) as running:
+    with running_service(data_dir, workers=1, **profile.new_env()) as running:
         yield running
 
 
@@ -58,7 +59,7 @@ def upload(client: httpx.Client, path: Path, name: str, options: dict[str, str] 
 
 
 def snapshot(service: RunningProcess) -> tuple[dict[str, int], list[str]]:
-    return table_counts(service.db_path), stored_files(service.data_dir)
+    return table_counts(service.database), stored_files(service.data_dir)
 
 
 GOOD = ["geojson", "geojson.gz", "geojson_3857", "geojson_3857_crs_option", "gpkg", "shapefile.zip", "fgb", "osm.gz"]

@@ -19,6 +19,7 @@ from PIL import Image
 
 from geoloc.config import shared_path
 
+from .conftest import Profile
 from .service_fixtures import (
     READ_KEY,
     REPO_ROOT,
@@ -44,11 +45,12 @@ LUND = (55.7047, 13.1910)
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path) -> Iterator[RunningProcess]:
+def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path, profile: Profile) -> Iterator[RunningProcess]:
     with running_service(
         tmp_path_factory.mktemp("api") / "data",
         workers=1,
         models=built_models,
+        **profile.new_env(),
         GEOLOC_MAX_MAP_BYTES=str(MAX_MAP_BYTES),
         GEOLOC_MAX_IMAGE_BYTES=str(MAX_IMAGE_BYTES),
         GEOLOC_MAX_IMAGE_PIXELS=str(MAX_IMAGE_PIXELS),
@@ -82,12 +84,12 @@ class Unchanged:
 
     def __init__(self, service: RunningProcess) -> None:
         self.service = service
-        self.counts = table_counts(service.db_path)
+        self.counts = table_counts(service.database)
         self.files = stored_files(service.data_dir)
 
     def check(self) -> None:
         assert httpx.get(f"{self.service.base_url}/healthz", timeout=5).status_code == 200, "service still answers"
-        assert table_counts(self.service.db_path) == self.counts, "database unchanged"
+        assert table_counts(self.service.database) == self.counts, "database unchanged"
         assert stored_files(self.service.data_dir) == self.files, "no file stored or left behind"
 
 
@@ -188,7 +190,7 @@ def test_reference_with_exif_gps_is_accepted_then_deleted(
     assert client.delete(f"/v1/references/{accepted['id']}").status_code == 204
     assert client.get(f"/v1/references/{accepted['id']}").status_code == 404
     assert stored_files(service.data_dir) == before.files
-    counts = table_counts(service.db_path)
+    counts = table_counts(service.database)
     assert counts["reference_images"] == before.counts["reference_images"]
 
 
@@ -352,8 +354,9 @@ def test_reads_need_a_read_key_and_unknown_ids_are_404(service: RunningProcess, 
         assert error_of(reader.get("/v1/no-such-route"))["code"] == "not_found"
 
 
-def test_data_stays_under_the_data_dir(service: RunningProcess) -> None:
-    assert Path(service.db_path).exists()
+def test_data_stays_under_the_data_dir(service: RunningProcess, profile: Profile) -> None:
+    sqlite_file = service.data_dir / "geoloc.sqlite3"
+    assert sqlite_file.exists() != profile.distributed, "SQLite only in the embedded profile"
     assert not list((service.data_dir / "tmp").glob("upload-*")), "no temp upload left behind"
 
 

@@ -18,6 +18,7 @@ import pytest
 from geoloc.config import shared_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
+from .conftest import Profile
 from .service_fixtures import read_rows, running_service, wait_for
 
 N_REFERENCES = 16
@@ -62,9 +63,15 @@ def _angle(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
 
 
-def test_ingest_label_and_query_through_the_api(tmp_path: Path, built_models: Path, world_dir: Path) -> None:
+def test_ingest_label_and_query_through_the_api(
+    tmp_path: Path, built_models: Path, world_dir: Path, profile: Profile
+) -> None:
     world = load_world(world_dir)
-    with running_service(tmp_path, workers=2, models=built_models) as service, service.client(timeout=300.0) as client:
+    env = profile.new_env()
+    with (
+        running_service(tmp_path, workers=2, models=built_models, **env) as service,
+        service.client(timeout=300.0) as client,
+    ):
         map_id = _upload_map(client)
         accepted = {im.name: _upload_reference(client, map_id, im.path)["id"] for im in world.references}
         done = _wait_done(client, list(accepted.values()))
@@ -119,27 +126,37 @@ def test_killed_worker_and_restarted_service_lose_no_reference(
     tmp_path: Path,
     built_models: Path,
     world_dir: Path,
+    profile: Profile,
 ) -> None:
     world = load_world(world_dir)
     photos = [im.path for im in world.references[:6]]
-    with running_service(tmp_path, workers=1, models=built_models) as service, service.client(timeout=120.0) as client:
+    env = profile.new_env()  # the restarted service finds the same database (and broker)
+    with (
+        running_service(tmp_path, workers=1, models=built_models, **env) as service,
+        service.client(timeout=120.0) as client,
+    ):
         map_id = _upload_map(client)
         first = [_upload_reference(client, map_id, p)["id"] for p in photos[:3]]
 
         def running_job() -> dict | None:
-            rows = read_rows(service.db_path, "SELECT * FROM jobs WHERE status = 'running' AND lease_owner IS NOT NULL")
+            rows = read_rows(
+                service.database, "SELECT * FROM jobs WHERE status = 'running' AND lease_owner IS NOT NULL"
+            )
             return rows[0] if rows else None
 
         job = wait_for(running_job, timeout=120, what="a labelling job to start")
         os.kill(int(job["lease_owner"].split(":")[1]), signal.SIGKILL)  # a new worker takes it after the lease
     # The whole service stops mid-ingest (SIGTERM to the supervisor), then starts again on the same data.
-    with running_service(tmp_path, workers=1, models=built_models) as service, service.client(timeout=120.0) as client:
+    with (
+        running_service(tmp_path, workers=1, models=built_models, **env) as service,
+        service.client(timeout=120.0) as client,
+    ):
         again = [_upload_reference(client, map_id, p) for p in photos]
         assert [a["id"] for a in again[:3]] == first and all(a.get("duplicate") for a in again[:3])
         ids = [a["id"] for a in again]
         done = _wait_done(client, ids)
         assert all(r["status"] == "done" for r in done.values()), [r["error"] for r in done.values()]
-        rows = read_rows(service.db_path, "SELECT id FROM reference_images WHERE map_id = ?", (map_id,))
+        rows = read_rows(service.database, "SELECT id FROM reference_images WHERE map_id = ?", (map_id,))
         assert sorted(r["id"] for r in rows) == sorted(ids)  # nothing lost, nothing duplicated
-        jobs = read_rows(service.db_path, "SELECT reference_id, status FROM jobs WHERE kind = 'label_reference'")
+        jobs = read_rows(service.database, "SELECT reference_id, status FROM jobs WHERE kind = 'label_reference'")
         assert sorted(j["reference_id"] for j in jobs) == sorted(ids)

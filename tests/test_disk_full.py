@@ -6,6 +6,7 @@ import errno
 import sqlite3
 from pathlib import Path
 
+import psycopg
 import pytest
 
 from service.errors import is_disk_full
@@ -51,3 +52,12 @@ def test_an_io_error_is_a_full_disk_only_when_the_disk_is_nearly_full(tmp_path: 
     io_error = sqlite3.OperationalError("disk I/O error")
     assert not is_disk_full(io_error, tmp_path), "this disk has room: a real I/O error, a 500"
     assert not is_disk_full(io_error), "without the data folder nothing can be told"
+
+
+def test_postgres_disk_full_is_a_full_disk(tmp_path: Path) -> None:
+    """PostgreSQL's SQLSTATE 53100 (``disk_full``, psycopg's ``DiskFull``) is a full disk.
+
+    Other server errors are not.
+    """
+    assert is_disk_full(psycopg.errors.DiskFull("could not extend file: No space left on device"), tmp_path)
+    assert not is_disk_full(psycopg.errors.UniqueViolation("duplicate key value"), tmp_path)

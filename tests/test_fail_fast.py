@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from .conftest import Profile
 from .service_fixtures import (
     INSIDE_ONE_BUILDING,
     ONE_BUILDING,
@@ -57,20 +58,25 @@ def test_stale_models_no_start(tmp_path: Path, built_models: Path) -> None:
 
 
 @pytest.mark.slow
-def test_api_alone_starts_and_readyz_says_why(tmp_path: Path) -> None:
-    with running_service(tmp_path / "data", workers=0) as service, service.client(None) as client:
+def test_api_alone_starts_and_readyz_says_why(tmp_path: Path, profile: Profile) -> None:
+    env = profile.new_env()
+    with running_service(tmp_path / "data", workers=0, **env) as service, service.client(None) as client:
         ready = client.get("/readyz")
     assert ready.status_code == 503
-    problems = ready.json()["error"]["details"]["problems"]
+    details = ready.json()["error"]["details"]
+    assert details["profile"] == profile.name and details["database"] == "ok"
+    assert details["broker"] == ("ok" if profile.distributed else None)
+    problems = details["problems"]
     assert any("segmentation model not found" in p for p in problems), problems
     assert any("no worker heartbeat" in p for p in problems), problems
 
 
 @pytest.mark.slow
-def test_a_model_gone_at_run_time_fails_the_job_at_once(tmp_path: Path, built_models: Path) -> None:
+def test_a_model_gone_at_run_time_fails_the_job_at_once(tmp_path: Path, built_models: Path, profile: Profile) -> None:
     data_dir = tmp_path / "data"
     shutil.copytree(built_models, data_dir / "cache" / "models")  # a copy: this test deletes from it
-    with running_service(data_dir, workers=1) as service, service.client(WRITE_KEY) as client:
+    env = profile.new_env()
+    with running_service(data_dir, workers=1, **env) as service, service.client(WRITE_KEY) as client:
         wait_for(lambda: client.get("/readyz").status_code == 200, timeout=60, what="the worker to start")
         next((data_dir / "cache" / "models").glob("*.onnx")).unlink()
         files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
@@ -79,7 +85,7 @@ def test_a_model_gone_at_run_time_fails_the_job_at_once(tmp_path: Path, built_mo
             f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=1))}, data=INSIDE_ONE_BUILDING
         ).json()
         job = wait_for(
-            lambda: (row := get_job_row(service.db_path, accepted["job_id"]))["status"] in ("failed", "done") and row,
+            lambda: (row := get_job_row(service.database, accepted["job_id"]))["status"] in ("failed", "done") and row,
             timeout=120,
             what="the labelling job to end",
         )

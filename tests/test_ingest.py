@@ -26,6 +26,7 @@ from cli.ingest import IngestAbortError, ingest_folder
 from geoloc.config import shared_path
 from geoloc.exif import write_jpeg
 
+from .conftest import Profile
 from .service_fixtures import (
     READ_KEY,
     REPO_ROOT,
@@ -42,8 +43,8 @@ INSIDE_HELSINKI = [(60.1716, 24.9443), (60.1700, 24.9450), (60.1690, 24.9420)]
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningProcess]:
-    with running_service(tmp_path_factory.mktemp("ingest") / "data", workers=0) as running:
+def service(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Iterator[RunningProcess]:
+    with running_service(tmp_path_factory.mktemp("ingest") / "data", workers=0, **profile.new_env()) as running:
         yield running
 
 
@@ -76,7 +77,7 @@ def test_lund_photos_are_all_rejected_as_outside_the_map(
     service: RunningProcess, helsinki_id: int, tmp_path: Path
 ) -> None:
     lund = shared_path("data", "lund", "images")
-    before = table_counts(service.db_path)
+    before = table_counts(service.database)
     out = tmp_path / "lund.json"
     result = run_ingest(service, str(lund), "--map", str(helsinki_id), "--json", str(out))
     assert result.returncode == 0, result.stdout + result.stderr  # rejections are not failures
@@ -92,7 +93,7 @@ def test_lund_photos_are_all_rejected_as_outside_the_map(
         assert 800_000 < f["details"]["distance_m"] < 840_000  # Lund is ~818 km from central Helsinki
     assert "rejected by the service" in result.stdout and "422 outside_map" in result.stdout
     assert "29 photo(s) were rejected" in result.stdout and "exit code 0" in result.stdout
-    assert table_counts(service.db_path) == before, "nothing stored"
+    assert table_counts(service.database) == before, "nothing stored"
 
 
 def _png(size: int = 120) -> bytes:
@@ -119,7 +120,7 @@ def test_mixed_folder_then_a_second_run_creates_nothing(
     (folder / "notes.txt").write_text("not a photo")
     (folder / "fake.jpg").write_bytes(b"a text file named like a photo")
     (folder / "empty.jpg").write_bytes(b"")
-    refs_before = len(read_rows(service.db_path, "SELECT id FROM reference_images WHERE map_id = ?", (helsinki_id,)))
+    refs_before = len(read_rows(service.database, "SELECT id FROM reference_images WHERE map_id = ?", (helsinki_id,)))
 
     first = run_ingest(service, str(folder), "--map", str(helsinki_id), "--json", str(tmp_path / "1.json"))
     assert first.returncode == 0, first.stdout + first.stderr
@@ -138,10 +139,10 @@ def test_mixed_folder_then_a_second_run_creates_nothing(
     assert by_path["no-gps.png"]["error_code"] == "no_position" and "422" in by_path["no-gps.png"]["reason"]
     assert "not a photo" in by_path["fake.jpg"]["reason"] and by_path["empty.jpg"]["reason"] == "empty file"
     assert all(by_path[p]["reference_id"] and by_path[p]["job_id"] for p in ("a.jpg", "b.jpg"))
-    refs = read_rows(service.db_path, "SELECT id, sha256 FROM reference_images WHERE map_id = ?", (helsinki_id,))
+    refs = read_rows(service.database, "SELECT id, sha256 FROM reference_images WHERE map_id = ?", (helsinki_id,))
     assert len(refs) == refs_before + 2
     assert {by_path["a.jpg"]["sha256"], by_path["b.jpg"]["sha256"]} <= {r["sha256"] for r in refs}
-    counts = table_counts(service.db_path)
+    counts = table_counts(service.database)
 
     second = run_ingest(service, str(folder), "--map", str(helsinki_id), "--json", str(tmp_path / "2.json"))
     assert second.returncode == 0, second.stdout + second.stderr
@@ -152,7 +153,7 @@ def test_mixed_folder_then_a_second_run_creates_nothing(
         "b.jpg": by_path["b.jpg"]["reference_id"],
     }
     assert "already present" in second.stdout
-    assert table_counts(service.db_path) == counts, "the second run created no rows"
+    assert table_counts(service.database) == counts, "the second run created no rows"
 
     third = run_ingest(
         service, str(folder), "--map", str(helsinki_id), "--recursive", "--json", str(tmp_path / "3.json")
@@ -164,7 +165,7 @@ def test_mixed_folder_then_a_second_run_creates_nothing(
 
 def test_cannot_start_exits_2_with_the_reason(service: RunningProcess, helsinki_id: int, tmp_path: Path) -> None:
     _photo(tmp_path / "x.jpg", INSIDE_HELSINKI[0], seed=6)
-    counts = table_counts(service.db_path)
+    counts = table_counts(service.database)
     unknown_map = run_ingest(service, str(tmp_path), "--map", "424242")
     assert unknown_map.returncode == 2 and "map 424242 not found" in unknown_map.stderr
     bad_key = run_ingest(service, str(tmp_path), "--map", str(helsinki_id), api_key="not-a-key")
@@ -172,7 +173,7 @@ def test_cannot_start_exits_2_with_the_reason(service: RunningProcess, helsinki_
     read_only = run_ingest(service, str(tmp_path), "--map", str(helsinki_id), api_key=READ_KEY)
     assert read_only.returncode == 1, read_only.stderr  # a key without the write scope is a failure, not a rejection
     assert "403 forbidden" in read_only.stdout and "failed after retries" in read_only.stdout
-    assert table_counts(service.db_path) == counts
+    assert table_counts(service.database) == counts
     nobody = subprocess.run(
         [*geoloc_command(), "ingest", str(tmp_path), "--map", "1", "--url", f"http://127.0.0.1:{free_port()}"]
         + ["--retries", "1"],

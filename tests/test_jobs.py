@@ -1,6 +1,8 @@
-"""The worker pool against a real database file with real worker processes.
+"""The worker pool against a real database with real worker processes, in both profiles.
 
-Atomic claims, crash recovery after SIGKILL, retry limits, graceful shutdown.
+The built-in pool on SQLite; Celery workers on Redis and PostgreSQL, fed by the reconciler since these jobs
+are enqueued straight into the table. Atomic claims, crash recovery after SIGKILL, retry limits, graceful
+shutdown.
 """
 
 from __future__ import annotations
@@ -14,9 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from db import connect, migrate
+from db import Database, connect
 from db import jobs as job_store
 
+from .conftest import Profile
 from .model_fixtures import link_models
 from .service_fixtures import (
     REPO_ROOT,
@@ -30,29 +33,28 @@ from .service_fixtures import (
 pytestmark = pytest.mark.slow
 
 
-def new_database(data_dir: Path):
-    data_dir.mkdir(parents=True, exist_ok=True)
-    db = connect(data_dir / "geoloc.sqlite3")
-    migrate(db)
-    return db
+def new_database(profile: Profile, data_dir: Path) -> tuple[Database, dict[str, str]]:
+    """A fresh database of the profile (open) and the settings its workers need."""
+    target, env = profile.new_deployment(data_dir)
+    return connect(target), env
 
 
-def statuses(db_path: Path) -> dict[str, int]:
-    rows = read_rows(db_path, "SELECT status, COUNT(*) AS n FROM jobs GROUP BY status")
+def statuses(database: Path | str) -> dict[str, int]:
+    rows = read_rows(database, "SELECT status, COUNT(*) AS n FROM jobs GROUP BY status")
     return {row["status"]: row["n"] for row in rows}
 
 
-def test_two_competing_workers_never_run_a_job_twice(tmp_path: Path, built_models: Path) -> None:
+def test_two_competing_workers_never_run_a_job_twice(tmp_path: Path, built_models: Path, profile: Profile) -> None:
     data_dir = tmp_path / "data"
-    db = new_database(data_dir)
+    db, env = new_database(profile, data_dir)
     log = tmp_path / "runs.log"
     n_jobs = 60
     for token in range(n_jobs):
         job_store.enqueue_job(db, "test_record", {"token": token, "log": str(log), "seconds": 0.01})
     db.close()
-    with running_workers(data_dir, concurrency=2, models=built_models) as workers:
+    with running_workers(data_dir, concurrency=2, models=built_models, **env) as workers:
         wait_for(
-            lambda: statuses(workers.db_path).get("done", 0) == n_jobs,
+            lambda: statuses(workers.database).get("done", 0) == n_jobs,
             timeout=120,
             what=lambda: f"{n_jobs} jobs done\n{workers.log_tail()}",
         )
@@ -61,24 +63,24 @@ def test_two_competing_workers_never_run_a_job_twice(tmp_path: Path, built_model
     assert sorted(tokens) == list(range(n_jobs)), "every job ran exactly once"
     pids = {line.split()[1] for line in lines}
     assert len(pids) == 2, "both workers took jobs"
-    attempts = read_rows(data_dir / "geoloc.sqlite3", "SELECT DISTINCT attempts FROM jobs")
+    attempts = read_rows(workers.database, "SELECT DISTINCT attempts FROM jobs")
     assert [row["attempts"] for row in attempts] == [1]
 
 
-def test_sigkilled_worker_loses_nothing(tmp_path: Path, built_models: Path) -> None:
+def test_sigkilled_worker_loses_nothing(tmp_path: Path, built_models: Path, profile: Profile) -> None:
     data_dir = tmp_path / "data"
-    db = new_database(data_dir)
+    db, env = new_database(profile, data_dir)
     log = tmp_path / "sleep.log"
     job_id = job_store.enqueue_job(db, "test_sleep", {"seconds": 3, "log": str(log)}, max_attempts=3)
     db.close()
-    with running_workers(data_dir, concurrency=1, models=built_models, GEOLOC_JOB_LEASE_S="1.5") as workers:
+    with running_workers(data_dir, concurrency=1, models=built_models, GEOLOC_JOB_LEASE_S="1.5", **env) as workers:
         wait_for(lambda: log.exists() and "start" in log.read_text(), timeout=60, what="the job to start")
         victim = int(log.read_text().split()[1])
-        owner = get_job_row(workers.db_path, job_id)["lease_owner"]
+        owner = get_job_row(workers.database, job_id)["lease_owner"]
         assert owner.split(":")[1] == str(victim)
         os.kill(victim, signal.SIGKILL)
         job = wait_for(
-            lambda: (row := get_job_row(workers.db_path, job_id))["status"] == "done" and row,
+            lambda: (row := get_job_row(workers.database, job_id))["status"] == "done" and row,
             timeout=60,
             what=lambda: f"the job to complete after the crash\n{workers.log_tail()}",
         )
@@ -89,21 +91,21 @@ def test_sigkilled_worker_loses_nothing(tmp_path: Path, built_models: Path) -> N
     assert events[0].split()[1] == str(victim) and events[2].split()[1] != str(victim)
 
 
-def test_retries_stop_at_the_limit_and_keep_the_error(tmp_path: Path, built_models: Path) -> None:
+def test_retries_stop_at_the_limit_and_keep_the_error(tmp_path: Path, built_models: Path, profile: Profile) -> None:
     data_dir = tmp_path / "data"
-    db = new_database(data_dir)
+    db, env = new_database(profile, data_dir)
     failing = job_store.enqueue_job(db, "test_fail", {"reason": "disk on fire"}, max_attempts=3)
     unknown = job_store.enqueue_job(db, "no_such_kind", {}, max_attempts=3)
     db.close()
-    with running_workers(data_dir, concurrency=1, models=built_models) as workers:
+    with running_workers(data_dir, concurrency=1, models=built_models, **env) as workers:
         wait_for(
-            lambda: statuses(workers.db_path).get("failed", 0) == 2,
+            lambda: statuses(workers.database).get("failed", 0) == 2,
             timeout=60,
             what=lambda: f"failures\n{workers.log_tail()}",
         )
         time.sleep(0.5)  # nothing is retried past the limit
-        job = get_job_row(workers.db_path, failing)
-        other = get_job_row(workers.db_path, unknown)
+        job = get_job_row(workers.database, failing)
+        other = get_job_row(workers.database, unknown)
     assert job["status"] == "failed" and job["attempts"] == 3
     assert "RuntimeError: deliberate failure: disk on fire" in job["error"]
     assert "Traceback" in job["error"] and "fail_handler" in job["error"]
@@ -112,8 +114,13 @@ def test_retries_stop_at_the_limit_and_keep_the_error(tmp_path: Path, built_mode
 
 
 def test_sigterm_releases_a_long_job_back_to_the_queue(tmp_path: Path, built_models: Path) -> None:
+    """The built-in worker hands a job back after its grace period.
+
+    A Celery worker instead lets running jobs finish on SIGTERM; one killed after that comes back through its
+    lease, as in the SIGKILL test.
+    """
     data_dir = tmp_path / "data"
-    db = new_database(data_dir)
+    db, _ = new_database(Profile("embedded"), data_dir)
     log = tmp_path / "sleep.log"
     job_id = job_store.enqueue_job(db, "test_sleep", {"seconds": 60, "log": str(log)})
     db.close()

@@ -16,6 +16,7 @@ from typing import Any
 import httpx
 import pytest
 
+from .conftest import Profile
 from .service_fixtures import (
     INSIDE_ONE_BUILDING,
     ONE_BUILDING,
@@ -50,12 +51,11 @@ def _error(response: httpx.Response) -> dict[str, Any]:
 
 
 @pytest.fixture(scope="module")
-def queue_service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningProcess]:
+def queue_service(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Iterator[RunningProcess]:
     """No workers (jobs stay queued), a queue limit just above the waiting queries, a rate limit out of the way."""
     data_dir = tmp_path_factory.mktemp("limits") / "data"
-    with running_service(
-        data_dir, workers=0, GEOLOC_MAX_QUEUED_JOBS=str(QUEUE_LIMIT), GEOLOC_RATE_LIMIT_PER_MIN="100000"
-    ) as running:
+    limits = {"GEOLOC_MAX_QUEUED_JOBS": str(QUEUE_LIMIT), "GEOLOC_RATE_LIMIT_PER_MIN": "100000"}
+    with running_service(data_dir, workers=0, **limits, **profile.new_env()) as running:
         yield running
 
 
@@ -74,7 +74,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
     with ThreadPoolExecutor(WAITING_QUERIES) as pool, queue_service.client(READ_KEY) as reader:
         waiting = [pool.submit(ask, seed) for seed in range(WAITING_QUERIES)]
         wait_for(
-            lambda: read_rows(queue_service.db_path, "SELECT COUNT(*) AS n FROM jobs")[0]["n"] == WAITING_QUERIES,
+            lambda: read_rows(queue_service.database, "SELECT COUNT(*) AS n FROM jobs")[0]["n"] == WAITING_QUERIES,
             timeout=60,
             what="every query to be stored and waiting",
         )
@@ -93,7 +93,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
                 photo = {"image": ("r.jpg", jpeg_bytes(seed=100 + seed))}
                 accepted = writer.post(f"/v1/maps/{map_id}/references", files=photo, data=INSIDE_ONE_BUILDING)
                 assert accepted.status_code == 202, accepted.text
-            before_counts, before_files = table_counts(queue_service.db_path), stored_files(queue_service.data_dir)
+            before_counts, before_files = table_counts(queue_service.database), stored_files(queue_service.data_dir)
             refused = [
                 writer.post(
                     f"/v1/maps/{map_id}/references",
@@ -107,7 +107,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
                 assert _error(response)["code"] == "queue_full" and "nothing was stored" in _error(response)["message"]
                 assert 1 <= int(response.headers["Retry-After"]) <= 120
             assert reader.get(f"/v1/maps/{map_id}").status_code == 200, "reads are never refused for load"
-            assert table_counts(queue_service.db_path) == before_counts
+            assert table_counts(queue_service.database) == before_counts
             assert stored_files(queue_service.data_dir) == before_files
 
         answers = [future.result() for future in waiting]
@@ -123,7 +123,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
 
     # Room again (a queued job is cancelled with its reference): new work is accepted.
     with queue_service.client(WRITE_KEY) as writer:
-        reference_id = read_rows(queue_service.db_path, "SELECT id FROM reference_images LIMIT 1")[0]["id"]
+        reference_id = read_rows(queue_service.database, "SELECT id FROM reference_images LIMIT 1")[0]["id"]
         assert writer.delete(f"/v1/references/{reference_id}").status_code == 204
         again = writer.post(
             f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=200))}, data=INSIDE_ONE_BUILDING
@@ -163,8 +163,8 @@ def test_openapi_documents_the_running_configuration(queue_service: RunningProce
     assert "queue_full" in uploads["429"]["description"] and "rate_limited" not in uploads["429"]["description"]
 
 
-def test_a_key_past_its_rate_limit_gets_429_others_go_on(tmp_path: Path) -> None:
-    with running_service(tmp_path / "data", workers=0, GEOLOC_RATE_LIMIT_PER_MIN="5") as service:
+def test_a_key_past_its_rate_limit_gets_429_others_go_on(tmp_path: Path, profile: Profile) -> None:
+    with running_service(tmp_path / "data", workers=0, GEOLOC_RATE_LIMIT_PER_MIN="5", **profile.new_env()) as service:
         with service.client(WRITE_KEY) as writer, service.client(READ_KEY) as reader:
             assert [writer.get("/v1/maps").status_code for _ in range(5)] == [200] * 5
             limited = writer.get("/v1/maps")
@@ -175,3 +175,19 @@ def test_a_key_past_its_rate_limit_gets_429_others_go_on(tmp_path: Path) -> None
             assert writer.get("/healthz").status_code == 200, "health checks are not limited"
         with service.client(None) as anonymous:
             assert anonymous.get("/v1/maps").status_code == 401, "no key is 401, not a rate-limit answer"
+
+
+def test_two_api_processes_share_a_keys_rate_limit(tmp_path: Path, postgres_server: Any, redis_server: Any) -> None:
+    """Distributed profile: the buckets live in Redis, so a key's limit holds across API processes."""
+    env = Profile("distributed", postgres_server, redis_server).new_env()
+    data_dir = tmp_path / "data"
+    with (
+        running_service(data_dir, workers=0, GEOLOC_RATE_LIMIT_PER_MIN="6", **env) as first,
+        running_service(data_dir, workers=0, GEOLOC_RATE_LIMIT_PER_MIN="6", **env) as second,
+        first.client(WRITE_KEY) as one,
+        second.client(WRITE_KEY) as other,
+    ):
+        assert [c.get("/v1/maps").status_code for c in (one, other, one, other, one, other)] == [200] * 6
+        assert one.get("/v1/maps").status_code == 429 and other.get("/v1/maps").status_code == 429
+        with first.client(READ_KEY) as reader:
+            assert reader.get("/v1/maps").status_code == 200, "the limit is per key"

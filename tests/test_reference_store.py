@@ -1,12 +1,16 @@
-"""The query stage sees the same references whether they come from the database or from memory."""
+"""The query stage sees the same references from the database (either engine) as from memory.
+
+SBoW retrieval ranks alike on SQLite and PostgreSQL.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+import pytest
 
-from db import connect, migrate, sbow, transaction
+from db import Database, connect, migrate, sbow, transaction
 from db import references as reference_store
 from geoloc.anchors import MapAnchors
 from geoloc.features import Features
@@ -14,6 +18,8 @@ from geoloc.query import InMemoryReferenceStore, StoredReference
 from geoloc.retrieval import Vocabulary
 from workers.reference_store import DatabaseReferenceStore
 
+from .conftest import Profile
+from .servers import PostgresServer
 from .test_db import add_map, add_reference
 
 
@@ -27,15 +33,17 @@ def _reference(rng: np.random.Generator, reference_id: int, n: int = 50) -> Stor
     return StoredReference(reference_id, features, identity, np.array([3, 4]), anchors, np.diag([4.0, 9.0]), position)
 
 
-def test_database_and_memory_stores_rank_and_load_alike(tmp_path: Path) -> None:
-    rng = np.random.default_rng(0)
-    db = connect(tmp_path / "geoloc.sqlite3")
-    migrate(db)
+def _store_references(db: Database, seed: int = 0, count: int = 25) -> tuple[int, Vocabulary, InMemoryReferenceStore]:
+    """Store and index ``count`` random references of a new map in ``db``; the same ones for the same seed.
+
+    Returns the map id, the vocabulary and the same references in memory.
+    """
+    rng = np.random.default_rng(seed)
     map_id = add_map(db)
     # A small vocabulary, so that references share words and ranks depend on counts and idf.
     vocabulary = Vocabulary(rng.random((40, 128)).astype(np.float32))
     memory = InMemoryReferenceStore(vocabulary)
-    for i in range(25):
+    for i in range(count):
         reference_id = add_reference(db, map_id, f"{i:064d}")
         ref = _reference(rng, reference_id, n=int(rng.integers(20, 80)))
         words = vocabulary.words(ref.features.descriptors)
@@ -54,6 +62,14 @@ def test_database_and_memory_stores_rank_and_load_alike(tmp_path: Path) -> None:
             )
             sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
         memory.add(ref)
+    return map_id, vocabulary, memory
+
+
+def test_database_and_memory_stores_rank_and_load_alike(tmp_path: Path, profile: Profile) -> None:
+    rng = np.random.default_rng(1)
+    target, _ = profile.new_deployment(tmp_path)
+    db = connect(target)
+    map_id, vocabulary, memory = _store_references(db)
     database = DatabaseReferenceStore(db, map_id)
     for _ in range(10):
         query_words = vocabulary.words(_reference(rng, 0, n=60).features.descriptors)
@@ -68,3 +84,24 @@ def test_database_and_memory_stores_rank_and_load_alike(tmp_path: Path) -> None:
     assert np.allclose(stored.anchors.xyz[kept.anchors.valid], kept.anchors.xyz[kept.anchors.valid], atol=1e-4)
     assert np.array_equal(stored.position_covariance, kept.position_covariance)
     assert np.array_equal(stored.position_xy, kept.position_xy)
+    db.close()
+
+
+def test_sbow_top_k_is_the_same_on_both_engines(tmp_path: Path, postgres_server: PostgresServer) -> None:
+    """The same references stored in SQLite and in PostgreSQL: every query gets the same top-k, same scores."""
+    embedded, distributed = connect(tmp_path / "geoloc.sqlite3"), connect(postgres_server.new_database())
+    migrate(embedded)
+    (map_a, vocabulary, _), (map_b, _, _) = (
+        _store_references(embedded, count=40),
+        _store_references(distributed, count=40),
+    )
+    rng = np.random.default_rng(7)
+    for k in (1, 4, 8, 20):
+        for _ in range(10):
+            words = vocabulary.words(_reference(rng, 0, n=int(rng.integers(10, 80))).features.descriptors)
+            top_a = DatabaseReferenceStore(embedded, map_a).shortlist(words, k)
+            top_b = DatabaseReferenceStore(distributed, map_b).shortlist(words, k)
+            assert top_a and [r for r, _ in top_a] == [r for r, _ in top_b]
+            assert [s for _, s in top_a] == pytest.approx([s for _, s in top_b], rel=1e-12)
+    embedded.close()
+    distributed.close()

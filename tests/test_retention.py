@@ -10,14 +10,14 @@ import time
 from pathlib import Path
 
 import pytest
-import sqlite_utils
 
-from db import connect, migrate, transaction
+from db import Database, connect, migrate, transaction
 from db import jobs as job_store
 from db import queries as query_store
 from db import references as reference_store
 from workers.retention import purge_expired_queries
 
+from .conftest import Profile
 from .service_fixtures import (
     INSIDE_ONE_BUILDING,
     ONE_BUILDING,
@@ -33,7 +33,7 @@ DAY_S = 86400.0
 
 
 def _query(
-    db: sqlite_utils.Database, data_dir: Path, map_id: int, photo: str, *, age_s: float, finished: bool
+    db: Database, data_dir: Path, map_id: int, photo: str, *, age_s: float, finished: bool
 ) -> int:
     (data_dir / photo).parent.mkdir(parents=True, exist_ok=True)
     (data_dir / photo).write_bytes(b"photo")
@@ -85,11 +85,13 @@ def test_purge_deletes_only_old_finished_queries_and_photos_no_one_uses(tmp_path
 
 
 @pytest.mark.slow
-def test_workers_apply_the_retention(tmp_path: Path, built_models: Path) -> None:
+def test_workers_apply_the_retention(tmp_path: Path, built_models: Path, profile: Profile) -> None:
     data_dir = tmp_path / "data"
-    with running_service(
-        data_dir, workers=1, models=built_models, GEOLOC_QUERY_RETENTION_S="3", GEOLOC_WORKER_PLUGINS=str(PLUGIN)
-    ) as service, service.client(WRITE_KEY) as client:
+    env = {"GEOLOC_QUERY_RETENTION_S": "3", "GEOLOC_WORKER_PLUGINS": str(PLUGIN), **profile.new_env()}
+    with (
+        running_service(data_dir, workers=1, models=built_models, **env) as service,
+        service.client(WRITE_KEY) as client,
+    ):
         files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
         map_id = client.post("/v1/maps", files=files, data={"name": "hall"}).json()["id"]
         reference = client.post(
@@ -101,7 +103,7 @@ def test_workers_apply_the_retention(tmp_path: Path, built_models: Path) -> None
             data={"top_n": "1", "use_exif_gps": "false", "wait_s": "30"},
         ).json()
         assert query["status"] == "done", query
-        photo = read_rows(service.db_path, "SELECT image_path FROM queries WHERE id = ?", (query["id"],))[0]
+        photo = read_rows(service.database, "SELECT image_path FROM queries WHERE id = ?", (query["id"],))[0]
         assert (data_dir / photo["image_path"]).is_file()
         wait_for(lambda: client.get(f"/v1/queries/{query['id']}").status_code == 404, timeout=30,
                  what="the query to expire")  # fmt: skip
@@ -109,5 +111,5 @@ def test_workers_apply_the_retention(tmp_path: Path, built_models: Path) -> None
         assert client.get(f"/v1/jobs/{query['job_id']}").status_code == 404
         kept = client.get(f"/v1/references/{reference['id']}")
         assert kept.status_code == 200, "references are never deleted implicitly"
-        image = read_rows(service.db_path, "SELECT image_path FROM reference_images WHERE id = ?", (reference["id"],))
+        image = read_rows(service.database, "SELECT image_path FROM reference_images WHERE id = ?", (reference["id"],))
         assert (data_dir / image[0]["image_path"]).is_file()

@@ -1,6 +1,6 @@
 """Job handlers by kind: the seam where the method plugs into the worker pool.
 
-A handler is ``handler(db, payload) -> dict``: ``db`` is a ``sqlite_utils.Database`` opened for
+A handler is ``handler(db, payload) -> dict``: ``db`` is a ``Database`` opened for
 this job (autocommit; wrap writes in ``db.connection.transaction``), ``payload`` is the job's JSON
 payload, and the returned dict (JSON-serialisable) becomes the job's ``result``. Raise any
 exception to fail the attempt (retried up to the job's ``max_attempts``, with the error and a
@@ -32,11 +32,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import sqlite_utils
-
+from db import Database
 from db import jobs as job_store
 
-JobHandler = Callable[[sqlite_utils.Database, dict[str, Any]], dict[str, Any]]
+JobHandler = Callable[[Database, dict[str, Any]], dict[str, Any]]
 
 HANDLERS: dict[str, JobHandler] = {}
 """Registered handlers by job kind."""

@@ -19,12 +19,12 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-import sqlite_utils
 
+from db import Database, sbow, transaction
 from db import maps as map_store
 from db import queries as query_store
 from db import references as reference_store
-from db import sbow, transaction
+from db.files import open_store
 from db.jobs import LOCALIZE_QUERY
 from geoloc.config import data_dir, get_settings
 from geoloc.localize import PositionPrior
@@ -62,14 +62,15 @@ def _city_map(source_path: str, sha256: str, read_options: str) -> CityMap:
     missing.
     """
     options = MapReadOptions.from_dict(json.loads(read_options))
-    return load_map_cached(data_dir() / source_path, map_cache_dir(data_dir()), options, sha256=sha256)
+    source = open_store(get_settings().file_store_dir).local_path(source_path)
+    return load_map_cached(source, map_cache_dir(data_dir()), options, sha256=sha256)
 
 
 MAX_REPORTED_RADIUS_M = 100_000.0
 """Uncertainty radii are capped here (an answer with no evidence at all has an infinite one)."""
 
 
-def city_map_for(db: sqlite_utils.Database, map_id: int) -> CityMap:
+def city_map_for(db: Database, map_id: int) -> CityMap:
     """The CityMap of map ``map_id`` (cached per process); a permanent job error if the map is gone."""
     row = map_store.get_map(db, map_id)
     if row is None:
@@ -78,14 +79,14 @@ def city_map_for(db: sqlite_utils.Database, map_id: int) -> CityMap:
 
 
 def _stored_photo(relative_path: str, focal_35mm: float | None) -> Photo:
-    """A stored photo (path relative to the data folder); an unreadable one fails the job for good."""
+    """A stored photo (its key in the file store); an unreadable one fails the job for good."""
     try:
-        return load_photo(data_dir() / relative_path, focal_35mm=focal_35mm)
+        return load_photo(open_store(get_settings().file_store_dir).local_path(relative_path), focal_35mm=focal_35mm)
     except (OSError, ValueError) as exc:
         raise PermanentJobError(f"cannot read the stored photo: {exc}") from exc
 
 
-def vocabulary_for(db: sqlite_utils.Database, map_id: int) -> Vocabulary:
+def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
     """The map's visual vocabulary: the default one, stored with the map the first time it is needed."""
     stored = sbow.load_vocabulary(db, map_id)
     if stored is not None:
@@ -100,7 +101,7 @@ def vocabulary_for(db: sqlite_utils.Database, map_id: int) -> Vocabulary:
 
 
 @register(LABEL_REFERENCE)
-def label_reference(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[str, Any]:
+def label_reference(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
     """Label a reference with the map, extract and index its features, store its pose and identities."""
     reference_id, map_id = int(payload["reference_id"]), int(payload["map_id"])
     ref = reference_store.get_reference(db, reference_id)
@@ -198,7 +199,7 @@ def _describe_buildings(
 
 
 @register(LOCALIZE_QUERY)
-def localize_query(db: sqlite_utils.Database, payload: dict[str, Any]) -> dict[str, Any]:
+def localize_query(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
     """Answer a query with the query stage (:func:`geoloc.query.geolocate`); store the JSON answer."""
     query_id, map_id = int(payload["query_id"]), int(payload["map_id"])
     query = query_store.get_query(db, query_id)

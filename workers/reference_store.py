@@ -25,10 +25,9 @@ from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import sqlite_utils
 
+from db import Database, sbow
 from db import references as reference_store
-from db import sbow
 from geoloc.anchors import MapAnchors
 from geoloc.features import Features
 from geoloc.query import StoredReference
@@ -59,8 +58,11 @@ _DECODED: OrderedDict[tuple[str, int], tuple[float, StoredReference]] = OrderedD
 _LOCK = threading.Lock()
 
 
-def _database_key(db: sqlite_utils.Database) -> str:
-    """The database file (several databases may live in one process, e.g. in tests)."""
+def _database_key(db: Database) -> str:
+    """Which database this is (several may live in one process, e.g. in tests): its file or server and name."""
+    if db.is_postgres:
+        info = db.conn.info
+        return f"postgresql://{info.host}:{info.port}/{info.dbname}"
     rows = db.execute("PRAGMA database_list").fetchall()
     return str(next((row[2] for row in rows if row[1] == "main"), ""))
 
@@ -68,7 +70,7 @@ def _database_key(db: sqlite_utils.Database) -> str:
 class DatabaseReferenceStore:
     """Labelled references of one map, read from the database."""
 
-    def __init__(self, db: sqlite_utils.Database, map_id: int) -> None:
+    def __init__(self, db: Database, map_id: int) -> None:
         self.db = db
         self.map_id = map_id
         self._database = _database_key(db)

@@ -9,15 +9,13 @@ are kept whatever their age. References (photos, labels, index) are never delete
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import time
 from pathlib import Path
 
-import sqlite_utils
-
+from db import Database, transaction
 from db import queries as query_store
-from db import transaction
+from db.files import FileStore, open_store
 
 log = logging.getLogger("geoloc.worker")
 
@@ -32,13 +30,15 @@ def purge_interval_s(retention_s: float) -> float:
 
 
 def purge_expired_queries(
-    db: sqlite_utils.Database, data_dir: Path, retention_s: float, *, now: float | None = None
+    db: Database, store: FileStore | Path, retention_s: float, *, now: float | None = None
 ) -> int:
-    """Delete finished queries with their jobs and photos; returns how many queries were deleted.
+    """Delete finished queries older than the retention with their jobs and photos; returns how many.
 
-    Deletes those created more than ``retention_s`` seconds before ``now`` (Unix s, default the
-    current time).
+    A query goes when it was created more than ``retention_s`` seconds before ``now`` (Unix s, default the
+    current time); its photo is removed from ``store`` (or the store folder at that path) once no query uses it.
     """
+    if isinstance(store, Path):
+        store = open_store(store)
     cutoff = (time.time() if now is None else now) - retention_s
     deleted = 0
     while True:
@@ -46,10 +46,8 @@ def purge_expired_queries(
             paths = query_store.delete_expired_queries(db, cutoff, limit=BATCH)
         deleted += len(paths)
         if paths:
-            with transaction(db):  # holds the write lock: no upload can re-place a photo between check and removal
-                for relative in query_store.unreferenced_images(db, paths):
-                    with contextlib.suppress(OSError):
-                        (data_dir / relative).unlink(missing_ok=True)
+            with transaction(db):  # under the query-photo lock: no upload re-places a photo between check and removal
+                store.delete(*query_store.unreferenced_images(db, paths))
         if len(paths) < BATCH:
             break
     if deleted:

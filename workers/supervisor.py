@@ -1,6 +1,7 @@
 """Start child processes (workers, the API), restart the ones that die, stop them all on a signal.
 
-Used by ``geoloc serve`` (API + N workers) and ``geoloc worker --concurrency N``. Children run in
+Used by ``geoloc serve`` (API + N workers) and ``geoloc worker --concurrency N``; in the distributed
+profile the workers are one Celery worker with N processes (:func:`celery_worker_spec`). Children run in
 their own session (Ctrl-C reaches only the supervisor, which then sends them SIGTERM, waits for
 their grace period, and SIGKILLs stragglers); they get ``GEOLOC_SUPERVISOR_PID`` and stop by
 themselves if the supervisor disappears.
@@ -47,6 +48,14 @@ class _Child:
 def worker_spec(index: int, log_level: str = "info") -> ChildSpec:
     """The command line of worker number ``index``."""
     return ChildSpec(f"worker-{index}", [sys.executable, "-m", "workers", "--log-level", log_level])
+
+
+def celery_worker_spec(concurrency: int, log_level: str = "info") -> ChildSpec:
+    """The command line of a Celery worker (distributed profile) with ``concurrency`` processes."""
+    return ChildSpec(
+        "celery-worker",
+        [sys.executable, "-m", "workers.celery_worker", "--concurrency", str(concurrency), "--log-level", log_level],
+    )
 
 
 def api_spec(host: str, port: int, log_level: str = "info") -> ChildSpec:
@@ -124,7 +133,8 @@ class Supervisor:
             try:
                 process.wait(timeout=max(deadline - time.monotonic(), 0.1))
             except subprocess.TimeoutExpired:
-                log.warning("pid %d did not stop in time; killing it", process.pid)
-                process.kill()
+                log.warning("pid %d did not stop in time; killing it and its children", process.pid)
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(process.pid, signal.SIGKILL)  # its own session: a Celery worker's pool goes too
                 process.wait()
         log.info("all children stopped")

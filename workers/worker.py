@@ -27,6 +27,7 @@ from typing import Any
 
 from db import connect, migrate
 from db import jobs as job_store
+from db.files import open_store
 from geoloc.config import Settings
 from workers.handlers import HANDLERS, JobHandler, PermanentJobError, is_permanent
 from workers.retention import purge_expired_queries, purge_interval_s
@@ -57,14 +58,18 @@ class _Outcome:
 
 
 class Worker:
-    """Runs jobs from the database at ``settings.database_path`` until :meth:`stop`."""
+    """Runs jobs from the database of ``settings`` (``settings.database``) until :meth:`stop`.
+
+    The embedded profile's pool runs :meth:`run` (claim from the table, in a loop); the distributed
+    profile's Celery task calls :meth:`run_job` for each job it claimed by id.
+    """
 
     def __init__(self, settings: Settings, handlers: dict[str, JobHandler] | None = None) -> None:
         self.settings = settings
         self.handlers = HANDLERS if handlers is None else handlers
         self.worker_id = new_worker_id()
         self.stop_event = threading.Event()
-        self.db_path: Path = settings.database_path
+        self.database: Path | str = settings.database
         self.parent_pid: int | None = None
 
     def stop(self, *_: object) -> None:
@@ -81,7 +86,7 @@ class Worker:
 
     def run(self, *, max_jobs: int | None = None) -> int:
         """The main loop; returns the number of jobs run."""
-        db = connect(self.db_path)
+        db = connect(self.database)
         migrate(db)
         job_store.register_worker(db, self.worker_id, os.getpid(), socket.gethostname())
         log.info("worker %s started (handlers: %s)", self.worker_id, ", ".join(sorted(self.handlers)) or "none")
@@ -99,7 +104,7 @@ class Worker:
                     job_store.heartbeat_worker(db, self.worker_id, None)
                     last_beat = now
                 if self.settings.query_retention_s > 0 and now >= next_purge:
-                    self._apply_retention(db)
+                    self.apply_retention(db)
                     next_purge = now + purge_interval_s(self.settings.query_retention_s)
                 job = job_store.claim_job(db, self.worker_id, self.settings.job_lease_s)
                 if job is None:
@@ -107,7 +112,7 @@ class Worker:
                     sleep_s = min(sleep_s * 2, self.settings.worker_poll_max_s)
                     continue
                 sleep_s = MIN_POLL_S
-                finished = self._run_job(db, job)
+                finished = self.run_job(db, job)
                 jobs_run += 1
                 if not finished:  # released on shutdown with the handler still running
                     job_store.stop_worker(db, self.worker_id)
@@ -121,10 +126,10 @@ class Worker:
             log.info("worker %s stopped after %d jobs", self.worker_id, jobs_run)
         return jobs_run
 
-    def _apply_retention(self, db: Any) -> None:
+    def apply_retention(self, db: Any) -> None:
         """Delete expired queries; a failure (a busy or full disk) is logged and tried again next time."""
         try:
-            purge_expired_queries(db, self.settings.data_dir, self.settings.query_retention_s)
+            purge_expired_queries(db, open_store(self.settings.file_store_dir), self.settings.query_retention_s)
         except Exception:
             log.exception("retention: deleting expired queries failed; will try again")
 
@@ -135,7 +140,7 @@ class Worker:
                 f"no handler registered for job kind {job['kind']!r} (known: {sorted(self.handlers)})"
             )
             return
-        db = connect(self.db_path)
+        db = connect(self.database)
         try:
             result = handler(db, job["payload"])
             outcome.result = result if isinstance(result, dict) else {"value": result}
@@ -144,7 +149,7 @@ class Worker:
         finally:
             db.close()
 
-    def _run_job(self, db: Any, job: dict[str, Any]) -> bool:
+    def run_job(self, db: Any, job: dict[str, Any]) -> bool:
         """Run one claimed job to its outcome; False if it was released with the handler still running."""
         job_id, lease_s = int(job["id"]), self.settings.job_lease_s
         log.info("job %d (%s) attempt %d/%d", job_id, job["kind"], job["attempts"], job["max_attempts"])

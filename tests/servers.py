@@ -1,0 +1,188 @@
+"""Real PostgreSQL and Redis servers for the distributed profile's tests, started on loopback in temp folders.
+
+``PostgresServer`` runs a private cluster (``initdb`` + ``pg_ctl``, Debian's ``postgresql`` package) owned
+by the ``postgres`` system user when the tests run as root (``initdb`` refuses root), with ``fsync`` off
+(a test cluster: durability across a machine crash is not what is tested); every test service gets its
+own database, copied from a migrated template. ``RedisServer`` runs ``redis-server`` without persistence;
+every test service gets its own logical database number. Both stop when the test session ends.
+
+Neither is mocked: the tests talk to the real servers over TCP. Where a binary is missing the fixtures
+fail with the package to install (``.ci/run`` installs them).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import glob
+import itertools
+import os
+import pwd
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+POSTGRES_USER = "postgres"
+"""System user that owns the test cluster when the tests run as root."""
+REDIS_DATABASES = 4096
+"""Logical databases of the test Redis (one per test service)."""
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _wait_port(port: int, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=0.5):
+            return
+        time.sleep(0.05)
+    raise TimeoutError(f"{what} did not listen on 127.0.0.1:{port} within {timeout_s:.0f} s")
+
+
+def postgres_bin(name: str) -> str:
+    """Path of a PostgreSQL server program (``initdb``, ``pg_ctl``): on PATH or under /usr/lib/postgresql."""
+    found = shutil.which(name) or next(iter(sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"), reverse=True)), None)
+    if found is None:
+        raise RuntimeError(f"{name} not found: install Debian's `postgresql` package (.ci/run does)")
+    return found
+
+
+class PostgresServer:
+    """A private PostgreSQL cluster on 127.0.0.1 (a free port), in a temp folder."""
+
+    def __init__(self) -> None:
+        self.root = Path(tempfile.mkdtemp(prefix="geoloc-pg-"))
+        self.port = _free_port()
+        self.data = self.root / "data"
+        self.log = self.root / "server.log"
+        self._as_user: list[str] = []
+        if os.geteuid() == 0:
+            user = pwd.getpwnam(POSTGRES_USER)
+            os.chown(self.root, user.pw_uid, user.pw_gid)
+            self._as_user = ["runuser", "-u", POSTGRES_USER, "--"]
+        self._names = itertools.count(1)
+        self.template = "geoloc_template"
+
+    def _run(self, *argv: str) -> None:
+        subprocess.run([*self._as_user, *argv], check=True, capture_output=True, timeout=120)
+
+    def start(self) -> PostgresServer:
+        """initdb, start, and create the migrated template database."""
+        self._run(postgres_bin("initdb"), "-D", str(self.data), "-U", "geoloc", "--auth=trust", "-E", "UTF8")
+        options = (
+            f"-p {self.port} -c listen_addresses=127.0.0.1 -k {self.root} -c fsync=off -c synchronous_commit=off"
+            " -c full_page_writes=off -c max_connections=300 -c shared_buffers=64MB"
+        )
+        self._run(postgres_bin("pg_ctl"), "-D", str(self.data), "-l", str(self.log), "-o", options, "-w", "start")
+        _wait_port(self.port, 30, "PostgreSQL")
+        self._admin(f"CREATE DATABASE {self.template}")
+        from db import connect, migrate
+
+        db = connect(self.url(self.template))
+        try:
+            migrate(db)
+        finally:
+            db.close()
+        self._drop_pool(self.template)
+        return self
+
+    def url(self, database: str) -> str:
+        """``postgresql://`` URL of one database of this cluster."""
+        return f"postgresql://geoloc@127.0.0.1:{self.port}/{database}"
+
+    def _admin(self, sql: str) -> None:
+        import psycopg
+
+        with psycopg.connect(self.url("postgres"), autocommit=True) as conn:
+            conn.execute(sql)
+
+    def _drop_pool(self, database: str) -> None:
+        """Close this process's pooled connections to ``database`` (a template must have none)."""
+        from db import connection
+
+        pool = connection._pools.pop(self.url(database), None)
+        if pool is not None:
+            for conn in pool.idle:
+                conn.close()
+
+    def new_database(self) -> str:
+        """A fresh, migrated database; returns its URL."""
+        name = f"geoloc_{os.getpid()}_{next(self._names)}"
+        self._admin(f"CREATE DATABASE {name} TEMPLATE {self.template}")
+        return self.url(name)
+
+    def new_empty_database(self) -> str:
+        """A fresh database with no tables (for migration tests); returns its URL."""
+        name = f"geoloc_{os.getpid()}_{next(self._names)}"
+        self._admin(f"CREATE DATABASE {name} TEMPLATE template0")
+        return self.url(name)
+
+    def stop(self) -> None:
+        """Stop the cluster (fast shutdown) and remove its folder."""
+        with contextlib.suppress(Exception):
+            self._run(postgres_bin("pg_ctl"), "-D", str(self.data), "-m", "immediate", "-w", "stop")
+        shutil.rmtree(self.root, ignore_errors=True)
+
+
+class RedisServer:
+    """``redis-server`` on 127.0.0.1 (a free port), no persistence; :meth:`restart` loses every message."""
+
+    def __init__(self) -> None:
+        binary = shutil.which("redis-server")
+        if binary is None:
+            raise RuntimeError("redis-server not found: install Debian's `redis-server` package (.ci/run does)")
+        self.binary = binary
+        self.root = Path(tempfile.mkdtemp(prefix="geoloc-redis-"))
+        self.port = _free_port()
+        self.process: subprocess.Popen[bytes] | None = None
+        self._numbers = itertools.count(1)
+
+    def start(self) -> RedisServer:
+        """Start the server and wait until it listens."""
+        log = (self.root / "server.log").open("ab")
+        self.process = subprocess.Popen(
+            [
+                self.binary,
+                "--port", str(self.port),
+                "--bind", "127.0.0.1",
+                "--save", "",
+                "--appendonly", "no",
+                "--databases", str(REDIS_DATABASES),
+                "--dir", str(self.root),
+            ],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )  # fmt: skip
+        log.close()
+        _wait_port(self.port, 30, "redis-server")
+        return self
+
+    def new_url(self) -> str:
+        """A ``redis://`` URL of a logical database no other test service uses."""
+        return f"redis://127.0.0.1:{self.port}/{next(self._numbers) % REDIS_DATABASES}"
+
+    def stop(self) -> None:
+        """Stop the server (SIGKILL: nothing is persisted anyway)."""
+        if self.process is not None and self.process.poll() is None:
+            self.process.send_signal(signal.SIGKILL)
+            self.process.wait()
+        self.process = None
+
+    def restart(self, down_s: float = 0.0) -> None:
+        """Kill the server, stay down ``down_s`` seconds, start it again empty on the same port."""
+        self.stop()
+        time.sleep(down_s)
+        self.start()
+
+    def close(self) -> None:
+        """Stop the server and remove its folder."""
+        self.stop()
+        shutil.rmtree(self.root, ignore_errors=True)
