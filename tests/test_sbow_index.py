@@ -6,9 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import sqlite_utils
 
-from db import connect, migrate, sbow, transaction
+from db import Database, connect, migrate, sbow, transaction
 from db import maps as map_store
 from db import references as reference_store
 from geoloc.retrieval import bag, tfidf_scores
@@ -109,7 +108,7 @@ def test_ties_go_to_the_lower_id() -> None:
         index.remove(99)
 
 
-def _add_map(db: sqlite_utils.Database) -> int:
+def _add_map(db: Database) -> int:
     content = map_store.MapContent(
         bbox_wgs84=(60.169, 24.939, 60.172, 24.942),
         origin_lat=60.1705,
@@ -131,7 +130,7 @@ def _add_map(db: sqlite_utils.Database) -> int:
         )
 
 
-def _add_indexed_reference(db: sqlite_utils.Database, map_id: int, number: int, words: np.ndarray) -> int:
+def _add_indexed_reference(db: Database, map_id: int, number: int, words: np.ndarray) -> int:
     with transaction(db):
         reference_id = reference_store.insert_reference(
             db,
@@ -151,7 +150,7 @@ def _add_indexed_reference(db: sqlite_utils.Database, map_id: int, number: int, 
     return reference_id
 
 
-def _sql_ranking(db: sqlite_utils.Database, map_id: int, query: np.ndarray, n: int) -> list[tuple[int, float]]:
+def _sql_ranking(db: Database, map_id: int, query: np.ndarray, n: int) -> list[tuple[int, float]]:
     """The ranking the service computed before the in-memory index: every postings row of the query's words."""
     p = sbow.postings_for_words(db, map_id, query)
     scores = tfidf_scores(query, p.word, p.doc, p.count, p.doc_lengths, p.n_docs)
