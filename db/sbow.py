@@ -45,6 +45,12 @@ def save_vocabulary(db: Database, map_id: int, arrays: dict[str, np.ndarray]) ->
     )
 
 
+def vocabulary_stamp(db: Database, map_id: int) -> float | None:
+    """When a map's vocabulary was stored (a replaced one gets a new time), or None."""
+    row = db.execute("SELECT created_at FROM vocabularies WHERE map_id = ?", (map_id,)).fetchone()
+    return float(row[0]) if row else None
+
+
 def load_vocabulary(db: Database, map_id: int) -> dict[str, np.ndarray] | None:
     """A map's vocabulary arrays, or None."""
     row = db.execute("SELECT arrays_npz FROM vocabularies WHERE map_id = ?", (map_id,)).fetchone()

@@ -120,6 +120,7 @@ def _cached_runtime(onnx_path: str, head_path: str, config_name: str, threads: i
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # as the segmentation network
     session: ort.InferenceSession = ort.InferenceSession(onnx_path, options, providers=["CPUExecutionProvider"])
     with np.load(head_path, allow_pickle=False) as data:
         head = SddhWeights.from_state({k: data[k] for k in data.files})

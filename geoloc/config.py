@@ -142,7 +142,12 @@ class Settings(BaseSettings):
     job_retry_delay_s: float = Field(
         default=5.0, ge=0, description="delay before a retry, doubled per attempt (≤ 300 s)"
     )
-    worker_poll_max_s: float = Field(default=2.0, ge=0.05, description="longest idle sleep between polls")
+    worker_poll_max_s: float = Field(
+        default=0.05,
+        ge=0.02,
+        description="longest idle sleep between polls of the job table (a cheap indexed read): at most this is "
+        "added to a job's start",
+    )
     worker_grace_s: float = Field(
         default=20.0, ge=0, description="on SIGTERM, how long a worker lets its job run before handing it back"
     )
@@ -180,13 +185,21 @@ class Settings(BaseSettings):
     seg_threads: int | None = Field(
         default=None,
         ge=1,
-        description="onnxruntime threads for segmentation and ALIKED",
-        json_schema_extra=_shown("`GEOLOC_WORKER_THREADS`"),
+        description="onnxruntime threads for segmentation and ALIKED (threads wait without spinning)",
+        json_schema_extra=_shown("`GEOLOC_JOB_THREADS`"),
+    )
+    job_threads: int = Field(
+        default=2,
+        ge=1,
+        description="threads one job (a query, a label) uses for its independent parts: the features beside the "
+        "facades, each shortlisted reference's matching and RANSAC, each PnP proposal (`geoloc/parallel.py`); "
+        "answers do not depend on it",
     )
     worker_threads: int = Field(
         default=1,
         ge=1,
-        description="threads of numpy's BLAS and OpenCV in each worker process (the processes are the parallelism)",
+        description="threads of numpy's BLAS and OpenCV calls in each worker process (the processes and job "
+        "threads are the parallelism)",
     )
     log_level: str = Field(default="INFO", description="log level of the workers")
 
@@ -365,14 +378,14 @@ def shared_path(*parts: str) -> Path:
 
 
 def default_threads() -> int:
-    """Threads for the segmentation network: ``GEOLOC_SEG_THREADS``, else ``GEOLOC_WORKER_THREADS`` (default 1).
+    """Threads for the networks: ``GEOLOC_SEG_THREADS``, else ``GEOLOC_JOB_THREADS`` (default 2).
 
-    One per worker process: the pool's processes are the parallelism (measured on the shared 2-core box, load
-    average 5: 355 ms per 768 x 384 image with one thread, 469 ms with two; ``benchmarks/bench_service.py``
-    compares them through the service).
+    Their threads do not spin while waiting (``geoloc/segmentation.py``), so a second thread costs little
+    CPU when the pool's processes already fill the cores and shortens a query when a core is free
+    (``benchmarks/bench_service.py`` compares thread counts through the service).
     """
     settings = get_settings()
-    return settings.seg_threads or settings.worker_threads
+    return settings.seg_threads or settings.job_threads
 
 
 def settings_table() -> str:

@@ -42,6 +42,7 @@ from geoloc.labeling import (
 )
 from geoloc.likelihood import DEFAULT_SIGMA_M
 from geoloc.osm import CityMap
+from geoloc.parallel import run_beside
 from geoloc.posterior import DEFAULT_SHARPNESS
 
 if TYPE_CHECKING:
@@ -136,6 +137,15 @@ def analyze_photo(photo: Photo, labels: np.ndarray | None = None) -> PhotoEviden
 
         labels = segment(photo.image_rgb)
         timings["segmentation"] = 1e3 * (time.perf_counter() - t0)
+    building_mask = labels == classes.BUILDING
+
+    def features_timed() -> Features:
+        t0 = time.perf_counter()
+        features = extract_features(photo.image_rgb, building_mask)
+        timings["features"] = 1e3 * (time.perf_counter() - t0)
+        return features
+
+    features_result = run_beside(features_timed)  # the features need only the mask: beside the facades
     t0 = time.perf_counter()
     analysis = analyze_image(photo.image_rgb, labels, photo.intrinsics)
     rotation = analysis.vanishing_points.rotation_upright_from_cam
@@ -143,9 +153,7 @@ def analyze_photo(photo: Photo, labels: np.ndarray | None = None) -> PhotoEviden
     tops = facade_top_elevations(labels, photo.intrinsics, rotation)
     model = _image_model(analysis, distances, tops, photo.intrinsics)
     timings["facades"] = 1e3 * (time.perf_counter() - t0)
-    t0 = time.perf_counter()
-    features = extract_features(photo.image_rgb, labels == classes.BUILDING)
-    timings["features"] = 1e3 * (time.perf_counter() - t0)
+    features = features_result()
     return PhotoEvidence(np.asarray(labels), analysis, distances, tops, model, features, timings)
 
 

@@ -35,7 +35,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from geoloc.absolute_pose import PoseEstimate, Proposal, estimate_pose_from_groups, group_proposal
+from geoloc.absolute_pose import PoseEstimate, estimate_pose_from_groups, group_proposal
 from geoloc.anchors import MapAnchors
 from geoloc.features import Features
 from geoloc.identity import IdentityMap
@@ -44,6 +44,7 @@ from geoloc.labeling import column_building_ids, identity_from_poses
 from geoloc.likelihood import known_building_heights, pose_likelihood
 from geoloc.localize import Localization, PositionPrior, localize
 from geoloc.osm import CityMap
+from geoloc.parallel import thread_map
 from geoloc.pipeline import Photo, PhotoEvidence, image_model_with_identity
 from geoloc.pose_refinement import refine_pose
 from geoloc.posterior import DEFAULT_SHARPNESS
@@ -369,34 +370,39 @@ def anchored_pose(
     variants = [False]
     if any(ref.alternative_anchors is not None for ref, _ in pairs_of):
         variants.append(True)
-    out = []
-    # A reference without alternative anchors brings the same group to both variants: its RANSAC runs once.
-    proposal_of: dict[tuple[int, bool], Proposal | None] = {}
+    # Each variant's groups, keyed (reference index, alternative anchors used): a reference without
+    # alternative anchors brings the same group to both variants, so its RANSAC runs once.
+    group_of: dict[tuple[int, bool], tuple[np.ndarray, np.ndarray]] = {}
+    variant_keys: list[list[tuple[int, bool]]] = []
     for use_alternative in variants:
-        groups: list[tuple[np.ndarray, np.ndarray]] = []
-        group_refs: list[Hashable] = []
-        proposals: list[Proposal | None] = []
+        keys = []
         for index, (ref, pairs) in enumerate(pairs_of):
             alternative_anchors = ref.alternative_anchors if use_alternative else None
             anchors = alternative_anchors if alternative_anchors is not None else ref.anchors
             valid = anchors.valid[pairs[:, 1]] if len(pairs) else np.zeros(0, bool)
             if valid.sum() < 4:
                 continue
-            groups.append((anchors.xyz[pairs[valid, 1]], query_features.xy[pairs[valid, 0]]))
-            group_refs.append(ref.reference_id)
             key = (index, alternative_anchors is not None)
-            if key not in proposal_of:
-                proposal_of[key] = group_proposal(*groups[-1], photo.intrinsics, threshold_px=config.pnp_threshold_px)
-            proposals.append(proposal_of[key])
+            group_of[key] = (anchors.xyz[pairs[valid, 1]], query_features.xy[pairs[valid, 0]])
+            keys.append(key)
+        variant_keys.append(keys)
+    proposals = thread_map(
+        lambda group: group_proposal(*group, photo.intrinsics, threshold_px=config.pnp_threshold_px),
+        group_of.values(),
+    )
+    proposal_of = dict(zip(group_of, proposals, strict=True))
+    out = []
+    for keys in variant_keys:
         estimate, owner = estimate_pose_from_groups(
-            groups,
+            [group_of[key] for key in keys],
             photo.intrinsics,
             threshold_px=config.pnp_threshold_px,
             min_inliers=config.pnp_min_inliers,
-            proposals=proposals,
+            proposals=[proposal_of[key] for key in keys],
         )
         if estimate is not None:
-            out.append((estimate, [group_refs[i] for i in np.unique(owner[estimate.inliers])]))
+            refs = [pairs_of[keys[i][0]][0].reference_id for i in np.unique(owner[estimate.inliers])]
+            out.append((estimate, refs))
     return out
 
 

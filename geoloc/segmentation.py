@@ -107,6 +107,9 @@ def _cached_session(path: str, threads: int) -> ort.InferenceSession:
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
+    # Idle threads sleep instead of spinning: with the pool's processes on every core, spinning threads
+    # burn the CPU another job needs.
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     return ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
 
 
@@ -118,7 +121,7 @@ def load_session(size: tuple[int, int] | None = None, threads: int | None = None
     size
         Network input (W, H); default ``geoloc.models.SEG_DEFAULT_SIZE``.
     threads
-        Intra-op threads; default ``$GEOLOC_SEG_THREADS`` or min(4, cpu count).
+        Intra-op threads; default :func:`geoloc.config.default_threads`.
 
     Raises
     ------

@@ -43,6 +43,7 @@ from scipy import ndimage
 
 from geoloc.features import Features
 from geoloc.identity import IdentityMap
+from geoloc.parallel import thread_map
 
 DEFAULT_RATIO = 0.8
 DEFAULT_MIN_INLIERS = 12
@@ -316,15 +317,16 @@ def rerank_by_inliers(
     Measured on a simulated Helsinki world (60 references, 30 queries): shortlist 20 -> top 8 by inliers
     puts the reference sharing most building area in the top 4 for 54 % of queries instead of 25 %.
     """
-    out = []
-    for ref_id, score, feats in candidates:
+
+    def match(candidate: tuple[Hashable, float, Features]) -> ReferenceMatch:
+        ref_id, score, feats = candidate
         neighbours = nearest_neighbours(query, feats)
         pairs, inliers, model = _verify_pairs(query, feats, ratio_matches(neighbours, ratio), threshold_px, min_inliers)
-        out.append(
-            ReferenceMatch(
-                ref_id, float(score), len(pairs), int(inliers.sum()), model, pairs[inliers], pairs, neighbours
-            )
+        return ReferenceMatch(
+            ref_id, float(score), len(pairs), int(inliers.sum()), model, pairs[inliers], pairs, neighbours
         )
+
+    out = thread_map(match, candidates)
     order = sorted(range(len(out)), key=lambda i: (-out[i].n_inliers, -out[i].score, i))
     return [out[i] for i in order[:k]]
 

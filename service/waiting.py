@@ -22,7 +22,7 @@ from db import jobs as job_store
 
 log = logging.getLogger("geoloc.api")
 
-POLL_S = 0.1
+POLL_S = 0.02
 """How often awaited jobs are looked up (at most this much is added to an answer's latency)."""
 ERROR_BACKOFF_S = 1.0
 """Pause after a failed lookup (database busy or unreachable) before the next."""

@@ -105,3 +105,34 @@ def test_sbow_top_k_is_the_same_on_both_engines(tmp_path: Path, postgres_server:
             assert [s for _, s in top_a] == pytest.approx([s for _, s in top_b], rel=1e-12)
     embedded.close()
     distributed.close()
+
+
+def test_positions_and_vocabulary_follow_the_database(tmp_path: Path) -> None:
+    # Both are kept decoded per process; a re-labelled reference or a replaced vocabulary is read again.
+    from workers.method_handlers import vocabulary_for
+
+    db = connect(tmp_path / "geoloc.sqlite3")
+    migrate(db)
+    map_id, vocabulary, memory = _store_references(db, count=5)
+    store = DatabaseReferenceStore(db, map_id)
+    ids = sorted(memory.references)
+    first = store.positions([*ids, 999_999])
+    assert list(first) == ids  # an unknown id is left out
+    assert all(np.array_equal(first[i], memory.references[i].position_xy) for i in ids)
+    moved = np.array([-12.5, 40.0])
+    arrays = reference_store.load_keypoints(db, ids[2])
+    assert arrays is not None
+    with transaction(db):
+        reference_store.save_keypoints(db, ids[2], {**arrays, "position_xy": moved})
+    second = store.positions(ids)
+    assert np.array_equal(second[ids[2]], moved)
+    assert np.array_equal(second[ids[0]], first[ids[0]])
+
+    with transaction(db):
+        sbow.save_vocabulary(db, map_id, {"centers": vocabulary.centroids})
+    assert vocabulary_for(db, map_id) is vocabulary_for(db, map_id)  # decoded once
+    replacement = vocabulary.centroids[::-1].copy()
+    with transaction(db):
+        sbow.save_vocabulary(db, map_id, {"centers": replacement})
+    assert np.array_equal(vocabulary_for(db, map_id).centroids, replacement)
+    db.close()

@@ -36,7 +36,7 @@ from geoloc.retrieval import Vocabulary, default_vocabulary, vocabulary_path
 from geoloc.segmentation import ModelNotBuiltError
 from workers.answers import checked_query_answer, checked_reference_labels
 from workers.handlers import LABEL_REFERENCE, PermanentJobError, register, treat_as_permanent
-from workers.reference_store import DatabaseReferenceStore
+from workers.reference_store import DatabaseReferenceStore, database_key
 
 treat_as_permanent(ModelNotBuiltError)  # a missing model stays missing until `geoloc models build` runs
 
@@ -86,11 +86,29 @@ def _stored_photo(relative_path: str, focal_35mm: float | None) -> Photo:
         raise PermanentJobError(f"cannot read the stored photo: {exc}") from exc
 
 
+CACHED_VOCABULARIES = 8
+"""Decoded vocabularies kept per process (2 MB each with 4,096 words)."""
+_VOCABULARIES: dict[tuple[str, int], tuple[float, Vocabulary]] = {}
+"""Decoded vocabularies by (database, map id), with the stored row's time they were read at."""
+
+
 def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
-    """The map's visual vocabulary: the default one, stored with the map the first time it is needed."""
+    """The map's visual vocabulary: the default one, stored with the map the first time it is needed.
+
+    Decoded once per process and kept while the stored row is unchanged.
+    """
+    key = (database_key(db), map_id)
+    stamp = sbow.vocabulary_stamp(db, map_id)
+    cached = _VOCABULARIES.get(key)
+    if stamp is not None and cached is not None and cached[0] == stamp:
+        return cached[1]
     stored = sbow.load_vocabulary(db, map_id)
-    if stored is not None:
-        return Vocabulary(stored["centers"])
+    if stamp is not None and stored is not None:
+        _VOCABULARIES.pop(key, None)
+        _VOCABULARIES[key] = (stamp, Vocabulary(stored["centers"]))
+        while len(_VOCABULARIES) > CACHED_VOCABULARIES:
+            del _VOCABULARIES[next(iter(_VOCABULARIES))]  # the one read longest ago
+        return _VOCABULARIES[key][1]
     if not vocabulary_path().exists():  # built by `geoloc models build`, never inside a job (minutes of work)
         raise PermanentJobError(f"SBoW vocabulary not found at {vocabulary_path()}; run `geoloc models build`")
     vocabulary = default_vocabulary(progress=False)

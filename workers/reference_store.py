@@ -13,7 +13,9 @@ one, and SQLite's single writer never does that, so there it costs one short rea
 
 Load: references come back with their stored features, keypoint identities and map anchors, decoded
 once per process and kept (:data:`DECODED_CACHE_SIZE` of them, least recently used out) while the
-stored keypoints row is unchanged (its ``created_at``); positions are read without the features.
+stored keypoints row is unchanged (its ``created_at``); positions are read without the features and kept
+the same way (:data:`POSITION_CACHE_SIZE`), so that filtering the shortlist by the query's prior reads only
+the keypoints rows' times.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ CACHED_MAP_INDEXES = 4
 """In-memory SBoW indexes kept per process (least recently used maps are dropped)."""
 DECODED_CACHE_SIZE = 64
 """Decoded references kept per process (~0.8 MB each with 1,500 keypoints)."""
+POSITION_CACHE_SIZE = 200_000
+"""Reference positions kept per process (~0.2 kB each)."""
 
 
 @dataclass
@@ -55,10 +59,11 @@ class _LiveIndex:
 
 _INDEXES: OrderedDict[tuple[str, int, float], _LiveIndex] = OrderedDict()
 _DECODED: OrderedDict[tuple[str, int], tuple[float, StoredReference]] = OrderedDict()
+_POSITIONS: OrderedDict[tuple[str, int], tuple[float, np.ndarray]] = OrderedDict()
 _LOCK = threading.Lock()
 
 
-def _database_key(db: Database) -> str:
+def database_key(db: Database) -> str:
     """Which database this is (several may live in one process, e.g. in tests): its file or server and name."""
     if db.is_postgres:
         info = db.conn.info
@@ -73,7 +78,7 @@ class DatabaseReferenceStore:
     def __init__(self, db: Database, map_id: int) -> None:
         self.db = db
         self.map_id = map_id
-        self._database = _database_key(db)
+        self._database = database_key(db)
 
     def shortlist(self, words: np.ndarray, n: int) -> list[tuple[Hashable, float]]:
         """The ``n`` best labelled references of the map for a query's visual words: [(id, score)]."""
@@ -161,15 +166,23 @@ class DatabaseReferenceStore:
     def positions(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, np.ndarray]:
         """The estimated positions of these references (NaN when labelled before positions were stored)."""
         ids = [int(r) for r in reference_ids]  # type: ignore[call-overload]
-        blobs = reference_store.keypoint_blobs(self.db, ids)
-        out: dict[Hashable, np.ndarray] = {}
-        for reference_id, original in zip(ids, reference_ids, strict=True):
-            if reference_id in blobs:
-                with np.load(io.BytesIO(blobs[reference_id]), allow_pickle=False) as npz:
-                    # Only this member is decompressed.
-                    position = npz["position_xy"] if "position_xy" in npz.files else None
-                out[original] = np.full(2, np.nan) if position is None else np.asarray(position, float)
-        return out
+        stamps = reference_store.keypoint_stamps(self.db, ids)
+        found: dict[int, np.ndarray] = {}
+        with _LOCK:
+            for reference_id, stamp in stamps.items():
+                cached = _POSITIONS.get((self._database, reference_id))
+                if cached is not None and cached[0] == stamp:
+                    found[reference_id] = cached[1]
+        missing = [reference_id for reference_id in stamps if reference_id not in found]
+        for reference_id, blob in reference_store.keypoint_blobs(self.db, missing).items():
+            with np.load(io.BytesIO(blob), allow_pickle=False) as npz:
+                position = npz["position_xy"] if "position_xy" in npz.files else None  # only this member is read
+            found[reference_id] = np.full(2, np.nan) if position is None else np.asarray(position, float)
+            with _LOCK:
+                _POSITIONS[(self._database, reference_id)] = (stamps[reference_id], found[reference_id])
+                while len(_POSITIONS) > POSITION_CACHE_SIZE:
+                    _POSITIONS.popitem(last=False)
+        return {original: found[i] for i, original in zip(ids, reference_ids, strict=True) if i in found}
 
 
 def stored_reference_from_arrays(reference_id: Hashable, arrays: dict[str, np.ndarray]) -> StoredReference:

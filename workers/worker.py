@@ -34,7 +34,7 @@ from workers.retention import purge_expired_queries, purge_interval_s
 
 log = logging.getLogger("geoloc.worker")
 
-MIN_POLL_S = 0.1
+MIN_POLL_S = 0.02
 MAX_RETRY_DELAY_S = 300.0
 TRACEBACK_LINES = 12
 
