@@ -33,9 +33,6 @@ import argparse
 import json
 import os
 import platform
-import shutil
-import signal
-import socket
 import sqlite3
 import statistics
 import subprocess
@@ -45,11 +42,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-import httpx
 import numpy as np
 import osmium
+from local_service import LocalService, status_mb
 
-from geoloc.config import REPO_ROOT, cache_dir, shared_path
+from geoloc.config import shared_path
 from geoloc.geo import frame_for_bbox
 
 TILE_GAP_M = 30.0
@@ -130,105 +127,13 @@ def load_in_fresh_process(path: Path, function: str = "load_map") -> dict[str, A
 # --- the service --------------------------------------------------------------------------------
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def _descendants(pid: int) -> list[int]:
-    parents: dict[int, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            parents.setdefault(ppid, []).append(int(entry.name))
-    out, todo = [], [pid]
-    while todo:
-        children = parents.get(todo.pop(), [])
-        out += children
-        todo += children
-    return out
-
-
-def _peak_rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024.0
-    return float("nan")
-
-
-class Service:
-    """``geoloc serve --workers 1`` on a fresh data folder."""
-
-    def __init__(self, data_dir: Path) -> None:
-        shutil.rmtree(data_dir, ignore_errors=True)  # a fresh service each run
-        data_dir.mkdir(parents=True)
-        models = cache_dir() / "models"
-        if not (models / "sbow_vocabulary_4096.npz").exists():
-            raise SystemExit(f"no built models in {models}: run `geoloc models build` first")
-        (data_dir / "cache").mkdir(exist_ok=True)
-        (data_dir / "cache" / "models").symlink_to(models, target_is_directory=True)
-        self.data_dir = data_dir
-        self.port = _free_port()
-        env = {
-            **os.environ,
-            "GEOLOC_DATA_DIR": str(data_dir),
-            "GEOLOC_WORKER_POLL_MAX_S": "0.05",  # an idle worker picks a query up at once: no polling noise
-        }
-        env.pop("GEOLOC_API_KEYS", None)
-        self.log = (data_dir.parent / "service.log").open("wb")
-        serve = f"serve --host 127.0.0.1 --port {self.port} --workers 1 --log-level warning".split()
-        self.process = subprocess.Popen(
-            [sys.executable, "-c", "from cli.main import app; app()", *serve],
-            cwd=REPO_ROOT,
-            env=env,
-            stdout=self.log,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-        self.client = httpx.Client(base_url=f"http://127.0.0.1:{self.port}", timeout=600.0)
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            try:
-                if self.client.get("/readyz").status_code == 200:
-                    return
-            except httpx.HTTPError:
-                pass
-            if self.process.poll() is not None:
-                raise SystemExit(f"geoloc serve exited; see {self.log.name}")
-            time.sleep(0.5)
-        raise SystemExit("the service did not become ready in 120 s")
-
-    def processes(self) -> dict[str, int]:
-        """{"api": pid, "worker": pid} among the supervisor's children."""
-        found = {}
-        for pid in _descendants(self.process.pid):
-            try:
-                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-            except OSError:
-                continue
-            if b"service" in cmdline:
-                found["api"] = pid
-            elif b"workers" in cmdline:
-                found["worker"] = pid
-        return found
-
-    def peak_rss_mb(self) -> dict[str, float]:
-        return {name: round(_peak_rss_mb(pid), 1) for name, pid in self.processes().items()}
-
-    def stop(self) -> None:
-        self.client.close()
-        if self.process.poll() is None:
-            os.killpg(self.process.pid, signal.SIGTERM)
-            try:
-                self.process.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.process.pid, signal.SIGKILL)
-                self.process.wait()
-        self.log.close()
+def peak_rss_mb(service: LocalService) -> dict[str, float]:
+    """Peak resident memory (MB) of the service's API and worker processes."""
+    return {
+        name: round(status_mb(pid, "VmHWM"), 1)
+        for name, role in (("api", b"service"), ("worker", b"workers"))
+        for pid in service.pids(role)[:1]
+    }
 
 
 def map_bytes(db_path: Path, map_id: int) -> int:
@@ -247,7 +152,7 @@ def db_file_bytes(db_path: Path) -> int:
     return sum(p.stat().st_size for p in db_path.parent.glob(db_path.name + "*"))
 
 
-def upload_map(service: Service, path: Path, name: str) -> dict[str, Any]:
+def upload_map(service: LocalService, path: Path, name: str) -> dict[str, Any]:
     t0 = time.perf_counter()
     with path.open("rb") as f:
         response = service.client.post("/v1/maps", files={"file": (path.name, f)}, data={"name": name})
@@ -263,14 +168,14 @@ def upload_map(service: Service, path: Path, name: str) -> dict[str, Any]:
         "buildings": body["building_count"],
         "facades": body["facade_count"],
         "file_mb": round(path.stat().st_size / 2**20, 1),
-        "database_mb": round(map_bytes(service.data_dir / "geoloc.sqlite3", body["id"]) / 2**20, 1),
+        "database_mb": round(map_bytes(service.database_path, body["id"]) / 2**20, 1),
         "cached_copy_mb": round(cache.stat().st_size / 2**20, 1),
         "cached_copy_load_s": worker_load["load_s"],
         "index_build_s": worker_load["index_s"],
     }
 
 
-def ingest(service: Service, map_ids: dict[str, int], photos: list[Path]) -> dict[str, dict[str, Any]]:
+def ingest(service: LocalService, map_ids: dict[str, int], photos: list[Path]) -> dict[str, dict[str, Any]]:
     """Post every photo as a reference of each map, alternating maps, and wait until all are labelled.
 
     The worker labels them in that order, so a drift of the machine's load touches both maps alike.
@@ -301,7 +206,7 @@ def ingest(service: Service, map_ids: dict[str, int], photos: list[Path]) -> dic
     return out
 
 
-def query(service: Service, map_id: int, photo: Path) -> dict[str, Any]:
+def query(service: LocalService, map_id: int, photo: Path) -> dict[str, Any]:
     t0 = time.perf_counter()
     response = service.client.post(
         f"/v1/maps/{map_id}/queries", files={"image": (photo.name, photo.read_bytes())}, data={"wait_s": "300"}
@@ -390,7 +295,12 @@ def main() -> None:
         print(f"load_map {name:9s}: {row['load_s']:6.1f} s, peak {row['peak_rss_mb']:7.0f} MB, "
               f"{row['buildings']:,} buildings, {row['facades']:,} facades")  # fmt: skip
 
-    service = Service(workdir / "service" / "data")
+    service = LocalService(
+        workdir / "service" / "data",
+        workers=1,
+        env={"GEOLOC_MAX_QUEUED_JOBS": "10000"},  # every reference of both maps is posted at once
+        log_path=workdir / "service" / "service.log",
+    )
     try:
         uploads = {}
         for name, path in maps.items():
@@ -399,8 +309,8 @@ def main() -> None:
             print(f"upload {name:9s}: {row['upload_s']:6.1f} s, {row['buildings']:,} buildings, "
                   f"database {row['database_mb']} MB, cached copy {row['cached_copy_mb']} MB")  # fmt: skip
         figures["upload"] = uploads
-        figures["api_peak_rss_mb_after_uploads"] = service.peak_rss_mb().get("api")
-        figures["database_file_mb"] = round(db_file_bytes(service.data_dir / "geoloc.sqlite3") / 2**20, 1)
+        figures["api_peak_rss_mb_after_uploads"] = peak_rss_mb(service).get("api")
+        figures["database_file_mb"] = round(db_file_bytes(service.database_path) / 2**20, 1)
 
         photos = [im.path for im in world.references]
         figures["ingest"] = ingest(service, {name: uploads[name]["map_id"] for name in maps}, photos)
@@ -422,7 +332,7 @@ def main() -> None:
         gaps = [_distance_m(a["best"], b["best"]) for a, b in zip(runs["helsinki"], runs["tiled"], strict=True)]
         figures["query_latency"] = latency
         figures["best_location_gap_m"] = {"median": _median(gaps), "max": round(max(gaps), 1)}
-        figures["peak_rss_mb_end"] = service.peak_rss_mb()
+        figures["peak_rss_mb_end"] = peak_rss_mb(service)
     finally:
         service.stop()
 

@@ -22,10 +22,6 @@ import argparse
 import json
 import os
 import platform
-import signal
-import socket
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -33,57 +29,13 @@ from typing import Any
 
 import httpx
 import numpy as np
+from local_service import LocalService
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO_ROOT))
-
-from geoloc.config import cache_dir, shared_path  # noqa: E402
-from tests.servers import PostgresServer, RedisServer  # noqa: E402
+from geoloc.config import shared_path
+from tests.servers import PostgresServer, RedisServer
 
 TARGET_RATIO = 0.8
 """Distributed throughput per worker must be at least this share of the embedded one."""
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def start_service(workers: int, data_dir: Path, env_extra: dict[str, str]) -> tuple[subprocess.Popen[bytes], str]:
-    """``geoloc serve --workers N`` on a free port with ``data_dir`` (built models linked in); waits for /readyz."""
-    (data_dir / "cache").mkdir(parents=True, exist_ok=True)
-    (data_dir / "cache" / "models").symlink_to(cache_dir() / "models", target_is_directory=True)
-    port = _free_port()
-    log_path = data_dir.parent / "serve.log"
-    env = {**os.environ, "GEOLOC_DATA_DIR": str(data_dir), "GEOLOC_MAX_QUEUED_JOBS": "10000", **env_extra}
-    env.pop("GEOLOC_API_KEYS", None)
-    command = [str(Path(sys.executable).parent / "geoloc"), "serve", "--port", str(port), "--workers", str(workers)]
-    with log_path.open("wb") as log:
-        process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 180
-    while time.monotonic() < deadline:
-        if process.poll() is not None:
-            raise SystemExit(f"geoloc serve exited ({process.returncode}); see {log_path}")
-        try:
-            if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:  # database, broker, models, a worker
-                return process, url
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.5)
-    stop(process)
-    raise SystemExit(f"geoloc serve did not become ready; see {log_path}")
-
-
-def stop(process: subprocess.Popen[bytes]) -> None:
-    """SIGTERM the supervisor, then SIGKILL its group if it lingers."""
-    process.send_signal(signal.SIGTERM)
-    try:
-        process.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
 
 
 def upload_all(client: httpx.Client, map_id: int, photos: list[Path]) -> list[int]:
@@ -118,9 +70,10 @@ def run_one(profile: str, workers: int, photos: list[Path], warmup: int, servers
             "GEOLOC_BROKER_URL": servers["redis"].new_url(),
         }
     with tempfile.TemporaryDirectory(prefix=f"bench-ingest-{profile}-{workers}-") as tmp:
-        process, url = start_service(workers, Path(tmp) / "data", env)
+        # A queue deep enough for every upload at once.
+        service = LocalService(Path(tmp) / "data", workers=workers, env={"GEOLOC_MAX_QUEUED_JOBS": "10000", **env})
         try:
-            with httpx.Client(base_url=url, timeout=120) as client:
+            with httpx.Client(base_url=service.url, timeout=120) as client:
                 osm = shared_path("data", "osm", "helsinki.osm.pbf")
                 files = {"file": (osm.name, osm.read_bytes())}
                 created = client.post("/v1/maps", files=files, data={"name": "helsinki"})
@@ -135,7 +88,7 @@ def run_one(profile: str, workers: int, photos: list[Path], warmup: int, servers
                 elapsed_s = time.perf_counter() - start
                 totals_ms = [client.get(f"/v1/references/{i}").json()["timings"]["total"] for i in ids]
         finally:
-            stop(process)
+            service.stop()
     rate = len(measured) / elapsed_s
     return {
         "profile": profile,

@@ -30,10 +30,7 @@ import json
 import os
 import platform
 import random
-import signal
-import socket
 import sqlite3
-import subprocess
 import sys
 import tempfile
 import time
@@ -44,8 +41,9 @@ from typing import Any
 
 import httpx
 import numpy as np
+from local_service import LocalService
 
-from geoloc.config import cache_dir, shared_path
+from geoloc.config import shared_path
 
 READ_SHARE, UPLOAD_SHARE = 0.70, 0.15
 """The rest (15 %) are queries."""
@@ -66,39 +64,6 @@ class Stats:
     errors: list[str] = field(default_factory=list)
     accepted_jobs: set[int] = field(default_factory=set)
     saturated: list[tuple[float, float]] = field(default_factory=list)  # (start, end) of saturated spans
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def start_service(workers: int, data_dir: Path) -> tuple[subprocess.Popen[bytes], str, Path]:
-    """``geoloc serve`` on a free port with ``data_dir`` (the built models linked in)."""
-    models = cache_dir() / "models"
-    (data_dir / "cache").mkdir(parents=True, exist_ok=True)
-    (data_dir / "cache" / "models").symlink_to(models, target_is_directory=True)
-    port = _free_port()
-    log_path = data_dir.parent / "serve.log"
-    env = {**os.environ, "GEOLOC_DATA_DIR": str(data_dir)}
-    env.pop("GEOLOC_API_KEYS", None)
-    command = [str(Path(sys.executable).parent / "geoloc"), "serve", "--port", str(port), "--workers", str(workers)]
-    with log_path.open("wb") as log:
-        process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        if process.poll() is not None:
-            raise SystemExit(f"geoloc serve exited ({process.returncode}); see {log_path}")
-        try:
-            if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
-                return process, url, data_dir / "geoloc.sqlite3"
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.5)
-    process.send_signal(signal.SIGTERM)
-    raise SystemExit(f"geoloc serve did not become ready; see {log_path}")
 
 
 def percentiles(values: list[float]) -> dict[str, float | int]:
@@ -346,19 +311,19 @@ def main() -> int:
 
     machine = f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
     print(f"machine: {machine}")
-    process = None
+    service = None
     with tempfile.TemporaryDirectory(prefix="geoloc-load-") as tmp:
         db_path = None
         if args.url is None:
-            process, url, db_path = start_service(args.workers, Path(tmp) / "data")
+            service = LocalService(Path(tmp) / "data", workers=args.workers)
+            url, db_path = service.url, service.database_path
         else:
             url = args.url
         try:
             result = asyncio.run(run(args, url, db_path))
         finally:
-            if process is not None:
-                process.send_signal(signal.SIGTERM)
-                process.wait(timeout=120)
+            if service is not None:
+                service.stop()
     result["machine"] = machine
     result["command"] = " ".join(sys.argv)
 

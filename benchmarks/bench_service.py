@@ -37,8 +37,6 @@ import json
 import os
 import platform
 import shutil
-import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -50,137 +48,40 @@ from typing import Any
 
 import httpx
 import numpy as np
+from local_service import REPO_ROOT, LocalService, cpu_seconds, status_mb
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO_ROOT))  # this checkout's code, also where the environment installs another one
-
-from geoloc.config import cache_dir, shared_path  # noqa: E402
+from geoloc.config import shared_path
 
 TARGET_P50_MS = 400.0
 TARGET_P95_MS = 800.0
 TARGET_REFERENCES_PER_CORE_S = 1.5
 TARGET_QUERIES_PER_CORE_S = 2.0
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def _children(pid: int) -> list[int]:
-    """Every descendant process of ``pid``."""
-    parents: dict[int, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            parents.setdefault(ppid, []).append(int(entry.name))
-    out, todo = [], [pid]
-    while todo:
-        found = parents.get(todo.pop(), [])
-        out += found
-        todo += found
-    return out
-
-
-def _cpu_s(pid: int) -> float:
-    """User + system CPU seconds of a process."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
-
-
-def _status_mb(pid: int, key: str) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith(key + ":"):
-            return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 def load_average() -> float:
     return round(os.getloadavg()[0], 1)
 
 
-class Service:
-    """``geoloc serve --workers N`` from a source folder, on a fresh data folder."""
+class Service(LocalService):
+    """A named service of one source folder, with its workers' CPU time and peak memory."""
 
     def __init__(self, name: str, source: Path, data_dir: Path, workers: int, env: dict[str, str]) -> None:
+        # The baseline commit's idle workers polled every 2 s by default; both poll as this checkout does.
+        env = {"GEOLOC_WORKER_POLL_MAX_S": "0.05", **env}
+        super().__init__(data_dir, workers=workers, env=env, source=source, log_path=data_dir.parent / f"{name}.log")
         self.name = name
-        shutil.rmtree(data_dir, ignore_errors=True)
-        data_dir.mkdir(parents=True)
-        models = cache_dir() / "models"
-        (data_dir / "cache").mkdir()
-        (data_dir / "cache" / "models").symlink_to(models, target_is_directory=True)
-        self.data_dir = data_dir
         self.workers = workers
-        self.port = _free_port()
-        environment = {
-            **os.environ,
-            **env,
-            "GEOLOC_DATA_DIR": str(data_dir),
-            "GEOLOC_WORKER_POLL_MAX_S": "0.05",  # the default now; the baseline commit's was 2 s
-            "PYTHONPATH": str(source),
-        }
-        environment.pop("GEOLOC_API_KEYS", None)
-        self.log = (data_dir.parent / f"{name}.log").open("wb")
-        serve = f"serve --host 127.0.0.1 --port {self.port} --workers {workers} --log-level warning".split()
-        self.process = subprocess.Popen(
-            [sys.executable, "-c", "from cli.main import app; app()", *serve],
-            cwd=source,
-            env=environment,
-            stdout=self.log,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-        self.client = httpx.Client(base_url=f"http://127.0.0.1:{self.port}", timeout=600.0)
-        deadline = time.monotonic() + 180
-        while time.monotonic() < deadline:
-            try:
-                if self.client.get("/readyz").status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if self.process.poll() is not None:
-                raise SystemExit(f"{name}: geoloc serve exited; see {self.log.name}")
-            time.sleep(0.5)
-        else:
-            raise SystemExit(f"{name}: the service did not become ready in 180 s")
         self.map_id = 0
 
-    def worker_pids(self) -> list[int]:
-        pids = []
-        for pid in _children(self.process.pid):
-            try:
-                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-            except OSError:
-                continue
-            if b"workers" in cmdline:
-                pids.append(pid)
-        return pids
-
     def worker_cpu_s(self) -> float:
-        return sum(_cpu_s(pid) for pid in self.worker_pids())
+        return sum(cpu_seconds(pid) for pid in self.pids(b"workers"))
 
     def worker_peak_mb(self) -> float:
-        return max(_status_mb(pid, "VmHWM") for pid in self.worker_pids())
+        return max(status_mb(pid, "VmHWM") for pid in self.pids(b"workers"))
 
     def reset_peaks(self) -> None:
-        for pid in self.worker_pids():
+        for pid in self.pids(b"workers"):
             Path(f"/proc/{pid}/clear_refs").write_text("5")
-
-    def stop(self) -> None:
-        self.client.close()
-        if self.process.poll() is None:
-            os.killpg(self.process.pid, signal.SIGTERM)
-            try:
-                self.process.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.process.pid, signal.SIGKILL)
-                self.process.wait()
-        self.log.close()
 
 
 def export_commit(ref: str, target: Path) -> str:

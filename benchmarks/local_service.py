@@ -1,0 +1,153 @@
+"""The service as the benchmarks run it: ``geoloc serve`` on loopback, started fresh and stopped.
+
+:class:`LocalService` starts ``geoloc serve --workers N`` from a source folder (this checkout by default; a
+benchmark may start an exported older commit beside it) on a free port, with a fresh data folder that links
+the built models in, and returns once ``/readyz`` answers 200 (database, broker, models and a live worker).
+The ``/proc`` helpers read its processes' CPU time and memory. Importing this module puts this checkout first
+on ``sys.path``, so a benchmark measures this checkout's code whatever the environment has installed.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO_ROOT))
+
+from geoloc.config import cache_dir  # noqa: E402
+from geoloc.models import model_problems  # noqa: E402
+
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def free_port() -> int:
+    """A free TCP port on 127.0.0.1."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def descendants(pid: int) -> list[int]:
+    """Every descendant process of ``pid``."""
+    parents: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            parents.setdefault(ppid, []).append(int(entry.name))
+    out, todo = [], [pid]
+    while todo:
+        found = parents.get(todo.pop(), [])
+        out += found
+        todo += found
+    return out
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a process."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
+def status_mb(pid: int, key: str) -> float:
+    """A memory figure of ``/proc/PID/status`` (``VmHWM``: peak resident, ``VmRSS``: now) in MB; NaN if absent."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+class LocalService:
+    """``geoloc serve --workers N`` on a fresh data folder ``data_dir``, ready when constructed.
+
+    env: extra environment (e.g. the distributed profile's URLs); API keys are removed, so it needs none.
+    source: the source folder to run (default this checkout). The log goes to ``log_path`` (default
+    ``serve.log`` beside ``data_dir``).
+    """
+
+    def __init__(
+        self,
+        data_dir: Path,
+        *,
+        workers: int,
+        env: dict[str, str] | None = None,
+        source: Path = REPO_ROOT,
+        log_path: Path | None = None,
+        ready_timeout_s: float = 180.0,
+        name: str = "geoloc serve",
+    ) -> None:
+        if problems := model_problems():
+            raise SystemExit("the built models are not usable: " + " ".join(problems))
+        shutil.rmtree(data_dir, ignore_errors=True)
+        (data_dir / "cache").mkdir(parents=True)
+        (data_dir / "cache" / "models").symlink_to(cache_dir() / "models", target_is_directory=True)
+        self.name = name
+        self.data_dir = data_dir
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        environment = {**os.environ, "GEOLOC_DATA_DIR": str(data_dir), "PYTHONPATH": str(source), **(env or {})}
+        environment.pop("GEOLOC_API_KEYS", None)
+        self.log_path = log_path or data_dir.parent / "serve.log"
+        serve = f"serve --host 127.0.0.1 --port {self.port} --workers {workers} --log-level warning".split()
+        with self.log_path.open("wb") as log:
+            self.process = subprocess.Popen(
+                [sys.executable, "-c", "from cli.main import app; app()", *serve],
+                cwd=source,
+                env=environment,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
+        self.client = httpx.Client(base_url=self.url, timeout=600.0)
+        deadline = time.monotonic() + ready_timeout_s
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                self.client.close()
+                raise SystemExit(f"{name} exited ({self.process.returncode}); see {self.log_path}")
+            try:
+                if self.client.get("/readyz", timeout=2).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.5)
+        self.stop()
+        raise SystemExit(f"{name} did not become ready in {ready_timeout_s:.0f} s; see {self.log_path}")
+
+    @property
+    def database_path(self) -> Path:
+        """The embedded profile's SQLite file."""
+        return self.data_dir / "geoloc.sqlite3"
+
+    def pids(self, role: bytes) -> list[int]:
+        """Its processes running module ``role`` or one in it: ``b"workers"`` (built-in or Celery), ``b"service"``."""
+        found = []
+        for pid in descendants(self.process.pid):
+            try:
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if any(part == role or part.startswith(role + b".") for part in cmdline):
+                found.append(pid)
+        return found
+
+    def stop(self) -> None:
+        """SIGTERM the supervisor (it stops its children), then SIGKILL the group if it lingers."""
+        self.client.close()
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait()
