@@ -39,7 +39,7 @@ from geoloc.likelihood import (
     pose_likelihood,
     pose_likelihood_numpy,
 )
-from geoloc.osm import load_map
+from geoloc.maps import load_map
 from geoloc.posterior import make_grid
 
 

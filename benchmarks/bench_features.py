@@ -67,7 +67,7 @@ from geoloc.camera import Intrinsics
 from geoloc.config import shared_path
 from geoloc.evaluation import shown_by_references
 from geoloc.features import Features, extract_features
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.retrieval import InvertedIndex, default_vocabulary
 from geoloc.segmentation import segment
 from geoloc.sim.render import Pose, rotation_matrix

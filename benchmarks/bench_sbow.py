@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from local_service import status_mb
 
 from db import connect, migrate, sbow, transaction
 from db import maps as map_store
@@ -81,21 +82,6 @@ class Corpus:
     def noisy_copy(self, words: np.ndarray, keep: float = 0.5) -> np.ndarray:
         kept = words[self.rng.random(len(words)) < keep]
         return np.concatenate([kept, self.zipf(600 - len(kept))]) if len(kept) < 600 else kept
-
-
-def _rss_mb() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024.0
-    return float("nan")
-
-
-def _peak_rss_mb() -> float:
-    """Peak resident memory since the last reset (``/proc/self/clear_refs``)."""
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 def build_database(path: Path, n_references: int, corpus: Corpus) -> tuple[int, dict[int, np.ndarray], dict[str, Any]]:
@@ -244,7 +230,7 @@ def main() -> None:
     Path("/proc/self/clear_refs").write_text("5")
     db = connect(path)
     store = DatabaseReferenceStore(db, map_id)
-    rss_before = _rss_mb()
+    rss_before = status_mb(os.getpid(), "VmRSS")
     t0 = time.perf_counter()
     live = store.live_index()
     load_s = time.perf_counter() - t0
@@ -253,8 +239,8 @@ def main() -> None:
         "first_load_s": round(load_s, 1),
         "index_mb": round(live.index.nbytes / 2**20, 1),
         "rss_before_mb": round(rss_before, 1),
-        "rss_after_mb": round(_rss_mb(), 1),
-        "peak_rss_mb": round(_peak_rss_mb(), 1),
+        "rss_after_mb": round(status_mb(os.getpid(), "VmRSS"), 1),
+        "peak_rss_mb": round(status_mb(os.getpid(), "VmHWM"), 1),
     }
     f = figures["index"]
     print(f"in-memory index: first load {f['first_load_s']} s; arrays {f['index_mb']} MB; process resident "
@@ -270,7 +256,7 @@ def main() -> None:
         t0 = time.perf_counter()
         fast_lists.append(store.shortlist(words, 10))
         memory_ms.append(1e3 * (time.perf_counter() - t0))
-    index_peak_mb = _peak_rss_mb()
+    index_peak_mb = status_mb(os.getpid(), "VmHWM")
     # The database path after, with its own peak: it holds every postings row of the query's words in Python.
     Path("/proc/self/clear_refs").write_text("5")
     sql_ms: list[float] = []
@@ -282,7 +268,7 @@ def main() -> None:
         sql_ms.append(1e3 * (time.perf_counter() - t0))
         rows_read.append(rows)
         identical += fast == slow
-    sql_peak_mb = _peak_rss_mb()
+    sql_peak_mb = status_mb(os.getpid(), "VmHWM")
     figures["shortlist_top10"] = {
         "in_memory": {
             "queries": len(memory_ms),

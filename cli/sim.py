@@ -48,7 +48,7 @@ def world(
 
     Writes the photos, their ground truth, manifest.json and contact_sheet.jpg.
     """
-    from geoloc.osm import MapLoadError
+    from geoloc.maps import MapLoadError
     from geoloc.sim.world import WorldOptions, generate_world
 
     width, height = _parse_size(size)

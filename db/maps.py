@@ -1,12 +1,12 @@
 """Maps, their buildings and facades.
 
 A map row holds the source file's path (relative to ``GEOLOC_DATA_DIR``, kept so that workers can
-reload the full :class:`geoloc.osm.CityMap`), checksum, the options it was read with
+reload the full :class:`geoloc.maps.CityMap`), checksum, the options it was read with
 (``read_options``, JSON of :meth:`geoloc.maps.MapReadOptions.as_dict`; a file read with other
 options is another map), WGS84 bounding box, the local frame's origin, counts and the loader's
 repair report. Buildings are rows (footprint as WGS84 GeoJSON text for the API and local-frame WKB
 for the method). Facades are one (uncompressed) npz blob per map with the arrays of
-:class:`geoloc.osm.Facades` (start, end, normal, normal_bearing_deg, length_m, building_id).
+:class:`geoloc.maps.Facades` (start, end, normal, normal_bearing_deg, length_m, building_id).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ class MapContent:
 
 
 def map_content_from_city_map(city_map: Any) -> MapContent:
-    """Convert a ``geoloc.osm.CityMap`` into rows (duck-typed: db does not import geoloc).
+    """Convert a ``geoloc.maps.CityMap`` into rows (duck-typed: db does not import geoloc).
 
     Vectorised over all buildings (one coordinate transform, GeoJSON and WKB written by GEOS), so a
     100,000-building map converts in seconds.

@@ -225,18 +225,23 @@ def load_keypoints(db: Database, reference_id: int) -> dict[str, np.ndarray] | N
     return unpack_arrays(row[0]) if row else None
 
 
+def _keypoint_column(db: Database, column: str, reference_ids: list[int]) -> list[tuple[Any, Any]]:
+    """(reference id, ``column``) of the keypoints rows of these references, 500 ids per statement."""
+    rows: list[tuple[Any, Any]] = []
+    for start in range(0, len(reference_ids), 500):
+        chunk = reference_ids[start : start + 500]
+        marks = ", ".join("?" for _ in chunk)
+        cursor = db.execute(f"SELECT reference_id, {column} FROM keypoints WHERE reference_id IN ({marks})", chunk)
+        rows += cursor.fetchall()
+    return rows
+
+
 def keypoint_stamps(db: Database, reference_ids: list[int]) -> dict[int, float]:
     """{reference id: when its keypoints were stored} for those of these references that have keypoints.
 
     A re-labelled reference gets a new time: a cached decoded copy is then stale.
     """
-    out: dict[int, float] = {}
-    for start in range(0, len(reference_ids), 500):
-        chunk = reference_ids[start : start + 500]
-        marks = ", ".join("?" for _ in chunk)
-        rows = db.execute(f"SELECT reference_id, created_at FROM keypoints WHERE reference_id IN ({marks})", chunk)
-        out.update({int(ref): float(stamp) for ref, stamp in rows.fetchall()})
-    return out
+    return {int(ref): float(stamp) for ref, stamp in _keypoint_column(db, "created_at", reference_ids)}
 
 
 def keypoint_blobs(db: Database, reference_ids: list[int]) -> dict[int, bytes]:
@@ -244,10 +249,4 @@ def keypoint_blobs(db: Database, reference_ids: list[int]) -> dict[int, bytes]:
 
     For reading a few arrays without decoding the rest.
     """
-    out: dict[int, bytes] = {}
-    for start in range(0, len(reference_ids), 500):
-        chunk = reference_ids[start : start + 500]
-        marks = ", ".join("?" for _ in chunk)
-        rows = db.execute(f"SELECT reference_id, arrays_npz FROM keypoints WHERE reference_id IN ({marks})", chunk)
-        out.update({int(ref): bytes(blob) for ref, blob in rows.fetchall()})
-    return out
+    return {int(ref): bytes(blob) for ref, blob in _keypoint_column(db, "arrays_npz", reference_ids)}

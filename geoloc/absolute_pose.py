@@ -160,10 +160,20 @@ def group_proposal(
     group_px = np.asarray(xy_px, np.float64).reshape(-1, 2)
     if len(group_pts) < 6:
         return None
+    found = _pnp_ransac(group_pts, group_px, intrinsics, threshold_px, confidence, max_iters)
+    if found is None or found[2] < 4:
+        return None
+    return found[0], found[1]
+
+
+def _pnp_ransac(
+    pts: np.ndarray, px: np.ndarray, intrinsics: Intrinsics, threshold_px: float, confidence: float, max_iters: int
+) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """OpenCV's PnP RANSAC (USAC MAGSAC++) on float64 (N, 3) points and (N, 2) pixels: (rvec, tvec, inliers)."""
     try:
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            group_pts,
-            group_px,
+            pts,
+            px,
             intrinsics.matrix,
             None,
             iterationsCount=max_iters,
@@ -173,9 +183,9 @@ def group_proposal(
         )
     except cv2.error:
         return None
-    if not ok or inliers is None or len(inliers) < 4:
+    if not ok or inliers is None:
         return None
-    return rvec, tvec
+    return rvec, tvec, len(inliers)
 
 
 def estimate_pose_from_groups(
@@ -241,20 +251,8 @@ def estimate_pose(
     n = len(pts)
     if n < max(4, min_inliers):
         return None
-    k = intrinsics.matrix
-    try:
-        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            pts,
-            px,
-            k,
-            None,
-            iterationsCount=max_iters,
-            reprojectionError=threshold_px,
-            confidence=confidence,
-            flags=cv2.USAC_MAGSAC,
-        )
-    except cv2.error:
+    found = _pnp_ransac(pts, px, intrinsics, threshold_px, confidence, max_iters)
+    if found is None or found[2] < min_inliers:
         return None
-    if not ok or inliers is None or len(inliers) < min_inliers:
-        return None
+    rvec, tvec, _ = found
     return _refit(pts, px, intrinsics, rvec, tvec, threshold_px, min_inliers)

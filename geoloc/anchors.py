@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoloc.camera import Intrinsics
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.raycast import FacadeIndex
 
 DEFAULT_MAX_RANGE_M = 150.0

@@ -41,7 +41,7 @@ import numpy as np
 from geoloc.facade_metrics import orientation_errors
 from geoloc.identity import IdentityMap, identity_accuracy
 from geoloc.localize import DEFAULT_PRIOR_RADIUS_M, PositionPrior
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.pipeline import (
     LabelledReference,
     Photo,
@@ -483,7 +483,7 @@ def evaluate_photos(
     """
     import csv
 
-    from geoloc.osm import load_map
+    from geoloc.maps import load_map
 
     city = load_map(map_path)
     truth: dict[str, dict[str, str]] = {}

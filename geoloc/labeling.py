@@ -25,7 +25,7 @@ from geoloc.camera import Intrinsics
 from geoloc.identity import IdentityMap
 from geoloc.image_model import ImageModel, column_bins
 from geoloc.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, known_building_heights, pose_likelihood
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.pose_refinement import RefinedPose, refine_pose
 from geoloc.posterior import DEFAULT_SHARPNESS, grid_around
 from geoloc.raycast import Panoramas, cast_panoramas, panorama_window

@@ -56,7 +56,7 @@ import numpy.typing as npt
 
 from geoloc.camera import wrap_orientation_deg
 from geoloc.image_model import ImageModel
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.raycast import Panoramas, panorama_window
 
 DEFAULT_SIGMA_M = 40.0

@@ -22,7 +22,7 @@ from shapely.ops import unary_union
 from geoloc.image_model import ImageModel
 from geoloc.labeling import heading_prior
 from geoloc.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, known_building_heights, pose_likelihood
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.posterior import (
     DEFAULT_SHARPNESS,
     PoseGrid,

@@ -171,9 +171,18 @@ def _export(weights: Path, out: Path, size: tuple[int, int]) -> dict[str, str]:
     net.set_static_ops(True)
     net.full_resolution = False
     model = NormalizedSegmenter(net).eval()
-    dummy = torch.zeros(1, 3, size[1], size[0])
+    # Shapes are Python ints on purpose: the graph has a fixed input size.
+    _trace_to_onnx(model, torch.zeros(1, 3, size[1], size[0]), out, ["logits"])
+    return {"torch": torch.__version__}
+
+
+def _trace_to_onnx(
+    model: Any, dummy: Any, out: Path, outputs: list[str], dynamic_axes: dict[str, dict[int, str]] | None = None
+) -> None:
+    """Trace ``model`` on ``dummy`` (input ``image``) with the legacy exporter and write ONNX to ``out``."""
+    import torch
+
     with torch.no_grad(), warnings.catch_warnings():
-        # Shapes are Python ints on purpose: the graph has a fixed input size.
         # torch.jit re-exports TracerWarning (from torch.jit._trace) without listing it in __all__.
         warnings.simplefilter("ignore", torch.jit.TracerWarning)  # type: ignore[attr-defined]
         warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter is what we want
@@ -182,12 +191,12 @@ def _export(weights: Path, out: Path, size: tuple[int, int]) -> dict[str, str]:
             (dummy,),
             str(out),
             input_names=["image"],
-            output_names=["logits"],
+            output_names=outputs,
+            dynamic_axes=dynamic_axes,
             opset_version=OPSET,
             dynamo=False,
             do_constant_folding=True,
         )
-    return {"torch": torch.__version__}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -291,24 +300,9 @@ def _export_aliked(
         raise RuntimeError("exporting ALIKED needs torch: pip install -e '.[export]'") from exc
     net = load_aliked(weights, config_name)
     model = AlikedDense(net).eval()
-    dummy = torch.zeros(1, 3, 64, 96)
     outputs = ["score", "level1", "level2", "level3", "level4"]
     dynamic = {"image": {2: "height", 3: "width"}, **{name: {2: f"{name}_h", 3: f"{name}_w"} for name in outputs}}
-    with torch.no_grad(), warnings.catch_warnings():
-        # torch.jit re-exports TracerWarning (from torch.jit._trace) without listing it in __all__.
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)  # type: ignore[attr-defined]
-        warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter is what we want
-        torch.onnx.export(
-            model,
-            (dummy,),
-            str(onnx_out),
-            input_names=["image"],
-            output_names=outputs,
-            dynamic_axes=dynamic,
-            opset_version=OPSET,
-            dynamo=False,
-            do_constant_folding=True,
-        )
+    _trace_to_onnx(model, torch.zeros(1, 3, 64, 96), onnx_out, outputs, dynamic)
     head = {name: p.detach().numpy().astype(np.float32) for name, p in net.desc_head.state_dict().items()}
     with head_out.open("wb") as fh:
         np.savez(fh, **head)

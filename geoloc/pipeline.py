@@ -41,7 +41,7 @@ from geoloc.labeling import (
     label_reference,
 )
 from geoloc.likelihood import DEFAULT_SIGMA_M
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.parallel import run_beside
 from geoloc.posterior import DEFAULT_SHARPNESS
 

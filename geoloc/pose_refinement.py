@@ -25,7 +25,7 @@ import numpy as np
 
 from geoloc.image_model import ImageModel
 from geoloc.likelihood import DEFAULT_SIGMA_M, known_building_heights, pose_likelihood
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.posterior import DEFAULT_SHARPNESS
 from geoloc.raycast import cast_panoramas
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 
 DEFAULT_SHARPNESS = 8.0
 

@@ -43,7 +43,7 @@ from geoloc.image_model import ImageModel
 from geoloc.labeling import column_building_ids, identity_from_poses
 from geoloc.likelihood import known_building_heights, pose_likelihood
 from geoloc.localize import Localization, PositionPrior, localize
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.parallel import thread_map
 from geoloc.pipeline import Photo, PhotoEvidence, image_model_with_identity
 from geoloc.pose_refinement import refine_pose

@@ -31,8 +31,8 @@ from functools import lru_cache
 import numba
 import numpy as np
 
+from geoloc.maps import CityMap, Facades
 from geoloc.maps.spatial import FacadeIndex
-from geoloc.osm import CityMap, Facades
 
 __all__ = [
     "DEFAULT_BEARING_STEP_DEG",

@@ -24,7 +24,7 @@ import shapely
 from pyproj import Transformer
 
 from geoloc.config import shared_path
-from geoloc.osm import CityMap, load_map
+from geoloc.maps import CityMap, load_map
 
 HELSINKI_BUILDINGS = 464
 BERLIN_BUILDINGS = 1993
@@ -50,6 +50,22 @@ class BadFile:
     code: str
     fragment: str
     options: dict[str, str] = field(default_factory=dict)
+
+
+BAD_CASES = (
+    "mercator geojson without crs",
+    "gpkg: several polygon layers, none named",
+    "gpkg: a layer name that does not exist",
+    "gpkg: an attribute that does not exist",
+    "gpkg without polygons",
+    "truncated osm.gz",
+    "truncated geojson.gz",
+    "zip without a shapefile",
+    "mixed crs: degrees and metres, no crs",
+    "mixed crs: degrees in a 3857 layer",
+    "osm with a crs option",
+)
+"""The malformed variants :func:`write_map_files` makes (the keys of ``MapFiles.bad``), for parametrizing."""
 
 
 @dataclass

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from geoloc.osm import CityMap, city_map_from_footprints
+from geoloc.maps import CityMap, city_map_from_footprints
 
 
 def box(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:

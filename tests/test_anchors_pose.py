@@ -6,7 +6,7 @@ import pytest
 from geoloc.absolute_pose import estimate_pose, estimate_pose_from_groups, project
 from geoloc.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.camera import Intrinsics
-from geoloc.osm import city_map_from_footprints
+from geoloc.maps import city_map_from_footprints
 from geoloc.vanishing import rotation_upright_from_pitch_roll
 
 from .scenes import box, square_building

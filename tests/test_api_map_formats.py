@@ -20,7 +20,7 @@ from geoloc.maps import MapReadOptions, map_cache_dir, map_cache_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 from .conftest import Profile
-from .map_files import MapFiles, write_map_files
+from .map_files import BAD_CASES, MapFiles, write_map_files
 from .model_fixtures import link_models
 from .service_fixtures import (
     WRITE_KEY,
@@ -99,22 +99,9 @@ def test_mercator_geojson_without_crs_is_refused_with_the_way_out(
     assert snapshot(service) == before
 
 
-BAD = [
-    "mercator geojson without crs",
-    "gpkg: several polygon layers, none named",
-    "gpkg: a layer name that does not exist",
-    "gpkg: an attribute that does not exist",
-    "gpkg without polygons",
-    "truncated osm.gz",
-    "truncated geojson.gz",
-    "zip without a shapefile",
-    "mixed crs: degrees and metres, no crs",
-    "mixed crs: degrees in a 3857 layer",
-    "osm with a crs option",
-]
 
 
-@pytest.mark.parametrize("case", BAD)
+@pytest.mark.parametrize("case", BAD_CASES)
 def test_malformed_map_is_refused_and_nothing_is_stored(
     client: httpx.Client, service: RunningProcess, files: MapFiles, case: str
 ) -> None:

@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 from geoloc.camera import Intrinsics
 from geoloc.image_model import ImageModel, bin_offsets_deg
 from geoloc.likelihood import default_yaws_deg, image_model_from_map, pose_likelihood
-from geoloc.osm import city_map_from_footprints
+from geoloc.maps import city_map_from_footprints
 from geoloc.posterior import grid_around, pose_posterior, position_heatmap, top_poses
 from geoloc.raycast import cast_panoramas
 

@@ -17,7 +17,7 @@ from geoloc.geo import LocalFrame
 from geoloc.maps import CityMap, MapLoadError, MapReadOptions, load_map
 from geoloc.maps.crs import guess_crs
 
-from .map_files import BERLIN_BUILDINGS, MapFiles, helsinki_wgs84, write_map_files
+from .map_files import BAD_CASES, BERLIN_BUILDINGS, MapFiles, helsinki_wgs84, write_map_files
 
 
 @pytest.fixture(scope="module")
@@ -112,22 +112,7 @@ def test_berlin_overpass_download_loads_gzipped(files: MapFiles, tmp_path: Path)
     assert np.array_equal(same.facades.start, city.facades.start)
 
 
-@pytest.mark.parametrize(
-    "case",
-    [
-        "mercator geojson without crs",
-        "gpkg: several polygon layers, none named",
-        "gpkg: a layer name that does not exist",
-        "gpkg: an attribute that does not exist",
-        "gpkg without polygons",
-        "truncated osm.gz",
-        "truncated geojson.gz",
-        "zip without a shapefile",
-        "mixed crs: degrees and metres, no crs",
-        "mixed crs: degrees in a 3857 layer",
-        "osm with a crs option",
-    ],
-)
+@pytest.mark.parametrize("case", BAD_CASES)
 def test_malformed_map_files_raise_a_clear_error(files: MapFiles, case: str) -> None:
     bad = files.bad[case]
     with pytest.raises(MapLoadError) as error:

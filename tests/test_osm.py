@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from geoloc.config import shared_path
-from geoloc.osm import MapLoadError, load_map, map_summary
+from geoloc.maps import MapLoadError, load_map, map_summary
 
 from .scenes import l_shaped_building, square_building
 

@@ -15,6 +15,8 @@ from geoloc.sbow_index import SbowIndex
 from workers import reference_store as store_module
 from workers.reference_store import DatabaseReferenceStore
 
+from .test_db import add_map, add_reference
+
 N_WORDS = 512
 
 
@@ -108,44 +110,9 @@ def test_ties_go_to_the_lower_id() -> None:
         index.remove(99)
 
 
-def _add_map(db: Database) -> int:
-    content = map_store.MapContent(
-        bbox_wgs84=(60.169, 24.939, 60.172, 24.942),
-        origin_lat=60.1705,
-        origin_lon=24.9405,
-        buildings=[],
-        facade_arrays={"start": np.zeros((1, 2)), "building_id": np.zeros(1, np.int32)},
-        repair_report={},
-    )
-    with transaction(db):
-        return map_store.insert_map(
-            db,
-            name="m",
-            source_filename="m.geojson",
-            source_format="geojson",
-            source_path="maps/m.geojson",
-            sha256="1" * 64,
-            size_bytes=1,
-            content=content,
-        )
-
-
 def _add_indexed_reference(db: Database, map_id: int, number: int, words: np.ndarray) -> int:
+    reference_id = add_reference(db, map_id, f"{number:064d}")
     with transaction(db):
-        reference_id = reference_store.insert_reference(
-            db,
-            map_id=map_id,
-            image_path=f"images/{number}.jpg",
-            original_filename=None,
-            sha256=f"{number:064d}",
-            size_bytes=1,
-            image_format="JPEG",
-            width=64,
-            height=64,
-            gps_lat=60.17,
-            gps_lon=24.94,
-            position_source="request",
-        )
         sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
     return reference_id
 
@@ -163,7 +130,7 @@ def test_database_store_follows_the_database(tmp_path: Path) -> None:
     path = tmp_path / "geoloc.sqlite3"
     worker_db, writer_db = connect(path), connect(path)  # the worker reads; the API and other workers write
     migrate(worker_db)
-    map_id = _add_map(writer_db)
+    map_id = add_map(writer_db)
     with transaction(writer_db):
         sbow.save_vocabulary(writer_db, map_id, {"centers": np.zeros((N_WORDS, 4), np.float32)})
     refs = [_add_indexed_reference(writer_db, map_id, i, _zipf_words(rng, 200)) for i in range(30)]

@@ -15,7 +15,7 @@ from geoloc import labels
 from geoloc.camera import Intrinsics, vanishing_column_of_orientation, wrap_orientation_deg
 from geoloc.exif import read_exif
 from geoloc.geo import LocalFrame
-from geoloc.osm import CityMap, load_map
+from geoloc.maps import CityMap, load_map
 from geoloc.raycast import cast_panoramas
 from geoloc.sim import Pose, Render, Scene, render
 from geoloc.sim.world import WorldOptions, camera_for, generate_world, load_world

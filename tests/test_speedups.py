@@ -24,7 +24,7 @@ from geoloc.likelihood import (
     pose_likelihood,
     pose_likelihood_numpy,
 )
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.pipeline import Photo, PhotoEvidence, analyze_photo, load_photo
 from geoloc.posterior import grid_around
 from geoloc.sim.world import WorldOptions, generate_world, load_world

@@ -28,8 +28,7 @@ from db.files import open_store
 from db.jobs import LOCALIZE_QUERY
 from geoloc.config import data_dir, get_settings
 from geoloc.localize import PositionPrior
-from geoloc.maps import MapReadOptions, load_map_cached, map_cache_dir
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.pipeline import Photo, analyze_photo, label_reference_photo, load_photo
 from geoloc.query import QueryAnswer, QueryConfig, geolocate
 from geoloc.retrieval import Vocabulary, default_vocabulary, vocabulary_path

@@ -11,7 +11,7 @@ Modules, one job each: :mod:`~geoloc.maps.sniff` (which format), the two readers
 :class:`~geoloc.maps.build.RawMap` in lon/lat), :mod:`~geoloc.maps.build` (RawMap -> :class:`CityMap`:
 local frame, repairs, facades), :mod:`~geoloc.maps.model` (the types, with cached spatial indexes),
 :mod:`~geoloc.maps.spatial` (the facade cell index), :mod:`~geoloc.maps.store` (a loaded map as one
-binary file) and :mod:`~geoloc.maps.load` (the entry points). ``geoloc.osm`` re-exports the public names.
+binary file) and :mod:`~geoloc.maps.load` (the entry points).
 """
 
 from geoloc.maps.build import DEFAULT_HEIGHT_M, LEVEL_HEIGHT_M, MAX_CLOSING_GAP_M, MIN_AREA_M2, parse_height

@@ -13,7 +13,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from geoloc.osm import CityMap
+from geoloc.maps import CityMap
 from geoloc.raycast import FacadeIndex
 from geoloc.sim.textures import BuildingLook, cloud_panorama, make_look, tree_sprites
 

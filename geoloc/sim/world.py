@@ -35,7 +35,7 @@ import numpy as np
 
 from geoloc.camera import Intrinsics
 from geoloc.exif import write_jpeg
-from geoloc.osm import CityMap, load_map
+from geoloc.maps import CityMap, load_map
 from geoloc.raycast import cast_panoramas, panorama_window
 from geoloc.sim.render import Pose, Render, render
 from geoloc.sim.scene import Scene
