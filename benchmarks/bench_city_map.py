@@ -46,8 +46,8 @@ import numpy as np
 import osmium
 from local_service import LocalService, status_mb
 
-from geoloc.config import shared_path
-from geoloc.geo import frame_for_bbox
+from contracts.settings import shared_path
+from geoloc.core.geo import frame_for_bbox
 
 TILE_GAP_M = 30.0
 ID_STRIDE = 10**10

@@ -6,8 +6,9 @@
 Ray-casts a panorama (0.5 deg bearings) at every cell of a regular grid over the whole map (cells inside
 buildings excluded), then evaluates the pose likelihood for all cells x yaws with an image model taken from
 one true pose, geometry-only and identity-aware. Each is run with the compiled kernel
-(:func:`geoloc.raycast.cast_panoramas`, :func:`geoloc.likelihood.pose_likelihood`) and with the plain
-numpy formulation it replaced (``geoloc.raycast._cast_tile_numpy``, :func:`geoloc.likelihood.pose_likelihood_numpy`)
+(:func:`geoloc.maps.raycast.cast_panoramas`, :func:`geoloc.localize.likelihood.pose_likelihood`) and with the plain
+numpy formulation it replaced (``geoloc.maps.raycast._cast_tile_numpy``,
+:func:`geoloc.localize.likelihood.pose_likelihood_numpy`)
 in the same run, alternating, ``--repeats`` times (the best time of each is reported: the machine is
 shared). The likelihood's rate is in column comparisons per second: positions x yaws x column bins
 evaluated per second. The results of the two must agree (identical panoramas; likelihoods within float32
@@ -28,19 +29,18 @@ from typing import Any
 
 import numpy as np
 
-from geoloc import raycast
-from geoloc.camera import Intrinsics
-from geoloc.config import shared_path
-from geoloc.image_model import bin_offsets_deg
-from geoloc.likelihood import (
+from contracts.settings import shared_path
+from geoloc.core.camera import Intrinsics
+from geoloc.localize.likelihood import (
     default_yaws_deg,
     image_model_from_map,
     known_building_heights,
     pose_likelihood,
     pose_likelihood_numpy,
 )
-from geoloc.maps import load_map
-from geoloc.posterior import make_grid
+from geoloc.localize.posterior import make_grid
+from geoloc.maps import load_map, raycast
+from geoloc.vision.image_model import bin_offsets_deg
 
 
 def best_of(repeats: int, *functions: Callable[[], Any]) -> tuple[list[float], list[Any]]:

@@ -13,11 +13,11 @@ Every feature type runs on the same images with the same building masks (the seg
 as the pipeline does; ``--mask gt`` uses the renderer's labels), ``max_features`` 1500, working side
 1024 px (the simulated photos are 640 x 480, the Lund photos 1024 x 768). Matching variants:
 
-- ``ratio0.8``: :func:`geoloc.transfer.match_features` as the pipeline does (Lowe ratio 0.8, then
+- ``ratio0.8``: :func:`geoloc.localize.transfer.match_features` as the pipeline does (Lowe ratio 0.8, then
   one-to-one);
 - ``mnn+ratio0.8`` / ``0.9`` / ``0.95``: mutual nearest neighbours, then the ratio test at 0.8 / 0.9 / 0.95;
 
-each followed by the pipeline's verification (:func:`geoloc.transfer.geometric_verification`: USAC
+each followed by the pipeline's verification (:func:`geoloc.localize.transfer.geometric_verification`: USAC
 MAGSAC++ F and H, 3 working px, at least 12 inliers or none).
 
 Simulated world (ground truth: true poses, intrinsics, per-pixel facade ids):
@@ -40,7 +40,7 @@ Simulated world (ground truth: true poses, intrinsics, per-pixel facade ids):
   of its inliers correct), and for how many queries the evaluated reference with the most inliers is
   right; extraction time per 640 x 480 image (median; feature types interleaved per image);
 - retrieval with each feature type's own vocabulary (4096 words from CamVid train): the share of
-  queries whose best-overlapping reference (``geoloc.evaluation``'s definition: ties within 0.02) is
+  queries whose best-overlapping reference (``geoloc.evaluation.world``'s definition: ties within 0.02) is
   in the SBoW top 20, and in the top 4 after re-ranking those 20 by verified inliers.
 
 Real photos (``../shared/data/lund/images``, 29 photos along one street, adjacent photos overlap):
@@ -62,17 +62,17 @@ from typing import Any
 import cv2
 import numpy as np
 
-from geoloc import labels as classes
-from geoloc.camera import Intrinsics
-from geoloc.config import shared_path
-from geoloc.evaluation import shown_by_references
-from geoloc.features import Features, extract_features
+from contracts.settings import shared_path
+from geoloc.core import labels as classes
+from geoloc.core.camera import Intrinsics
+from geoloc.evaluation.world import shown_by_references
+from geoloc.localize.retrieval import InvertedIndex, default_vocabulary
+from geoloc.localize.transfer import DEFAULT_MIN_INLIERS, geometric_verification, match_features
 from geoloc.maps import CityMap
-from geoloc.retrieval import InvertedIndex, default_vocabulary
-from geoloc.segmentation import segment
 from geoloc.sim.render import Pose, rotation_matrix
 from geoloc.sim.world import World, load_world
-from geoloc.transfer import DEFAULT_MIN_INLIERS, geometric_verification, match_features
+from geoloc.vision.features import Features, extract_features
+from geoloc.vision.segmentation import segment
 
 METHODS = ("rootsift", "aliked-n16", "aliked-t16", "aliked-n16@1,0.5,0.25")
 MATCHERS = ("ratio0.8", "mnn+ratio0.8", "mnn+ratio0.9", "mnn+ratio0.95")

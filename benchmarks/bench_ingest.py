@@ -31,7 +31,7 @@ import httpx
 import numpy as np
 from local_service import LocalService
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
 from tests.servers import PostgresServer, RedisServer
 
 TARGET_RATIO = 0.8

@@ -43,7 +43,7 @@ import httpx
 import numpy as np
 from local_service import LocalService
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
 
 READ_SHARE, UPLOAD_SHARE = 0.70, 0.15
 """The rest (15 %) are queries."""

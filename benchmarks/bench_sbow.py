@@ -14,9 +14,9 @@
    same schema, loaded faster than row by row).
 2. The same query photos (synthetic, 600 keypoints: half of them a noisy copy of a reference, half
    fresh) go to both shortlists: the database path the service used before
-   (``db.sbow.postings_for_words`` + ``geoloc.retrieval.tfidf_scores``: every postings row of the
+   (``db.sbow.postings_for_words`` + ``geoloc.localize.retrieval.tfidf_scores``: every postings row of the
    query's words, for ``--sql-queries`` queries) and the worker's in-memory index
-   (``workers.reference_store.DatabaseReferenceStore.shortlist``: ``geoloc.sbow_index.SbowIndex``,
+   (``workers.reference_store.DatabaseReferenceStore.shortlist``: ``geoloc.localize.sbow_index.SbowIndex``,
    refreshed from the change log before each query). Their top-10 lists must be identical.
 3. Memory: the index's arrays, and the process's resident memory before and after the first load and its
    peak from the first load through the in-memory queries (the database is written before and the peak is
@@ -49,7 +49,7 @@ from local_service import status_mb
 from db import connect, migrate, sbow, transaction
 from db import maps as map_store
 from db import references as reference_store
-from geoloc.retrieval import tfidf_scores
+from geoloc.localize.retrieval import tfidf_scores
 from workers import reference_store as store_module
 from workers.reference_store import DatabaseReferenceStore
 

@@ -50,7 +50,7 @@ import httpx
 import numpy as np
 from local_service import REPO_ROOT, LocalService, cpu_seconds, status_mb
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
 
 TARGET_P50_MS = 400.0
 TARGET_P95_MS = 800.0

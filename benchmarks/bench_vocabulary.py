@@ -3,13 +3,13 @@
     .venv/bin/python benchmarks/bench_vocabulary.py [--world DIR] [--distractors 100000] [--json vocabulary.json]
 
 Both vocabularies are trained on the building pixels of the CamVid train images (the service's own
-vocabulary, ``geoloc.retrieval.default_vocabulary``: flat k-means, 4,096 words; and a two-level
+vocabulary, ``geoloc.localize.retrieval.default_vocabulary``: flat k-means, 4,096 words; and a two-level
 hierarchical one built here, 256 x 256 words by k-means within each first-level word, the usual vocabulary
 tree, from 1,500 descriptors per image). On a simulated Helsinki world (60 references, 30 queries, seed 1;
 made here unless ``--world`` names one), every reference and query photo is analysed as the service does
 (network segmentation, RootSIFT on buildings) and the references are indexed
-(:class:`geoloc.sbow_index.SbowIndex`, the worker's index). For each query, the references that share the
-most building area with it (:func:`geoloc.evaluation.shown_by_references`) are looked up in the SBoW
+(:class:`geoloc.localize.sbow_index.SbowIndex`, the worker's index). For each query, the references that share the
+most building area with it (:func:`geoloc.evaluation.world.shown_by_references`) are looked up in the SBoW
 ranking: recall at 1, 5, 20 (the query stage's shortlist) and 60 (the shortlist ranked before a position
 prior leaves far references out).
 
@@ -34,13 +34,13 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from geoloc.config import shared_path
-from geoloc.evaluation import shown_by_references
-from geoloc.features import extract_features
-from geoloc.labels import BUILDING
-from geoloc.pipeline import analyze_photo, load_photo
-from geoloc.retrieval import Vocabulary, build_vocabulary, camvid_building_descriptors, default_vocabulary
-from geoloc.sbow_index import SbowIndex
+from contracts.settings import shared_path
+from geoloc.core.labels import BUILDING
+from geoloc.evaluation.world import shown_by_references
+from geoloc.localize.pipeline import analyze_photo, load_photo
+from geoloc.localize.retrieval import Vocabulary, build_vocabulary, camvid_building_descriptors, default_vocabulary
+from geoloc.localize.sbow_index import SbowIndex
+from geoloc.vision.features import extract_features
 
 KS = (1, 5, 20, 60)
 BRANCHING = 256

@@ -23,8 +23,8 @@ import httpx
 REPO_ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO_ROOT))
 
-from geoloc.config import cache_dir  # noqa: E402
-from geoloc.models import model_problems  # noqa: E402
+from contracts.settings import cache_dir  # noqa: E402
+from geoloc.export.models import model_problems  # noqa: E402
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 

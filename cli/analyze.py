@@ -27,8 +27,8 @@ import typer
 if TYPE_CHECKING:
     import numpy as np
 
-    from geoloc.camera import Intrinsics
-    from geoloc.facades import ImageAnalysis
+    from geoloc.core.camera import Intrinsics
+    from geoloc.vision.facades import ImageAnalysis
 
 # RGB colours for horizontal VPs 1, 2, ... (vertical: white; outliers: grey).
 VP_COLORS: tuple[tuple[int, int, int], ...] = (
@@ -62,13 +62,13 @@ def load_photo(path: Path, hfov_deg: float | None = None) -> tuple[np.ndarray, I
     """Read a photo (EXIF orientation applied) and its intrinsics.
 
     Focal length: ``hfov_deg`` if given (explicit override), else EXIF FocalLengthIn35mmFilm
-    (tag 41989), else the default horizontal field of view (:data:`geoloc.camera.DEFAULT_HFOV_DEG`).
+    (tag 41989), else the default horizontal field of view (:data:`geoloc.core.camera.DEFAULT_HFOV_DEG`).
     Returns ((H, W, 3) uint8 RGB, Intrinsics).
     """
     import numpy as np
     from PIL import Image, ImageOps
 
-    from geoloc.camera import Intrinsics, intrinsics_from_focal
+    from geoloc.core.camera import Intrinsics, intrinsics_from_focal
 
     with Image.open(path) as im:
         exif = im.getexif()
@@ -138,7 +138,7 @@ def draw_segmentation(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
     """Class colours blended over the photo, with a legend."""
     import numpy as np
 
-    from geoloc.labels import CLASS_COLORS, CLASS_NAMES, colorize
+    from geoloc.core.labels import CLASS_COLORS, CLASS_NAMES, colorize
 
     out = (0.45 * image + 0.55 * colorize(labels)).astype(np.uint8)
     scale = max(0.4, image.shape[1] / 1600)
@@ -362,7 +362,7 @@ def analyze(
     """Segmentation, lines, vanishing points and facade orientations of one photo, as overlays + JSON."""
     import time
 
-    from geoloc.facades import analyze_image
+    from geoloc.vision.facades import analyze_image
 
     try:
         rgb, intr = load_photo(image, hfov)
@@ -375,7 +375,7 @@ def analyze(
         seg_source = str(labels)
     else:
         try:
-            from geoloc.segmentation import segment
+            from geoloc.vision.segmentation import segment
         except ImportError as exc:  # the module is not there yet
             typer.echo(f"error: segmentation is not available ({exc}); pass --labels LABELS.png", err=True)
             raise typer.Exit(2) from exc
@@ -384,7 +384,7 @@ def analyze(
         except FileNotFoundError as exc:  # ONNX model not built
             typer.echo(f"error: {exc}\n(or pass --labels LABELS.png)", err=True)
             raise typer.Exit(2) from exc
-        seg_source = "geoloc.segmentation"
+        seg_source = "geoloc.vision.segmentation"
     t_seg = time.perf_counter() - t0
     analysis = analyze_image(rgb, lab, intr)
     analysis.timings_s["segmentation"] = t_seg

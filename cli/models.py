@@ -29,8 +29,7 @@ def build(
     The segmentation network always, ALIKED when its features are asked for: everything the service
     needs at run time, so that nothing is built on a first request.
     """
-    from geoloc.features import canonical_method
-    from geoloc.models import (
+    from geoloc.export.models import (
         ALIKED_CONFIG_NAMES,
         build_aliked_model,
         build_segmentation_model,
@@ -38,6 +37,7 @@ def build(
         read_meta,
         segmentation_files,
     )
+    from geoloc.vision.features import canonical_method
 
     try:
         net_size = parse_size(size) if size else None
@@ -70,7 +70,7 @@ def build(
             raise typer.Exit(2) from exc
         typer.echo(f"{config_name + ' model':<20}{files.onnx}  ({time.perf_counter() - t0:.1f} s)")
 
-    from geoloc.retrieval import default_vocabulary, vocabulary_path
+    from geoloc.localize.retrieval import default_vocabulary, vocabulary_path
 
     for method in methods:
         t0 = time.perf_counter()

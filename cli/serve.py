@@ -16,7 +16,7 @@ import typer
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from geoloc.config import Settings
+    from contracts.settings import Settings
 
 
 def serve(
@@ -104,7 +104,7 @@ def _require_models() -> None:
     Only where workers run: the API alone (``serve --workers 0``) never loads the models, so it starts
     without them and its ``/readyz`` says what is missing.
     """
-    from geoloc.models import model_problems
+    from geoloc.export.models import model_problems
 
     problems = model_problems()
     if problems:

@@ -29,7 +29,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
-from geoloc.config import data_dir
+from contracts.settings import data_dir
 
 DATABASE_FILENAME = "geoloc.sqlite3"
 BUSY_TIMEOUT_MS = 30_000

@@ -9,7 +9,7 @@ Consistency: postings cascade from their document row, which cascades from the r
 deleting a reference removes it from the index in the same statement; :func:`index_reference`
 replaces a reference's document and postings atomically (call it inside the transaction that
 stores the reference's keypoints). Document frequencies are computed from the postings at query
-time, so there are no counters to drift. Scoring is the method's (``geoloc.retrieval.tfidf_scores``)
+time, so there are no counters to drift. Scoring is the method's (``geoloc.localize.retrieval.tfidf_scores``)
 on the arrays of :func:`postings_for_words`.
 
 Change log: ``sbow_changes(seq, map_id, reference_id)`` gets a row in the same transaction as every
@@ -223,7 +223,7 @@ def document_count(db: Database, map_id: int) -> int:
 
 @dataclass
 class Postings:
-    """The postings of some query words, as arrays for ``geoloc.retrieval.tfidf_scores``.
+    """The postings of some query words, as arrays for ``geoloc.localize.retrieval.tfidf_scores``.
 
     ``word``, ``doc``, ``count``: one entry per (word, reference) row, ``doc`` indexing ``reference_ids``
     and ``doc_lengths`` (total word count of each reference); ``n_docs``: indexed references of the map.

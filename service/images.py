@@ -1,4 +1,4 @@
-"""Checking an uploaded photo by its content (Pillow) and reading its EXIF (``geoloc.exif``); serving a stored one."""
+"""Checking an uploaded photo by its content (Pillow), reading its EXIF (``geoloc.photos.exif``), serving it."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 from fastapi.responses import FileResponse
 from PIL import Image, UnidentifiedImageError
 
-from geoloc.exif import read_exif
+from geoloc.photos.exif import read_exif
 from service.errors import ApiError
 
 ACCEPTED_FORMATS = {"JPEG": "jpg", "MPO": "jpg", "PNG": "png", "WEBP": "webp", "TIFF": "tif"}

@@ -41,7 +41,7 @@ Schema = dict[str, Any]
 
 def openapi_spec() -> Schema:
     """The app's OpenAPI document with default settings and API keys configured (no database is touched)."""
-    from geoloc.config import Settings
+    from contracts.settings import Settings
     from service.app import create_app
 
     settings = Settings.from_values(data_dir=Path("/nonexistent-geoloc-data"), api_keys="documented-key:read+write")

@@ -27,8 +27,8 @@ _model_check_lock = threading.Lock()
 
 
 def model_problems_cached(settings: Settings) -> list[str]:
-    """:func:`geoloc.models.model_problems` for the app's data folder, cached for :data:`MODEL_CHECK_TTL_S`."""
-    from geoloc.models import model_problems
+    """:func:`geoloc.export.models.model_problems` for the app's data folder, cached for :data:`MODEL_CHECK_TTL_S`."""
+    from geoloc.export.models import model_problems
 
     key = str(settings.data_dir)
     with _model_check_lock:

@@ -1,12 +1,12 @@
-"""The service's settings: the one :class:`geoloc.config.Settings`, and the rule for binding without keys.
+"""The service's settings: the one :class:`contracts.settings.Settings`, and the rule for binding without keys.
 
-Every setting, its default and its meaning are written once, in ``geoloc/config.py``; this module
+Every setting, its default and its meaning are written once, in ``contracts/settings.py``; this module
 re-exports what the routes and entry points use so that they need not know where it lives.
 """
 
 from __future__ import annotations
 
-from geoloc.config import Settings, SettingsError, get_settings
+from contracts.settings import Settings, SettingsError, get_settings
 
 __all__ = ["LOOPBACK_HOSTS", "Settings", "SettingsError", "get_settings", "is_loopback_host"]
 

@@ -23,7 +23,7 @@ import pyogrio.raw
 import shapely
 from pyproj import Transformer
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
 from geoloc.maps import CityMap, load_map
 
 HELSINKI_BUILDINGS = 464

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from geoloc.config import reset_settings
+from contracts.settings import reset_settings
 
 
 @contextmanager

@@ -15,10 +15,12 @@ import cv2
 import numpy as np
 import pytest
 
-from geoloc import aliked, config, models
-from geoloc.features import Features, canonical_method, extract_features
-from geoloc.retrieval import vocabulary_path
-from geoloc.transfer import match_and_verify
+from contracts import settings as config
+from geoloc.export import models
+from geoloc.localize.retrieval import vocabulary_path
+from geoloc.localize.transfer import match_and_verify
+from geoloc.vision import aliked
+from geoloc.vision.features import Features, canonical_method, extract_features
 
 from .model_fixtures import data_dir_environment
 
@@ -60,7 +62,7 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 @pytest.mark.parametrize("name", CONFIGS)
 def test_state_dicts_load_strictly(name: str) -> None:
     torch = pytest.importorskip("torch")
-    from geoloc.nets.aliked import ALIKED_CONFIGS, Aliked, load_aliked
+    from geoloc.export.nets.aliked import ALIKED_CONFIGS, Aliked, load_aliked
 
     weights = _shared_or_skip("models", f"{name}.pth")
     net = load_aliked(weights, name)  # strict=True inside
@@ -102,7 +104,7 @@ def _naive_deform_conv(x: np.ndarray, offset: np.ndarray, weight: np.ndarray) ->
 
 def test_grid_sample_deformable_conv_is_the_deformable_convolution() -> None:
     torch = pytest.importorskip("torch")
-    from geoloc.nets.aliked import DeformConv3x3
+    from geoloc.export.nets.aliked import DeformConv3x3
 
     torch.manual_seed(0)
     conv = DeformConv3x3(3, 4)
@@ -126,7 +128,7 @@ def test_grid_sample_deformable_conv_is_the_deformable_convolution() -> None:
 @pytest.mark.parametrize("name", CONFIGS)
 def test_onnx_runtime_matches_pytorch_on_a_real_photo(exported: Path, name: str) -> None:
     torch = pytest.importorskip("torch")
-    from geoloc.nets.aliked import load_aliked
+    from geoloc.export.nets.aliked import load_aliked
 
     net = load_aliked(models.aliked_weights_path(name), name)
     runtime = aliked.load_runtime(name)

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from geoloc.absolute_pose import estimate_pose, estimate_pose_from_groups, project
-from geoloc.anchors import CameraPose, MapAnchors, anchor_keypoints
-from geoloc.camera import Intrinsics
+from geoloc.core.camera import Intrinsics
+from geoloc.localize.absolute_pose import estimate_pose, estimate_pose_from_groups, project
+from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.maps import city_map_from_footprints
-from geoloc.vanishing import rotation_upright_from_pitch_roll
+from geoloc.vision.vanishing import rotation_upright_from_pitch_roll
 
 from .scenes import box, square_building
 

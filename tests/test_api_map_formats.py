@@ -15,7 +15,7 @@ from typing import Any
 import httpx
 import pytest
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
 from geoloc.maps import MapReadOptions, map_cache_dir, map_cache_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 

@@ -17,7 +17,7 @@ import httpx
 import pytest
 from PIL import Image
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
 
 from .conftest import Profile
 from .service_fixtures import (

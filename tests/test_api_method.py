@@ -15,7 +15,7 @@ import httpx
 import numpy as np
 import pytest
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 from .conftest import Profile

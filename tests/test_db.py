@@ -153,7 +153,7 @@ def test_map_round_trip_and_cascading_delete(db) -> None:
 
 def ranked_references(db, map_id: int, query_words: np.ndarray) -> list[int]:
     """Reference ids with a positive score, best first (the method's scoring on the db postings)."""
-    from geoloc.retrieval import tfidf_scores
+    from geoloc.localize.retrieval import tfidf_scores
 
     p = sbow.postings_for_words(db, map_id, query_words)
     scores = tfidf_scores(query_words, p.word, p.doc, p.count, p.doc_lengths, p.n_docs)

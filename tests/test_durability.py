@@ -23,7 +23,7 @@ from typing import Any
 import httpx
 import pytest
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
 
 from .conftest import Profile
 from .service_fixtures import (

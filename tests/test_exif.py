@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from geoloc.config import shared_dir
-from geoloc.exif import read_exif, write_jpeg
+from contracts.settings import shared_dir
+from geoloc.photos.exif import read_exif, write_jpeg
 
 LUND = shared_dir() / "data" / "lund"
 

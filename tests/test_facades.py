@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geoloc.camera import Intrinsics, orientation_from_vanishing_column, vanishing_column_of_orientation
-from geoloc.facade_metrics import orientation_errors
-from geoloc.facades import analyze_image, facade_image_model
-from geoloc.image_model import image_model_from_columns
-from geoloc.labels import BUILDING, ROAD, SKY
+from geoloc.core.camera import Intrinsics, orientation_from_vanishing_column, vanishing_column_of_orientation
+from geoloc.core.labels import BUILDING, ROAD, SKY
+from geoloc.evaluation.facades import orientation_errors
+from geoloc.vision.facades import analyze_image, facade_image_model
+from geoloc.vision.image_model import image_model_from_columns
 
 CAMERA_HEIGHT_M = 1.6
 
@@ -31,7 +31,7 @@ def render_walls(
     """Render upright-camera views of vertical walls with window rows (OpenCV drawing).
 
     walls: (start point (x, z) in the camera frame, along-wall bearing theta_deg (the wall's
-    orientation, see geoloc.camera), length m, RGB colour). Returns (image RGB uint8, labels).
+    orientation, see geoloc.core.camera), length m, RGB colour). Returns (image RGB uint8, labels).
     The walls go from 10 m above the camera down to the ground (1.6 m below it).
     """
     import cv2

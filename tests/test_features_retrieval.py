@@ -11,9 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from geoloc.config import shared_dir
-from geoloc.features import Features, extract_features, root_sift
-from geoloc.retrieval import (
+from contracts.settings import shared_dir
+from geoloc.localize.retrieval import (
     InvertedIndex,
     Vocabulary,
     build_vocabulary,
@@ -22,6 +21,7 @@ from geoloc.retrieval import (
     tfidf_scores,
     vocabulary_path,
 )
+from geoloc.vision.features import Features, extract_features, root_sift
 
 LUND = shared_dir() / "data" / "lund" / "images"
 CAMVID_TRAIN = shared_dir() / "data" / "camvid" / "train"
@@ -220,7 +220,7 @@ def test_tfidf_scores_from_postings_rows_like_a_database():
 @lru_cache(maxsize=1)
 def small_camvid_vocabulary() -> Vocabulary:
     """256 words from the building pixels of every 8th CamVid train image (a few seconds)."""
-    from geoloc.labels import BUILDING
+    from geoloc.core.labels import BUILDING
 
     descs = []
     for path in sorted((CAMVID_TRAIN / "images").glob("*.*"))[::8]:

@@ -2,7 +2,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from geoloc.geo import LocalFrame, bearing_deg, bearing_vector
+from geoloc.core.geo import LocalFrame, bearing_deg, bearing_vector
 
 FRAME = LocalFrame(60.1716, 24.9443)
 

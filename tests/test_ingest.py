@@ -23,8 +23,8 @@ from PIL import Image
 from rich.console import Console
 
 from cli.ingest import IngestAbortError, ingest_folder
-from geoloc.config import shared_path
-from geoloc.exif import write_jpeg
+from contracts.settings import shared_path
+from geoloc.photos.exif import write_jpeg
 
 from .conftest import Profile
 from .service_fixtures import (

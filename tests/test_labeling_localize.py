@@ -4,14 +4,14 @@ import inspect
 import numpy as np
 import pytest
 
-from geoloc.camera import Intrinsics
-from geoloc.image_model import ImageModel, bin_offsets_deg
-from geoloc.labeling import column_building_ids, label_reference
-from geoloc.likelihood import image_model_from_map
-from geoloc.localize import PositionPrior, localize
-from geoloc.pipeline import LabelOptions
-from geoloc.pose_refinement import refine_pose, vanishing_point_yaw
-from geoloc.raycast import cast_panoramas
+from geoloc.core.camera import Intrinsics
+from geoloc.localize.grid import PositionPrior, localize
+from geoloc.localize.labeling import column_building_ids, label_reference
+from geoloc.localize.likelihood import image_model_from_map
+from geoloc.localize.pipeline import LabelOptions
+from geoloc.localize.refinement import refine_pose, vanishing_point_yaw
+from geoloc.maps.raycast import cast_panoramas
+from geoloc.vision.image_model import ImageModel, bin_offsets_deg
 
 from .scenes import street_canyon, twin_buildings
 

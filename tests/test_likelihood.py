@@ -3,12 +3,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from geoloc.camera import Intrinsics
-from geoloc.image_model import ImageModel, bin_offsets_deg
-from geoloc.likelihood import default_yaws_deg, image_model_from_map, pose_likelihood
+from geoloc.core.camera import Intrinsics
+from geoloc.localize.likelihood import default_yaws_deg, image_model_from_map, pose_likelihood
+from geoloc.localize.posterior import grid_around, pose_posterior, position_heatmap, top_poses
 from geoloc.maps import city_map_from_footprints
-from geoloc.posterior import grid_around, pose_posterior, position_heatmap, top_poses
-from geoloc.raycast import cast_panoramas
+from geoloc.maps.raycast import cast_panoramas
+from geoloc.vision.image_model import ImageModel, bin_offsets_deg
 
 from .scenes import l_shaped_building, square_building, street_canyon, twin_buildings
 
@@ -133,7 +133,7 @@ _CANYON_PANO = cast_panoramas(street_canyon(), grid_around(street_canyon(), (0.0
 
 
 def test_skyline_term_tells_distances_apart_where_the_base_is_hidden() -> None:
-    from geoloc.likelihood import known_building_heights
+    from geoloc.localize.likelihood import known_building_heights
 
     city = square_building()  # 15 m tall, height tagged
     true_xy, near_xy = (0.0, -30.0), (0.0, -22.0)

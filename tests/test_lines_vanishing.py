@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from geoloc.camera import Intrinsics, vanishing_column_of_orientation, wrap_orientation_deg
-from geoloc.lines import detect_line_segments
-from geoloc.vanishing import estimate_vanishing_points, pitch_roll_deg, rotation_upright_from_pitch_roll
+from geoloc.core.camera import Intrinsics, vanishing_column_of_orientation, wrap_orientation_deg
+from geoloc.vision.lines import detect_line_segments
+from geoloc.vision.vanishing import estimate_vanishing_points, pitch_roll_deg, rotation_upright_from_pitch_roll
 
 INTR = Intrinsics.from_hfov(1024, 768, 62.0)
 
@@ -146,7 +146,7 @@ def test_lsd_on_synthetic_and_odd_sized_images() -> None:
 def test_lsd_on_a_real_photo() -> None:
     from PIL import Image
 
-    from geoloc.config import shared_path
+    from contracts.settings import shared_path
 
     try:
         folder = shared_path("data", "lund", "images")

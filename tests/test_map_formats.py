@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import shapely
 
-from geoloc.geo import LocalFrame
+from geoloc.core.geo import LocalFrame
 from geoloc.maps import CityMap, MapLoadError, MapReadOptions, load_map
 from geoloc.maps.crs import guess_crs
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import shapely
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
+from geoloc.localize.posterior import make_grid
 from geoloc.maps import (
     CityMap,
     FacadeIndex,
@@ -24,8 +25,7 @@ from geoloc.maps import (
     save_city_map,
 )
 from geoloc.maps.build import RawMap, build_city_map
-from geoloc.posterior import make_grid
-from geoloc.raycast import cast_all_hits, cast_panoramas
+from geoloc.maps.raycast import cast_all_hits, cast_panoramas
 
 from .map_files import helsinki_wgs84
 

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geoloc.config import shared_path
-from geoloc.evaluation import KS, EvalRun, default_runs, evaluate_world
-from geoloc.pipeline import analyze_photo, label_reference_photo, load_photo
-from geoloc.query import QueryConfig
-from geoloc.retrieval import InvertedIndex, default_vocabulary
+from contracts.settings import shared_path
+from geoloc.evaluation.world import KS, EvalRun, default_runs, evaluate_world
+from geoloc.localize.pipeline import analyze_photo, label_reference_photo, load_photo
+from geoloc.localize.query import QueryConfig
+from geoloc.localize.retrieval import InvertedIndex, default_vocabulary
+from geoloc.localize.transfer import rerank_by_inliers
 from geoloc.sim.world import WorldOptions, generate_world, load_world
-from geoloc.transfer import rerank_by_inliers
 
 pytestmark = pytest.mark.slow  # the real method end to end: minutes
 

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geoloc.config import shared_path
+from contracts.settings import shared_path
 from geoloc.maps import MapLoadError, load_map, map_summary
 
 from .scenes import l_shaped_building, square_building

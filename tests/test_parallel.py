@@ -9,10 +9,10 @@ import time
 import numpy as np
 import pytest
 
-from geoloc.absolute_pose import group_proposal
-from geoloc.camera import intrinsics_from_focal
-from geoloc.config import reset_settings
-from geoloc.parallel import run_beside, thread_map
+from contracts.settings import reset_settings
+from geoloc.core.camera import intrinsics_from_focal
+from geoloc.core.parallel import run_beside, thread_map
+from geoloc.localize.absolute_pose import group_proposal
 
 
 @pytest.fixture(params=[1, 2, 4])

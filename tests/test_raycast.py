@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from geoloc.camera import wrap_orientation_deg
-from geoloc.raycast import cast_all_hits, cast_panoramas, panorama_window
+from geoloc.core.camera import wrap_orientation_deg
+from geoloc.maps.raycast import cast_all_hits, cast_panoramas, panorama_window
 
 from .scenes import l_shaped_building, square_building, street_canyon
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from geoloc.config import shared_path
-from geoloc.evaluation import evaluate_photos
+from contracts.settings import shared_path
+from geoloc.evaluation.world import evaluate_photos
 
 from .model_fixtures import data_dir_environment
 

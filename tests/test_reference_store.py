@@ -12,10 +12,10 @@ import pytest
 
 from db import Database, connect, migrate, sbow, transaction
 from db import references as reference_store
-from geoloc.anchors import MapAnchors
-from geoloc.features import Features
-from geoloc.query import InMemoryReferenceStore, StoredReference
-from geoloc.retrieval import Vocabulary
+from geoloc.localize.anchors import MapAnchors
+from geoloc.localize.query import InMemoryReferenceStore, StoredReference
+from geoloc.localize.retrieval import Vocabulary
+from geoloc.vision.features import Features
 from workers.reference_store import DatabaseReferenceStore
 
 from .conftest import Profile

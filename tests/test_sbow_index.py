@@ -10,8 +10,8 @@ import pytest
 from db import Database, connect, migrate, sbow, transaction
 from db import maps as map_store
 from db import references as reference_store
-from geoloc.retrieval import bag, tfidf_scores
-from geoloc.sbow_index import SbowIndex
+from geoloc.localize.retrieval import bag, tfidf_scores
+from geoloc.localize.sbow_index import SbowIndex
 from workers import reference_store as store_module
 from workers.reference_store import DatabaseReferenceStore
 
@@ -45,7 +45,7 @@ def _upsert(index: SbowIndex, doc_id: int, words: np.ndarray) -> None:
 
 def test_ranking_equals_tfidf_scores_through_changes(monkeypatch: pytest.MonkeyPatch) -> None:
     # Compact often, so base, recent segment and tombstones all take part.
-    monkeypatch.setattr("geoloc.sbow_index.COMPACT_MIN_RECENT", 40)
+    monkeypatch.setattr("geoloc.localize.sbow_index.COMPACT_MIN_RECENT", 40)
     rng = np.random.default_rng(0)
     docs = {int(i): _zipf_words(rng, int(rng.integers(0, 300))) for i in rng.choice(5000, 400, replace=False)}
     docs[min(docs) - 1] = np.zeros(0, np.int64)  # a reference without features is a document too

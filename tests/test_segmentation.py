@@ -14,7 +14,10 @@ import cv2
 import numpy as np
 import pytest
 
-from geoloc import config, labels, models, segmentation
+from contracts import settings as config
+from geoloc.core import labels
+from geoloc.export import models
+from geoloc.vision import segmentation
 
 from .model_fixtures import data_dir_environment
 
@@ -58,7 +61,7 @@ def camvid_pair() -> tuple[np.ndarray, np.ndarray]:
 @pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_state_dicts_load_strictly() -> None:
     torch = pytest.importorskip("torch")
-    from geoloc.nets.espnetv2 import load_espnetv2
+    from geoloc.export.nets.espnetv2 import load_espnetv2
 
     for name, s, n_params in [
         ("espnetv2_s_2.0_city_1024x512.pth", 2.0, 789242),
@@ -73,7 +76,7 @@ def test_state_dicts_load_strictly() -> None:
 @pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_onnx_matches_torch(onnx_path: Path, camvid_pair: tuple[np.ndarray, np.ndarray]) -> None:
     torch = pytest.importorskip("torch")
-    from geoloc.nets.espnetv2 import NormalizedSegmenter, load_espnetv2
+    from geoloc.export.nets.espnetv2 import NormalizedSegmenter, load_espnetv2
 
     session = segmentation.load_session()
     x = segmentation._prepare(camvid_pair[0], segmentation.network_size(session))

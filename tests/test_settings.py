@@ -10,15 +10,15 @@ from pathlib import Path
 
 import pytest
 
-from geoloc import config
-from geoloc.config import REPO_ROOT, Settings, SettingsError, get_settings, reset_settings, settings_table
+from contracts import settings as config
+from contracts.settings import REPO_ROOT, Settings, SettingsError, get_settings, reset_settings, settings_table
 
 
 def test_readme_settings_table_is_generated_from_the_settings_class() -> None:
     readme = (REPO_ROOT / "README.md").read_text()
     match = re.search(r"<!-- settings table: [^\n]*-->\n(.*?)\n<!-- end of settings table -->", readme, re.S)
     assert match, "README.md has no generated settings table"
-    assert match.group(1) == settings_table(), "README settings table is stale: paste `python -m geoloc.config`"
+    assert match.group(1) == settings_table(), "README settings table is stale: paste `python -m contracts.settings`"
 
 
 def test_every_field_is_documented_with_a_description() -> None:

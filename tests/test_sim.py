@@ -11,12 +11,12 @@ import cv2
 import numpy as np
 import pytest
 
-from geoloc import labels
-from geoloc.camera import Intrinsics, vanishing_column_of_orientation, wrap_orientation_deg
-from geoloc.exif import read_exif
-from geoloc.geo import LocalFrame
+from geoloc.core import labels
+from geoloc.core.camera import Intrinsics, vanishing_column_of_orientation, wrap_orientation_deg
+from geoloc.core.geo import LocalFrame
 from geoloc.maps import CityMap, load_map
-from geoloc.raycast import cast_panoramas
+from geoloc.maps.raycast import cast_panoramas
+from geoloc.photos.exif import read_exif
 from geoloc.sim import Pose, Render, Scene, render
 from geoloc.sim.world import WorldOptions, camera_for, generate_world, load_world
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from geoloc.config import Settings
+from contracts.settings import Settings
 from service.app import create_app
 from service.errors import allowed_methods
 from service.limits import RateLimiter

@@ -13,20 +13,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geoloc import raycast
-from geoloc.config import shared_path
-from geoloc.identity import IdentityMap
-from geoloc.labeling import column_building_ids, pose_identities
-from geoloc.likelihood import (
+from contracts.settings import shared_path
+from geoloc.localize.identity import IdentityMap
+from geoloc.localize.labeling import column_building_ids, pose_identities
+from geoloc.localize.likelihood import (
     default_yaws_deg,
     image_model_from_map,
     known_building_heights,
     pose_likelihood,
     pose_likelihood_numpy,
 )
-from geoloc.maps import CityMap
-from geoloc.pipeline import Photo, PhotoEvidence, analyze_photo, load_photo
-from geoloc.posterior import grid_around
+from geoloc.localize.pipeline import Photo, PhotoEvidence, analyze_photo, load_photo
+from geoloc.localize.posterior import grid_around
+from geoloc.maps import CityMap, raycast
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 pytestmark = pytest.mark.slow  # a rendered world and the numpy formulations: about a minute
@@ -131,7 +130,7 @@ def test_likelihood_kernel_equals_numpy(scene: Scene) -> None:
 
 
 def _identity_from_poses_reference(column_ids: np.ndarray, weights: np.ndarray, mask: np.ndarray) -> IdentityMap:
-    """The code :func:`geoloc.labeling.pose_identities` replaced (np.add.at over every pose and pixel column)."""
+    """The code :func:`geoloc.localize.labeling.pose_identities` replaced (np.add.at over every pose and column)."""
     ids = np.unique(column_ids[column_ids >= 0])
     width = column_ids.shape[1]
     prob = np.zeros((width, len(ids)), dtype=float)

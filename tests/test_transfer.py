@@ -6,16 +6,16 @@ import cv2
 import numpy as np
 import pytest
 
-from geoloc.config import shared_dir
-from geoloc.features import Features, extract_features
-from geoloc.identity import IdentityMap, identity_accuracy
-from geoloc.transfer import (
+from contracts.settings import shared_dir
+from geoloc.localize.identity import IdentityMap, identity_accuracy
+from geoloc.localize.transfer import (
     ReferenceEvidence,
     match_features,
     rerank_by_inliers,
     transfer_identities,
     verify_matches,
 )
+from geoloc.vision.features import Features, extract_features
 from tests.test_features_retrieval import load_rgb, rough_building_mask, textured_image
 
 LUND = shared_dir() / "data" / "lund" / "images"
@@ -170,7 +170,7 @@ def test_transfer_on_a_simulated_pair():
 
     The right building on the columns both photos see, from the reference's ground-truth identities.
     """
-    from geoloc.camera import Intrinsics
+    from geoloc.core.camera import Intrinsics
     from geoloc.sim import Pose, Scene, render
     from tests.scenes import street_canyon
 

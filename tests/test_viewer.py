@@ -24,8 +24,8 @@ import httpx
 import numpy as np
 import pytest
 
-from geoloc.config import shared_path
-from geoloc.geo import LocalFrame
+from contracts.settings import shared_path
+from geoloc.core.geo import LocalFrame
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 from .model_fixtures import link_models

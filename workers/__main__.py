@@ -12,8 +12,8 @@ import logging
 import os
 import sys
 
-from geoloc.config import SettingsError, get_settings
-from geoloc.models import model_problems
+from contracts.settings import SettingsError, get_settings
+from geoloc.export.models import model_problems
 from workers.handlers import load_builtin_handlers, load_plugins
 from workers.worker import Worker, install_signal_handlers
 

@@ -35,7 +35,7 @@ from db import jobs as job_store
 if TYPE_CHECKING:
     from celery import Celery
 
-    from geoloc.config import Settings
+    from contracts.settings import Settings
 
 log = logging.getLogger("geoloc.broker")
 

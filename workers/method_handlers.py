@@ -20,19 +20,19 @@ from typing import Any
 
 import numpy as np
 
+from contracts.settings import data_dir, get_settings
 from db import Database, sbow, transaction
 from db import maps as map_store
 from db import queries as query_store
 from db import references as reference_store
 from db.files import open_store
 from db.jobs import LOCALIZE_QUERY
-from geoloc.config import data_dir, get_settings
-from geoloc.localize import PositionPrior
+from geoloc.localize.grid import PositionPrior
+from geoloc.localize.pipeline import Photo, analyze_photo, label_reference_photo, load_photo
+from geoloc.localize.query import QueryAnswer, QueryConfig, geolocate
+from geoloc.localize.retrieval import Vocabulary, default_vocabulary, vocabulary_path
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
-from geoloc.pipeline import Photo, analyze_photo, label_reference_photo, load_photo
-from geoloc.query import QueryAnswer, QueryConfig, geolocate
-from geoloc.retrieval import Vocabulary, default_vocabulary, vocabulary_path
-from geoloc.segmentation import ModelNotBuiltError
+from geoloc.vision.segmentation import ModelNotBuiltError
 from workers.answers import checked_query_answer, checked_reference_labels
 from workers.handlers import LABEL_REFERENCE, PermanentJobError, register, treat_as_permanent
 from workers.reference_store import DatabaseReferenceStore, database_key
@@ -217,7 +217,7 @@ def _describe_buildings(
 
 @register(LOCALIZE_QUERY)
 def localize_query(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
-    """Answer a query with the query stage (:func:`geoloc.query.geolocate`); store the JSON answer."""
+    """Answer a query with the query stage (:func:`geoloc.localize.query.geolocate`); store the JSON answer."""
     query_id, map_id = int(payload["query_id"]), int(payload["map_id"])
     query = query_store.get_query(db, query_id)
     if query is None:
@@ -259,7 +259,7 @@ def localize_query(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
 
 
 def _query_result(city: CityMap, photo: Photo, answer: QueryAnswer) -> dict[str, Any]:
-    """The JSON answer (WGS84 and compass headings) of a :class:`geoloc.query.QueryAnswer`."""
+    """The JSON answer (WGS84 and compass headings) of a :class:`geoloc.localize.query.QueryAnswer`."""
     frame = city.frame
     loc = answer.localization
     locations = []

@@ -1,7 +1,7 @@
-"""The query stage's reference store backed by the service's database (:class:`geoloc.query.ReferenceStore`).
+"""The query stage's reference store backed by the service's database (:class:`geoloc.localize.query.ReferenceStore`).
 
-Shortlist: each worker process keeps every map's SBoW index in memory (:class:`geoloc.sbow_index.SbowIndex`,
-which ranks exactly as :func:`geoloc.retrieval.tfidf_scores` on the database's postings, the formula the
+Shortlist: each worker process keeps every map's SBoW index in memory (:class:`geoloc.localize.sbow_index.SbowIndex`,
+which ranks exactly as :func:`geoloc.localize.retrieval.tfidf_scores` on the database's postings, the formula the
 evaluation's in-memory index uses too). The database stays the source of truth: the first query on a map
 reads its whole index in one snapshot together with the change log's high-water mark
 (:func:`db.sbow.index_snapshot`); every later query first reads the log past the mark
@@ -30,11 +30,11 @@ import numpy as np
 
 from db import Database, sbow
 from db import references as reference_store
-from geoloc.anchors import MapAnchors
-from geoloc.features import Features
-from geoloc.query import StoredReference
-from geoloc.retrieval import DEFAULT_WORDS
-from geoloc.sbow_index import SbowIndex
+from geoloc.localize.anchors import MapAnchors
+from geoloc.localize.query import StoredReference
+from geoloc.localize.retrieval import DEFAULT_WORDS
+from geoloc.localize.sbow_index import SbowIndex
+from geoloc.vision.features import Features
 
 UNKNOWN_POSITION_SIGMA_M = 10.0
 """Position uncertainty credited to a reference stored before labelling recorded one."""

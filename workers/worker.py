@@ -25,10 +25,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from contracts.settings import Settings
 from db import connect, migrate
 from db import jobs as job_store
 from db.files import open_store
-from geoloc.config import Settings
 from workers.handlers import HANDLERS, JobHandler, PermanentJobError, is_permanent
 from workers.retention import purge_expired_queries, purge_interval_s
 

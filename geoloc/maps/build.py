@@ -26,7 +26,7 @@ from shapely.geometry import LineString, MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import linemerge, polygonize, unary_union
 
-from geoloc.geo import LocalFrame, bearing_deg, frame_for_bbox
+from geoloc.core.geo import LocalFrame, bearing_deg, frame_for_bbox
 from geoloc.maps.model import (
     Building,
     CityMap,

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from geoloc.geo import LocalFrame
+from geoloc.core.geo import LocalFrame
 from geoloc.maps.build import RawMap, build_city_map
 from geoloc.maps.gis_reader import read_gis
 from geoloc.maps.model import CityMap, LoadReport, MapLoadError, MapReadOptions

@@ -3,7 +3,7 @@
 :class:`CityMap` with its :class:`Building` list, :class:`Facades` arrays and :class:`LoadReport`;
 how a file is read (:class:`MapReadOptions`); the error :class:`MapLoadError`.
 
-Everything geometric is in the map's local East-North frame (metres, :class:`geoloc.geo.LocalFrame`).
+Everything geometric is in the map's local East-North frame (metres, :class:`geoloc.core.geo.LocalFrame`).
 Spatial lookups that grow with the map go through lazily built, cached indexes (an STRtree of the
 footprints, a cell index of the facades), so that work near one place costs the same on a
 500-building map and on a 100,000-building one.
@@ -21,7 +21,7 @@ from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
 
-from geoloc.geo import LocalFrame
+from geoloc.core.geo import LocalFrame
 from geoloc.maps.spatial import FacadeIndex
 
 

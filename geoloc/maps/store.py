@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from geoloc.geo import LocalFrame
+from geoloc.core.geo import LocalFrame
 from geoloc.maps.model import Building, CityMap, Facades, LoadReport, MapReadOptions
 
 CACHE_VERSION = 1

@@ -20,10 +20,10 @@ Geometry (all vectorised numpy; loops only over a few depth layers, buildings an
 4. Trees (billboards) and parked cars (two boxes with wheels) are drawn far to near with a depth
    test against the building/ground depth buffer.
 5. Photometric effects: sun lighting by facade orientation, exposure, vignetting, blur, sensor
-   noise. JPEG compression happens when the file is written (:func:`geoloc.exif.write_jpeg`).
+   noise. JPEG compression happens when the file is written (:func:`geoloc.photos.exif.write_jpeg`).
 
 Pixel convention: pixel (row r, column c) covers [c, c+1] x [r, r+1]; its centre is (c + 0.5, r + 0.5)
-in the coordinates of :class:`~geoloc.camera.Intrinsics` (cx = width / 2 is the image centre).
+in the coordinates of :class:`~geoloc.core.camera.Intrinsics` (cx = width / 2 is the image centre).
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from geoloc import labels
-from geoloc.camera import Intrinsics, wrap_orientation_deg
-from geoloc.raycast import cast_all_hits
+from geoloc.core import labels
+from geoloc.core.camera import Intrinsics, wrap_orientation_deg
+from geoloc.maps.raycast import cast_all_hits
 from geoloc.sim.scene import Scene
 from geoloc.sim.textures import (
     DETAIL_HEIGHT_M,
@@ -79,11 +79,11 @@ class Pose:
 class Render:
     """One rendered photo and its ground truth (image size H x W).
 
-    rgb: (H, W, 3) uint8 before JPEG. labels: (H, W) uint8 class codes (:mod:`geoloc.labels`).
+    rgb: (H, W, 3) uint8 before JPEG. labels: (H, W) uint8 class codes (:mod:`geoloc.core.labels`).
     building_id: (H, W) int32 building visible at each pixel, -1 where none (trees and cars hide
     buildings). facade_id: (H, W) int32 likewise for facades.
     column_building_id, column_facade_id: (W,) int32 the nearest facade hit of each column's ray
-    (what :func:`geoloc.raycast.cast_panoramas` sees along that bearing), -1 where none.
+    (what :func:`geoloc.maps.raycast.cast_panoramas` sees along that bearing), -1 where none.
     column_theta_deg: (W,) float32 that facade's orientation relative to the camera
     (normal bearing - yaw, wrapped into [-90, 90)), NaN where none. column_distance_m: (W,) float32
     horizontal distance to it, inf where none. With pitch or roll the per-column values are those

@@ -14,7 +14,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from geoloc.maps import CityMap
-from geoloc.raycast import FacadeIndex
+from geoloc.maps.raycast import FacadeIndex
 from geoloc.sim.textures import BuildingLook, cloud_panorama, make_look, tree_sprites
 
 ROAD_HALF_WIDTH_M = 4.0

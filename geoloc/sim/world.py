@@ -33,10 +33,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from geoloc.camera import Intrinsics
-from geoloc.exif import write_jpeg
+from geoloc.core.camera import Intrinsics
 from geoloc.maps import CityMap, load_map
-from geoloc.raycast import cast_panoramas, panorama_window
+from geoloc.maps.raycast import cast_panoramas, panorama_window
+from geoloc.photos.exif import write_jpeg
 from geoloc.sim.render import Pose, Render, render
 from geoloc.sim.scene import Scene
 

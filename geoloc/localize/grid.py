@@ -1,0 +1,218 @@
+"""Query geolocation: a probability map over positions x yaws and the top-N distinct poses.
+
+Candidate positions are a regular grid (paper: 10 m, 120 yaws) outside footprints. With a position
+prior (e.g. the photo's GPS) the grid covers ``PRIOR_REGION_SIGMAS`` standard deviations around it;
+without one, the places that can see the identified buildings (within ``search_radius_m`` of any building
+the photo's identities name), and with neither the whole map. The position and heading priors multiply
+the likelihood; the answer says which priors were used and how the region was chosen.
+
+Continuous refinement of the best poses is :mod:`geoloc.localize.refinement`'s (used by :mod:`geoloc.localize.query`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import shapely
+from shapely.ops import unary_union
+
+from geoloc.localize.labeling import heading_prior
+from geoloc.localize.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, known_building_heights, pose_likelihood
+from geoloc.localize.posterior import (
+    DEFAULT_SHARPNESS,
+    PoseGrid,
+    RankedPose,
+    make_grid,
+    pose_posterior,
+    position_heatmap,
+    top_poses,
+)
+from geoloc.maps import CityMap
+from geoloc.maps.raycast import cast_panoramas
+from geoloc.vision.image_model import ImageModel
+
+DEFAULT_QUERY_CELL_M = 10.0
+DEFAULT_SEARCH_RADIUS_M = 80.0
+PRIOR_REGION_SIGMAS = 3.0
+"""A position prior limits the search to this many standard deviations around its centre."""
+MIN_BUILDING_PROBABILITY = 0.05  # identity mass a building needs (max over columns) to define the search region
+
+
+DEFAULT_PRIOR_RADIUS_M = 50.0
+"""Radius of a query's position prior when the request gives none (a phone's GPS in a street canyon)."""
+
+
+@dataclass
+class PositionPrior:
+    """A Gaussian prior on the camera position: centre (x_m, y_m), standard deviation ``sigma_m`` (m).
+
+    The API speaks of a prior *radius*, about two standard deviations (:meth:`from_radius`); inside, every
+    prior (query GPS here, reference GPS in :mod:`geoloc.localize.labeling`) is a standard deviation.
+    """
+
+    x_m: float
+    y_m: float
+    sigma_m: float
+
+    @classmethod
+    def from_radius(cls, x_m: float, y_m: float, radius_m: float) -> PositionPrior:
+        """The prior of a position known to within ``radius_m`` (about 2 sigma, ~86 % of the mass)."""
+        return cls(x_m, y_m, radius_m / 2.0)
+
+    @property
+    def radius_m(self) -> float:
+        """Two standard deviations (m)."""
+        return 2.0 * self.sigma_m
+
+    def weights(self, positions: np.ndarray) -> np.ndarray:
+        """(P,) prior weight (peak 1) of positions (P, 2)."""
+        d2 = np.sum((positions - np.array([self.x_m, self.y_m])) ** 2, axis=1)
+        weights: np.ndarray = np.exp(-0.5 * d2 / self.sigma_m**2)
+        return weights
+
+
+@dataclass
+class Localization:
+    """The answer for one query (local frame).
+
+    grid: the candidate grid; positions: (P, 2) its valid cells; posterior: (P, Y) over positions x yaws.
+    heatmap: (rows, cols) probability per grid cell (summed over yaws). poses: top-N distinct poses.
+    likelihood: (P, Y) p(I | pose) before priors.
+    search: how the candidate region was chosen and which priors were applied.
+    """
+
+    grid: PoseGrid
+    positions: np.ndarray
+    yaws_deg: np.ndarray
+    posterior: np.ndarray
+    heatmap: np.ndarray
+    poses: list[RankedPose]
+    likelihood: np.ndarray
+    search: dict[str, Any] = field(default_factory=dict)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+def identified_buildings(image_model: ImageModel, min_probability: float = MIN_BUILDING_PROBABILITY) -> list[int]:
+    """Building ids whose identity probability reaches ``min_probability`` in some column bin."""
+    prob, ids = image_model.identity_prob, image_model.identity_building_ids
+    if prob is None or ids is None:
+        return []
+    peak = prob.max(axis=0) if prob.size else np.zeros(0)
+    return [int(b) for b in np.asarray(ids)[peak >= min_probability]]
+
+
+def search_grid(
+    city_map: CityMap,
+    building_ids: list[int],
+    cell_m: float,
+    search_radius_m: float,
+    position_prior: PositionPrior | None,
+) -> tuple[PoseGrid, str]:
+    """Candidate grid and a word on how it was chosen ("identified_buildings", "position_prior", "whole_map")."""
+    if position_prior is not None:
+        # The prior bounds the search; identities still weigh every pose inside it through the likelihood.
+        region = shapely.Point(position_prior.x_m, position_prior.y_m).buffer(
+            PRIOR_REGION_SIGMAS * position_prior.sigma_m
+        )
+        reason = "position_prior"
+    elif building_ids:
+        region = unary_union([city_map.buildings[b].polygon for b in building_ids]).buffer(search_radius_m)
+        reason = "identified_buildings"
+    else:
+        region = shapely.box(*city_map.bounds_m)
+        reason = "whole_map"
+    min_x, min_y, max_x, max_y = region.bounds
+    # Snap the grid to multiples of the cell so that grids of different queries share positions.
+    origin = np.floor(np.array([min_x, min_y]) / cell_m) * cell_m
+    grid = make_grid(city_map, (origin[0], origin[1], max_x, max_y), cell_m)
+    inside_region = shapely.contains_xy(region, *grid.positions.T)
+    grid.valid[grid.valid] = inside_region
+    return grid, reason
+
+
+def localize(
+    city_map: CityMap,
+    image_model: ImageModel,
+    *,
+    use_identity: bool = True,
+    candidate_buildings: list[int] | None = None,
+    position_prior: PositionPrior | None = None,
+    prior_yaw_deg: float | None = None,
+    cell_m: float = DEFAULT_QUERY_CELL_M,
+    search_radius_m: float = DEFAULT_SEARCH_RADIUS_M,
+    n_yaws: int = 120,
+    sigma_m: float = DEFAULT_SIGMA_M,
+    normalization: str = "weighted",
+    sharpness: float = DEFAULT_SHARPNESS,
+    top_n: int = 10,
+    min_separation_m: float | None = None,
+    use_skyline: bool = True,
+) -> Localization:
+    """Localise a photo from its image model (with identities, from transfer) on the map.
+
+    candidate_buildings: the buildings that define the search region (default: those the image model's
+    identities name). With ``use_identity=False`` the same region is searched with the geometry-only
+    likelihood (the paper's baseline). prior_yaw_deg: local bearing. min_separation_m: between the
+    top-N answers (default: the grid cell).
+    """
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    buildings = identified_buildings(image_model) if candidate_buildings is None else list(candidate_buildings)
+    grid, reason = search_grid(city_map, buildings, cell_m, search_radius_m, position_prior)
+    positions = grid.positions
+    yaws = default_yaws_deg(n_yaws)
+    has_identity = image_model.identity_prob is not None and float(image_model.identity_prob.sum()) > 0
+    # Without any identity evidence the identity-aware likelihood is zero everywhere: use geometry.
+    identity_likelihood = bool(use_identity and has_identity)
+    search: dict[str, Any] = {
+        "region": reason,
+        "buildings": buildings,
+        "positions": int(len(positions)),
+        "yaws": n_yaws,
+        "cell_m": cell_m,
+        "identity": identity_likelihood,
+        "position_prior": position_prior is not None,
+        "heading_prior": prior_yaw_deg is not None,
+    }
+    if len(positions) == 0:
+        raise ValueError("no candidate positions: the search region lies entirely inside buildings")
+    timings["grid"] = 1e3 * (time.perf_counter() - t0)
+
+    t0 = time.perf_counter()
+    panoramas = cast_panoramas(city_map, positions, bearing_step_deg=image_model.bin_deg)
+    timings["raycast"] = 1e3 * (time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    heights = known_building_heights(city_map) if use_skyline else None
+    likelihood = pose_likelihood(
+        panoramas,
+        image_model,
+        yaws,
+        sigma_m=sigma_m,
+        use_identity=identity_likelihood,
+        normalization=normalization,
+        building_height_m=heights,
+    )
+    timings["likelihood"] = 1e3 * (time.perf_counter() - t0)
+
+    prior = _prior(positions, yaws, position_prior, prior_yaw_deg)
+    posterior = pose_posterior(likelihood, prior, sharpness)
+    separation = cell_m if min_separation_m is None else min_separation_m
+    poses = top_poses(positions, posterior, yaws, n=top_n, min_separation_m=separation, likelihood=likelihood)
+    heatmap = grid.to_image(position_heatmap(posterior))
+    return Localization(grid, positions, yaws, posterior, heatmap, poses, likelihood, search, timings)
+
+
+def _prior(
+    positions: np.ndarray, yaws: np.ndarray, position_prior: PositionPrior | None, prior_yaw_deg: float | None
+) -> np.ndarray | None:
+    if position_prior is None and prior_yaw_deg is None:
+        return None
+    prior = np.ones((len(positions), len(yaws)))
+    if position_prior is not None:
+        prior *= position_prior.weights(positions)[:, None]
+    if prior_yaw_deg is not None:
+        prior *= heading_prior(yaws, prior_yaw_deg)[None, :]
+    return prior

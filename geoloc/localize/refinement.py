@@ -1,0 +1,161 @@
+"""Continuous pose refinement against the map: sub-degree yaw from vanishing points, sub-metre position search.
+
+The pose likelihood (:mod:`geoloc.localize.likelihood`) is evaluated on grids (metres x 3 deg yaws), which cannot
+give metres and degrees. Two refinements start from a grid pose:
+
+- :func:`vanishing_point_yaw`: each image bin with a facade hypothesis measures the facade's orientation
+  theta_hat relative to the camera to a fraction of a degree (from its horizontal vanishing point). At a
+  candidate position the map says which facade the bin sees, with outward-normal bearing n; the camera
+  yaw is then ``n - theta_hat`` (modulo 180, the branch nearest the current yaw). The robust median over
+  the bins whose prediction agrees within ``tolerance_deg`` is the new yaw; two passes, since the facade
+  a bin sees depends on the yaw.
+- :func:`refine_pose`: the likelihood on a fine grid of positions around the pose (``cell_m``, default
+  0.5 m) at a few yaws around the vanishing-point yaw, times a Gaussian position prior; the best pose, and
+  the posterior's spread as a covariance of the position (the honest "how sure", not a grid cell).
+
+Both take the image model (its per-bin orientations and offsets), so references and queries use the same
+code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geoloc.localize.likelihood import DEFAULT_SIGMA_M, known_building_heights, pose_likelihood
+from geoloc.localize.posterior import DEFAULT_SHARPNESS
+from geoloc.maps import CityMap
+from geoloc.maps.raycast import cast_panoramas
+from geoloc.vision.image_model import ImageModel
+
+VP_BEARING_STEP_DEG = 0.1
+"""Bearing step of the panorama that tells which facade each bin sees during the yaw refinement."""
+MIN_VP_BINS = 6
+"""Bins that must agree before a vanishing-point yaw replaces the grid yaw."""
+
+
+@dataclass
+class RefinedPose:
+    """A pose refined against the map (local frame).
+
+    x_m, y_m, yaw_deg: the pose. likelihood: p(I | pose). posterior: likelihood ** sharpness x prior at it.
+    position_covariance: (2, 2) m^2 spread of the fine-grid posterior (at least the cell's own variance).
+    vp_bins: bins that supported the vanishing-point yaw (0: the yaw was not refined by vanishing points).
+    """
+
+    x_m: float
+    y_m: float
+    yaw_deg: float
+    likelihood: float
+    posterior: float
+    position_covariance: np.ndarray
+    vp_bins: int
+
+
+def vanishing_point_yaw(
+    city_map: CityMap,
+    image_model: ImageModel,
+    x_m: float,
+    y_m: float,
+    yaw_deg: float,
+    *,
+    tolerance_deg: float = 15.0,
+    passes: int = 2,
+) -> tuple[float, int]:
+    """Yaw (local bearing, deg) from the image's facade orientations and the map's facades seen from (x, y).
+
+    Returns (yaw, supporting bins); the input yaw and 0 when fewer than :data:`MIN_VP_BINS` bins agree.
+    """
+    present = image_model.facade_present > 0
+    if not present.any():
+        return yaw_deg % 360.0, 0
+    panorama = cast_panoramas(city_map, np.array([[x_m, y_m]]), bearing_step_deg=VP_BEARING_STEP_DEG)
+    n_bearings = panorama.normal_bearing_deg.shape[1]
+    yaw = float(yaw_deg)
+    support = 0
+    for _ in range(passes):
+        index = np.round(((yaw + image_model.offsets_deg) % 360.0) / VP_BEARING_STEP_DEG).astype(np.int64) % n_bearings
+        normal = panorama.normal_bearing_deg[0, index]
+        delta = ((normal - image_model.orientation_deg) - yaw + 90.0) % 180.0 - 90.0
+        agree = present & np.isfinite(delta) & (np.abs(delta) < tolerance_deg)
+        support = int(agree.sum())
+        if support < MIN_VP_BINS:
+            return yaw_deg % 360.0, 0
+        yaw += float(np.median(delta[agree]))
+    return yaw % 360.0, support
+
+
+def refine_pose(
+    city_map: CityMap,
+    image_model: ImageModel,
+    x_m: float,
+    y_m: float,
+    yaw_deg: float,
+    *,
+    prior_xy: tuple[float, float] | None = None,
+    prior_sigma_m: float | None = None,
+    half_size_m: float = 6.0,
+    cell_m: float = 1.0,
+    yaw_offsets_deg: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
+    use_identity: bool = False,
+    sharpness: float = DEFAULT_SHARPNESS,
+    sigma_m: float = DEFAULT_SIGMA_M,
+    use_vanishing_points: bool = True,
+) -> RefinedPose:
+    """Refine a pose: vanishing-point yaw, then the best of a fine grid of positions x yaws around it.
+
+    prior_xy, prior_sigma_m: optional Gaussian position prior (e.g. the GPS tag). Positions inside buildings
+    are skipped. use_identity: identity-aware likelihood (needs identities in the image model).
+    """
+    yaw, vp_bins = (
+        vanishing_point_yaw(city_map, image_model, x_m, y_m, yaw_deg) if use_vanishing_points else (yaw_deg, 0)
+    )
+    n = int(np.floor(half_size_m / cell_m))
+    offsets = np.arange(-n, n + 1) * cell_m
+    positions = np.stack(np.meshgrid(offsets, offsets), axis=-1).reshape(-1, 2) + np.array([x_m, y_m])
+    positions = positions[~city_map.inside_buildings(positions)]
+    if len(positions) == 0:
+        positions = np.array([[x_m, y_m]])
+    yaws = yaw + np.asarray(yaw_offsets_deg, dtype=float)
+    panoramas = cast_panoramas(city_map, positions, bearing_step_deg=image_model.bin_deg)
+    likelihood = pose_likelihood(
+        panoramas,
+        image_model,
+        yaws,
+        sigma_m=sigma_m,
+        use_identity=use_identity and image_model.has_identity,
+        building_height_m=known_building_heights(city_map),
+    ).astype(float)
+    weight = np.power(likelihood, sharpness)
+    if prior_xy is not None and prior_sigma_m:
+        d2 = np.sum((positions - np.asarray(prior_xy, dtype=float)) ** 2, axis=1)
+        weight = weight * np.exp(-0.5 * d2 / prior_sigma_m**2)[:, None]
+    best_p, best_y = np.unravel_index(int(np.argmax(weight)), weight.shape)
+    best_yaw = float(yaws[best_y])
+    if use_vanishing_points:
+        # The facades seen from the refined position fix the yaw to a fraction of a degree.
+        vp_yaw, support = vanishing_point_yaw(
+            city_map, image_model, float(positions[best_p, 0]), float(positions[best_p, 1]), best_yaw
+        )
+        if support:
+            best_yaw, vp_bins = vp_yaw, support
+    by_position = weight.sum(axis=1)
+    total = by_position.sum()
+    cell_variance = cell_m**2 / 12.0
+    if total > 0:
+        w = by_position / total
+        mean = w @ positions
+        centred = positions - mean
+        covariance = (centred * w[:, None]).T @ centred + np.eye(2) * cell_variance
+    else:
+        covariance = np.eye(2) * half_size_m**2
+    return RefinedPose(
+        float(positions[best_p, 0]),
+        float(positions[best_p, 1]),
+        best_yaw % 360.0,
+        float(likelihood[best_p, best_y]),
+        float(weight[best_p, best_y]),
+        covariance,
+        vp_bins,
+    )
