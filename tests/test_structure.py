@@ -1,0 +1,193 @@
+"""The house's rules, read from the code's imports (see docs/layout.md).
+
+Layers run one way: ``contracts`` (typed contracts, at the bottom) <- ``geoloc`` (the method) <- ``db`` <-
+``workers`` <- ``service`` <- ``cli``; ``benchmarks`` and ``tests`` sit on top. Inside ``geoloc`` the runtime
+stages (``core`` <- ``photos``, ``maps`` <- ``vision`` <- ``localize``) never import the simulator, the evaluation
+or the model export, and none of the method reads the settings. No import circle anywhere; no module over
+450 lines outside tests; a project module imported inside a function says why in a comment.
+"""
+
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("contracts", "geoloc", "db", "workers", "service", "cli", "benchmarks", "tests")
+LAYERS = {name: rank for rank, name in enumerate(PACKAGES)}
+"""Each top-level package's layer: a module may import only its own layer or lower ones."""
+GEOLOC_LAYERS = {"core": 0, "photos": 1, "maps": 1, "vision": 2, "localize": 3, "sim": 4, "evaluation": 5}
+"""The method's packages: the runtime stages (up to ``localize``) below the simulator and the evaluation."""
+OFF_RUNTIME = ("geoloc.sim", "geoloc.evaluation", "geoloc.export")
+"""What the runtime method never imports: the simulator, the evaluation and the model export (PyTorch)."""
+MAX_MODULE_LINES = 450
+
+
+@dataclass(frozen=True)
+class Import:
+    """One import of a project module: who imports what, where, and whether inside a function."""
+
+    importer: str
+    imported: str
+    line: int
+    in_function: bool
+    explained: bool
+
+
+@cache
+def modules() -> dict[str, Path]:
+    """Every project module by its dotted name."""
+    found = {}
+    for package in PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def _resolve(name: str) -> str | None:
+    """The project module a dotted import name refers to (a module, or a name inside one)."""
+    while name and name not in modules():
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+@cache
+def imports() -> tuple[Import, ...]:
+    """Every import of a project module, from every project module (``TYPE_CHECKING`` blocks included)."""
+    found: list[Import] = []
+    for module, path in modules().items():
+        source = path.read_text()
+        lines = source.splitlines()
+        package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+
+        def visit(node: ast.AST, in_function: bool, module: str = module, package: str = package) -> None:
+            for child in ast.iter_child_nodes(node):
+                inside = in_function or isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef)
+                names: list[str] = []
+                if isinstance(child, ast.Import):
+                    names = [alias.name for alias in child.names]
+                elif isinstance(child, ast.ImportFrom):
+                    base = child.module or ""
+                    if child.level:
+                        anchor = package.split(".")[: len(package.split(".")) - (child.level - 1)]
+                        base = ".".join([*anchor, *([child.module] if child.module else [])])
+                    names = [f"{base}.{alias.name}" for alias in child.names] + [base]
+                targets = {_resolve(name) for name in names} - {None, module}
+                line = getattr(child, "lineno", 0)
+                explained = "#" in lines[line - 1] or (line >= 2 and lines[line - 2].strip().startswith("#"))
+                for target in sorted(t for t in targets if t):
+                    found.append(Import(module, target, line, in_function, explained))
+                visit(child, inside)
+
+        visit(ast.parse(source), False)
+    return tuple(found)
+
+
+def _cycles() -> list[list[str]]:
+    """Strongly connected groups of more than one module in the import graph (Tarjan)."""
+    graph: dict[str, set[str]] = {module: set() for module in modules()}
+    for edge in imports():
+        graph[edge.importer].add(edge.imported)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    groups: list[list[str]] = []
+
+    def connect(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for successor in graph[node]:
+            if successor not in index:
+                connect(successor)
+                low[node] = min(low[node], low[successor])
+            elif successor in on_stack:
+                low[node] = min(low[node], index[successor])
+        if low[node] == index[node]:
+            group = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                group.append(member)
+                if member == node:
+                    break
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for node in graph:
+        if node not in index:
+            connect(node)
+    return groups
+
+
+def test_no_import_circle() -> None:
+    assert _cycles() == []
+
+
+def test_layers_run_one_way() -> None:
+    upward = [
+        f"{edge.importer}:{edge.line} imports {edge.imported}"
+        for edge in imports()
+        if LAYERS[edge.imported.split(".")[0]] > LAYERS[edge.importer.split(".")[0]]
+    ]
+    assert upward == []
+
+
+def test_the_method_runs_one_way_and_the_runtime_never_imports_the_tools() -> None:
+    wrong = []
+    for edge in imports():
+        importer, imported = edge.importer.split("."), edge.imported.split(".")
+        if importer[0] != "geoloc" or imported[0] != "geoloc" or len(importer) < 2 or len(imported) < 2:
+            continue
+        if importer[1] == "export" or importer[1] == imported[1]:
+            continue
+        if imported[1] == "export" or GEOLOC_LAYERS[imported[1]] >= GEOLOC_LAYERS[importer[1]]:
+            wrong.append(f"{edge.importer}:{edge.line} imports {edge.imported}")
+    assert wrong == []
+
+
+def test_runtime_layers_never_import_the_tools() -> None:
+    runtime = ("contracts", "geoloc.core", "geoloc.photos", "geoloc.maps", "geoloc.vision", "geoloc.localize")
+    runtime += ("db", "workers", "service")
+    wrong = [
+        f"{edge.importer}:{edge.line} imports {edge.imported}"
+        for edge in imports()
+        if edge.importer.startswith(runtime) and edge.imported.startswith(OFF_RUNTIME)
+    ]
+    assert wrong == []
+
+
+def test_contracts_import_no_project_package_and_the_method_reads_no_settings() -> None:
+    wrong = [
+        f"{edge.importer}:{edge.line} imports {edge.imported}"
+        for edge in imports()
+        if (edge.importer.startswith("contracts") and not edge.imported.startswith("contracts"))
+        or (edge.importer.startswith("geoloc.") and edge.imported == "contracts.settings")
+        and not edge.importer.startswith(("geoloc.export", "geoloc.evaluation"))
+    ]
+    assert wrong == []
+
+
+def test_function_level_imports_say_why() -> None:
+    silent = [
+        f"{edge.importer}:{edge.line} imports {edge.imported}"
+        for edge in imports()
+        if edge.in_function and not edge.explained and not edge.importer.startswith("tests")
+    ]
+    assert silent == []
+
+
+@pytest.mark.parametrize("package", [p for p in PACKAGES if p != "tests"])
+def test_no_module_over_the_size_limit(package: str) -> None:
+    too_long = {
+        module: n
+        for module, path in modules().items()
+        if module.split(".")[0] == package and (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES
+    }
+    assert too_long == {}
