@@ -37,9 +37,10 @@ from PIL import Image
 from contracts.settings import shared_path
 from geoloc.core.labels import BUILDING
 from geoloc.evaluation.world import shown_by_references
-from geoloc.localize.pipeline import analyze_photo, load_photo
 from geoloc.localize.retrieval import Vocabulary, build_vocabulary, camvid_building_descriptors, default_vocabulary
 from geoloc.localize.sbow_index import SbowIndex
+from geoloc.photos.photo import load_photo
+from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.features import extract_features
 
 KS = (1, 5, 20, 60)

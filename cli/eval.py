@@ -279,7 +279,7 @@ def facades(
     import numpy as np
 
     from geoloc.evaluation.facades import column_orientation_errors
-    from geoloc.localize.pipeline import load_photo
+    from geoloc.photos.photo import load_photo
     from geoloc.sim.world import load_world
     from geoloc.vision.facades import analyze_image
 

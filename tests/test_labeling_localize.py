@@ -8,7 +8,7 @@ from geoloc.core.camera import Intrinsics
 from geoloc.localize.grid import PositionPrior, localize
 from geoloc.localize.labeling import column_building_ids, label_reference
 from geoloc.localize.likelihood import image_model_from_map
-from geoloc.localize.pipeline import LabelOptions
+from geoloc.localize.reference import LabelOptions
 from geoloc.localize.refinement import refine_pose, vanishing_point_yaw
 from geoloc.maps.raycast import cast_panoramas
 from geoloc.vision.image_model import ImageModel, bin_offsets_deg

@@ -10,11 +10,13 @@ import pytest
 
 from contracts.settings import shared_path
 from geoloc.evaluation.world import KS, EvalRun, default_runs, evaluate_world
-from geoloc.localize.pipeline import analyze_photo, label_reference_photo, load_photo
 from geoloc.localize.query import QueryConfig
+from geoloc.localize.reference import label_reference_photo
 from geoloc.localize.retrieval import InvertedIndex, default_vocabulary
 from geoloc.localize.transfer import rerank_by_inliers
+from geoloc.photos.photo import load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
+from geoloc.vision.evidence import analyze_photo
 
 pytestmark = pytest.mark.slow  # the real method end to end: minutes
 

@@ -23,10 +23,11 @@ from geoloc.localize.likelihood import (
     pose_likelihood,
     pose_likelihood_numpy,
 )
-from geoloc.localize.pipeline import Photo, PhotoEvidence, analyze_photo, load_photo
 from geoloc.localize.posterior import grid_around
 from geoloc.maps import CityMap, raycast
+from geoloc.photos.photo import Photo, load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
+from geoloc.vision.evidence import PhotoEvidence, analyze_photo
 
 pytestmark = pytest.mark.slow  # a rendered world and the numpy formulations: about a minute
 

@@ -65,7 +65,9 @@ def imports() -> tuple[Import, ...]:
         lines = source.splitlines()
         package = module if path.name == "__init__.py" else module.rpartition(".")[0]
 
-        def visit(node: ast.AST, in_function: bool, module: str = module, package: str = package) -> None:
+        def visit(
+            node: ast.AST, in_function: bool, module: str = module, package: str = package, lines: list[str] = lines
+        ) -> None:
             for child in ast.iter_child_nodes(node):
                 inside = in_function or isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef)
                 names: list[str] = []
@@ -89,41 +91,25 @@ def imports() -> tuple[Import, ...]:
 
 
 def _cycles() -> list[list[str]]:
-    """Strongly connected groups of more than one module in the import graph (Tarjan)."""
+    """Groups of more than one module that import each other, directly or through others."""
     graph: dict[str, set[str]] = {module: set() for module in modules()}
     for edge in imports():
         graph[edge.importer].add(edge.imported)
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on_stack: set[str] = set()
-    groups: list[list[str]] = []
+    reach = {module: _reachable(graph, module) for module in graph}
+    groups = {frozenset(m for m in reach[module] if module in reach[m]) | {module} for module in graph}
+    return sorted(sorted(group) for group in groups if len(group) > 1)
 
-    def connect(node: str) -> None:
-        index[node] = low[node] = len(index)
-        stack.append(node)
-        on_stack.add(node)
-        for successor in graph[node]:
-            if successor not in index:
-                connect(successor)
-                low[node] = min(low[node], low[successor])
-            elif successor in on_stack:
-                low[node] = min(low[node], index[successor])
-        if low[node] == index[node]:
-            group = []
-            while True:
-                member = stack.pop()
-                on_stack.discard(member)
-                group.append(member)
-                if member == node:
-                    break
-            if len(group) > 1:
-                groups.append(sorted(group))
 
-    for node in graph:
-        if node not in index:
-            connect(node)
-    return groups
+def _reachable(graph: dict[str, set[str]], start: str) -> set[str]:
+    """Every module ``start`` imports, directly or through others."""
+    seen: set[str] = set()
+    todo = list(graph[start])
+    while todo:
+        module = todo.pop()
+        if module not in seen:
+            seen.add(module)
+            todo.extend(graph[module])
+    return seen
 
 
 def test_no_import_circle() -> None:

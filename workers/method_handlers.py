@@ -28,10 +28,12 @@ from db import references as reference_store
 from db.files import open_store
 from db.jobs import LOCALIZE_QUERY
 from geoloc.localize.grid import PositionPrior
-from geoloc.localize.pipeline import Photo, analyze_photo, label_reference_photo, load_photo
 from geoloc.localize.query import QueryAnswer, QueryConfig, geolocate
+from geoloc.localize.reference import label_reference_photo
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary, vocabulary_path
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
+from geoloc.photos.photo import Photo, load_photo
+from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.segmentation import ModelNotBuiltError
 from workers.answers import checked_query_answer, checked_reference_labels
 from workers.handlers import LABEL_REFERENCE, PermanentJobError, register, treat_as_permanent

@@ -31,9 +31,9 @@ import numpy as np
 from db import Database, sbow
 from db import references as reference_store
 from geoloc.localize.anchors import MapAnchors
-from geoloc.localize.query import StoredReference
 from geoloc.localize.retrieval import DEFAULT_WORDS
 from geoloc.localize.sbow_index import SbowIndex
+from geoloc.localize.store import StoredReference
 from geoloc.vision.features import Features
 
 UNKNOWN_POSITION_SIGMA_M = 10.0

@@ -1,8 +1,8 @@
 """Evaluation of the whole method on a simulated world (``geoloc eval world DIR --json OUT``).
 
 It runs exactly what the service runs: references are labelled with
-:func:`geoloc.localize.pipeline.label_reference_photo` (EXIF GPS and focal length read from the JPEG) and kept as
-:class:`geoloc.localize.query.StoredReference`; queries go through :func:`geoloc.localize.query.geolocate` with one
+:func:`geoloc.localize.reference.label_reference_photo` (EXIF GPS and focal length read from the JPEG) and kept as
+:class:`geoloc.localize.store.StoredReference`; queries go through :func:`geoloc.localize.query.geolocate` with one
 :class:`geoloc.localize.query.QueryConfig`, recorded in the output. Only the reference store differs from the
 service's (memory instead of the database; both rank with the same SBoW formula).
 
@@ -41,19 +41,13 @@ import numpy as np
 from geoloc.evaluation.facades import orientation_errors
 from geoloc.localize.grid import DEFAULT_PRIOR_RADIUS_M, PositionPrior
 from geoloc.localize.identity import IdentityMap, identity_accuracy
-from geoloc.localize.pipeline import (
-    LabelledReference,
-    Photo,
-    PhotoEvidence,
-    analyze_photo,
-    label_reference_photo,
-    load_photo,
-    stored_reference,
-)
 from geoloc.localize.query import InMemoryReferenceStore, QueryConfig, geolocate, retrieve, transfer
+from geoloc.localize.reference import LabelledReference, label_reference_photo, stored_reference
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap
+from geoloc.photos.photo import Photo, load_photo
 from geoloc.sim.world import World, load_world
+from geoloc.vision.evidence import PhotoEvidence, analyze_photo
 
 KS = (1, 4, 8)
 TOP_N = 10

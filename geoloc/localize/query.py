@@ -31,21 +31,20 @@ import math
 import time
 from collections.abc import Hashable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from geoloc.core.parallel import thread_map
 from geoloc.localize.absolute_pose import PoseEstimate, estimate_pose_from_groups, group_proposal
-from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.grid import Localization, PositionPrior, localize
 from geoloc.localize.identity import IdentityMap
 from geoloc.localize.labeling import column_building_ids, identity_from_poses
 from geoloc.localize.likelihood import known_building_heights, pose_likelihood
-from geoloc.localize.pipeline import Photo, PhotoEvidence, image_model_with_identity
 from geoloc.localize.posterior import DEFAULT_SHARPNESS
 from geoloc.localize.refinement import refine_pose
 from geoloc.localize.retrieval import InvertedIndex, Vocabulary
+from geoloc.localize.store import ReferenceStore, StoredReference
 from geoloc.localize.transfer import (
     ReferenceEvidence,
     ReferenceMatch,
@@ -56,6 +55,8 @@ from geoloc.localize.transfer import (
 )
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import cast_panoramas
+from geoloc.photos.photo import Photo
+from geoloc.vision.evidence import PhotoEvidence, image_model_with_identity
 from geoloc.vision.features import Features
 from geoloc.vision.image_model import ImageModel
 
@@ -117,47 +118,6 @@ class QueryConfig:
     def as_dict(self) -> dict[str, float | int | bool]:
         """The configuration as a JSON-ready dict."""
         return asdict(self)
-
-
-@dataclass
-class StoredReference:
-    """What the query stage needs of a labelled reference.
-
-    features: its local features; keypoint_prob: (N, M) identity probabilities over ``building_ids``;
-    anchors: its keypoints' 3D points on the map (:mod:`geoloc.localize.anchors`); position_covariance: (2, 2) m^2
-    uncertainty of its estimated position (the anchors inherit it); position_xy: (2,) its estimated
-    position (local metres; NaN when unknown); alternative_anchors: anchors from the runner-up pose of an
-    ambiguous label (else None).
-    """
-
-    reference_id: Hashable
-    features: Features
-    keypoint_prob: np.ndarray
-    building_ids: np.ndarray
-    anchors: MapAnchors
-    position_covariance: np.ndarray
-    position_xy: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
-    alternative_anchors: MapAnchors | None = None
-
-
-class ReferenceStore(Protocol):
-    """Where the query stage finds labelled references: an SBoW shortlist and the references themselves."""
-
-    def shortlist(self, words: np.ndarray, n: int) -> list[tuple[Hashable, float]]:
-        """The ``n`` best references for a query's visual words, as (reference id, SBoW score), best first."""
-        ...
-
-    def load(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, StoredReference]:
-        """The stored references of these ids (missing ones are left out)."""
-        ...
-
-    def positions(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, np.ndarray]:
-        """The estimated (2,) positions of these references (NaN when unknown; missing ones left out).
-
-        Read without loading their features: retrieval with a position prior ranks more references than it
-        keeps.
-        """
-        ...
 
 
 @dataclass

@@ -1,0 +1,154 @@
+"""Reference labelling on photos: a geo-tagged photo -> its pose on the map, identities and map anchors.
+
+:func:`label_reference_photo` is the labelling stage's entry (the workers' label job and ``geoloc eval world``):
+heading and corrected position (:func:`geoloc.localize.labeling.label_reference`), per-column building
+identities (greedy and marginalised), its keypoints' identity probabilities and their 3D anchors on the map's
+facades (:mod:`geoloc.localize.anchors`). Positions are local metres of the map's frame; converting to WGS84
+and compass headings is the caller's (``city_map.frame``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Hashable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
+from geoloc.localize.identity import IdentityMap
+from geoloc.localize.labeling import (
+    DEFAULT_GPS_SIGMA_M,
+    DEFAULT_REFERENCE_CELL_M,
+    DEFAULT_REFERENCE_HALF_SIZE_M,
+    ReferenceLabel,
+    label_reference,
+)
+from geoloc.localize.likelihood import DEFAULT_SIGMA_M
+from geoloc.localize.posterior import DEFAULT_SHARPNESS
+from geoloc.localize.store import StoredReference
+from geoloc.maps import CityMap
+from geoloc.photos.photo import Photo
+from geoloc.vision.evidence import PhotoEvidence, analyze_photo
+from geoloc.vision.ground import DEFAULT_CAMERA_HEIGHT_M
+
+
+@dataclass
+class LabelledReference:
+    """A reference photo labelled with the map: its pose, identities and keypoint identities.
+
+    identity: the identity map used downstream (marginalised by default);
+    keypoint_identity: (N, M) identity probabilities of ``evidence.features`` over ``identity.building_ids``;
+    anchors: the keypoints' 3D points on the map's facades seen from the label's pose (:mod:`geoloc.localize.anchors`);
+    alternative_anchors: the same from the runner-up pose when the label is ambiguous
+    (:attr:`geoloc.localize.labeling.ReferenceLabel.is_ambiguous`), else None: a query that sees the scene from
+    elsewhere can tell which of the two is right.
+    """
+
+    label: ReferenceLabel
+    evidence: PhotoEvidence
+    identity: IdentityMap
+    keypoint_identity: np.ndarray
+    anchors: MapAnchors
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    alternative_anchors: MapAnchors | None = None
+
+    @property
+    def camera_pose(self) -> CameraPose:
+        """The labelled pose as a camera pose (pitch and roll from the photo's vertical vanishing point)."""
+        return _camera_pose(self.label, self.evidence)
+
+
+def _camera_pose(label: ReferenceLabel, evidence: PhotoEvidence, alternative: bool = False) -> CameraPose:
+    rotation = evidence.analysis.vanishing_points.rotation_upright_from_cam
+    if alternative and label.alternative is not None:
+        alt = label.alternative
+        return CameraPose(alt.x_m, alt.y_m, alt.yaw_deg, DEFAULT_CAMERA_HEIGHT_M, rotation)
+    return CameraPose(label.x_m, label.y_m, label.yaw_deg, DEFAULT_CAMERA_HEIGHT_M, rotation)
+
+
+@dataclass(frozen=True)
+class LabelOptions:
+    """How :func:`label_reference_photo` labels a reference (:func:`geoloc.localize.labeling.label_reference`).
+
+    The defaults are ``label_reference``'s (a test checks that they agree). gps_sigma_m: Gaussian prior on the
+    position around the GPS tag (m; None: uniform). sharpness: pose weights are likelihood ** sharpness.
+    cell_m, half_size_m: the pose grid around the tag (m). n_yaws: yaws sampled over 360 deg. sigma_m,
+    normalization, use_skyline: the pose likelihood's (:func:`geoloc.localize.likelihood.pose_likelihood`).
+    n_modes: grid modes refined continuously.
+    """
+
+    gps_sigma_m: float | None = DEFAULT_GPS_SIGMA_M
+    sharpness: float = DEFAULT_SHARPNESS
+    cell_m: float = DEFAULT_REFERENCE_CELL_M
+    half_size_m: float = DEFAULT_REFERENCE_HALF_SIZE_M
+    n_yaws: int = 120
+    sigma_m: float = DEFAULT_SIGMA_M
+    normalization: str = "weighted"
+    use_skyline: bool = True
+    n_modes: int = 3
+
+
+def label_reference_photo(
+    city_map: CityMap,
+    photo: Photo,
+    gps_xy: tuple[float, float],
+    *,
+    prior_yaw_deg: float | None = None,
+    evidence: PhotoEvidence | None = None,
+    strategy: str = "marginalized",
+    options: LabelOptions | None = None,
+) -> LabelledReference:
+    """Label a geo-tagged reference photo (GPS tag in local metres) with the map.
+
+    prior_yaw_deg: optional heading prior (local bearing, deg). evidence: the photo's analysis when already
+    done. strategy: "marginalized" (default, the paper's better one) or "greedy" chooses which identity
+    map the keypoints carry. options: the labelling's tuning (default :class:`LabelOptions`).
+    """
+    if strategy not in ("marginalized", "greedy"):
+        raise ValueError(f"strategy must be 'marginalized' or 'greedy', got {strategy!r}")
+    options = options or LabelOptions()
+    evidence = evidence or analyze_photo(photo)
+    t0 = time.perf_counter()
+    label = label_reference(
+        city_map,
+        evidence.image_model,
+        evidence.building_mask,
+        photo.intrinsics,
+        gps_xy,
+        prior_yaw_deg=prior_yaw_deg,
+        gps_sigma_m=options.gps_sigma_m,
+        sharpness=options.sharpness,
+        cell_m=options.cell_m,
+        half_size_m=options.half_size_m,
+        n_yaws=options.n_yaws,
+        sigma_m=options.sigma_m,
+        normalization=options.normalization,
+        use_skyline=options.use_skyline,
+        n_modes=options.n_modes,
+    )
+    identity = label.marginalized if strategy == "marginalized" else label.greedy
+    keypoint_identity = identity.probabilities_at(evidence.features.xy)
+    timings = dict(evidence.timings_ms, labeling=1e3 * (time.perf_counter() - t0))
+    t0 = time.perf_counter()
+    anchors = anchor_keypoints(city_map, _camera_pose(label, evidence), photo.intrinsics, evidence.features.xy)
+    alternative = None
+    if label.is_ambiguous:
+        pose = _camera_pose(label, evidence, alternative=True)
+        alternative = anchor_keypoints(city_map, pose, photo.intrinsics, evidence.features.xy)
+    timings["anchors"] = 1e3 * (time.perf_counter() - t0)
+    return LabelledReference(label, evidence, identity, keypoint_identity, anchors, timings, alternative)
+
+
+def stored_reference(reference_id: Hashable, labelled: LabelledReference) -> StoredReference:
+    """What the query stage keeps of a labelled reference (:class:`geoloc.localize.query.StoredReference`)."""
+    return StoredReference(
+        reference_id,
+        labelled.evidence.features,
+        labelled.keypoint_identity,
+        labelled.identity.building_ids,
+        labelled.anchors,
+        labelled.label.position_covariance,
+        np.array([labelled.label.x_m, labelled.label.y_m]),
+        labelled.alternative_anchors,
+    )

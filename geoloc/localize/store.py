@@ -1,0 +1,57 @@
+"""What the query stage reads of labelled references: :class:`StoredReference` and the :class:`ReferenceStore`.
+
+A store gives an SBoW shortlist and the references themselves: the workers' reads the service's database
+(:class:`workers.reference_store.DatabaseReferenceStore`), the evaluation's keeps them in memory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from geoloc.localize.anchors import MapAnchors
+from geoloc.vision.features import Features
+
+
+@dataclass
+class StoredReference:
+    """What the query stage needs of a labelled reference.
+
+    features: its local features; keypoint_prob: (N, M) identity probabilities over ``building_ids``;
+    anchors: its keypoints' 3D points on the map (:mod:`geoloc.localize.anchors`); position_covariance: (2, 2) m^2
+    uncertainty of its estimated position (the anchors inherit it); position_xy: (2,) its estimated
+    position (local metres; NaN when unknown); alternative_anchors: anchors from the runner-up pose of an
+    ambiguous label (else None).
+    """
+
+    reference_id: Hashable
+    features: Features
+    keypoint_prob: np.ndarray
+    building_ids: np.ndarray
+    anchors: MapAnchors
+    position_covariance: np.ndarray
+    position_xy: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    alternative_anchors: MapAnchors | None = None
+
+
+class ReferenceStore(Protocol):
+    """Where the query stage finds labelled references: an SBoW shortlist and the references themselves."""
+
+    def shortlist(self, words: np.ndarray, n: int) -> list[tuple[Hashable, float]]:
+        """The ``n`` best references for a query's visual words, as (reference id, SBoW score), best first."""
+        ...
+
+    def load(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, StoredReference]:
+        """The stored references of these ids (missing ones are left out)."""
+        ...
+
+    def positions(self, reference_ids: Sequence[Hashable]) -> dict[Hashable, np.ndarray]:
+        """The estimated (2,) positions of these references (NaN when unknown; missing ones left out).
+
+        Read without loading their features: retrieval with a position prior ranks more references than it
+        keeps.
+        """
+        ...
