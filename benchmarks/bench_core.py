@@ -32,6 +32,7 @@ import numpy as np
 from contracts.settings import shared_path
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.likelihood import (
+    LikelihoodOptions,
     default_yaws_deg,
     image_model_from_map,
     known_building_heights,
@@ -116,10 +117,10 @@ def main() -> None:
         model = image_model_from_map(pano, index, float(yaws[7]), offsets, with_distance=True)
 
         def kernel(model: Any = model, use_identity: bool = use_identity) -> np.ndarray:
-            return pose_likelihood(pano, model, yaws, use_identity=use_identity, building_height_m=heights)
+            return pose_likelihood(pano, model, yaws, LikelihoodOptions(use_identity=use_identity), heights)
 
         def plain(model: Any = model, use_identity: bool = use_identity) -> np.ndarray:
-            return pose_likelihood_numpy(pano, model, yaws, use_identity=use_identity, building_height_m=heights)
+            return pose_likelihood_numpy(pano, model, yaws, LikelihoodOptions(use_identity=use_identity), heights)
 
         (fast_s, slow_s), (lik, lik_ref) = best_of(args.repeats, kernel, plain)
         comparisons = lik.size * len(offsets)

@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from geoloc.core.camera import Intrinsics
-from geoloc.localize.likelihood import default_yaws_deg, image_model_from_map, pose_likelihood
+from geoloc.localize.likelihood import LikelihoodOptions, default_yaws_deg, image_model_from_map, pose_likelihood
 from geoloc.localize.posterior import grid_around, pose_posterior, position_heatmap, top_poses
 from geoloc.maps import city_map_from_footprints
 from geoloc.maps.raycast import cast_panoramas
@@ -42,7 +42,7 @@ def test_true_pose_is_the_maximum_for_a_clean_model(scene, center, true_xy, true
     city = scene()
     _, pano, true_index, model = _setup(city, center, 60.0, true_xy, true_yaw)
     for use_identity in (False, True):
-        lik = pose_likelihood(pano, model, YAWS, use_identity=use_identity)
+        lik = pose_likelihood(pano, model, YAWS, LikelihoodOptions(use_identity=use_identity))
         assert lik[true_index, _yaw_index(true_yaw)] == pytest.approx(1.0, abs=1e-5)
         assert lik.max() <= 1.0 + 1e-6
         # The image carries no depth, so a pose can tie only if it shows exactly the same view (e.g. a
@@ -58,7 +58,7 @@ def test_true_pose_is_the_maximum_for_a_clean_model(scene, center, true_xy, true
 def test_paper_normalisation_scores_mean_weight_at_true_pose() -> None:
     city = square_building()
     _, pano, true_index, model = _setup(city, (0.0, 0.0), 60.0, (0.0, -30.0), 0.0)
-    lik = pose_likelihood(pano, model, YAWS, normalization="paper", sigma_m=40.0)
+    lik = pose_likelihood(pano, model, YAWS, LikelihoodOptions(normalization="paper", sigma_m=40.0))
     window = pano.distance_m[true_index][np.round(OFFSETS / 0.5).astype(int) % 720]
     expected = np.mean(np.exp(-(window[np.isfinite(window)] ** 2) / (2 * 40.0**2)))
     assert lik[true_index, 0] == pytest.approx(expected, rel=1e-4)
@@ -67,7 +67,7 @@ def test_paper_normalisation_scores_mean_weight_at_true_pose() -> None:
 def test_square_is_ambiguous_by_symmetry() -> None:
     city = square_building()
     _, pano, _, model = _setup(city, (0.0, 0.0), 60.0, (0.0, -30.0), 0.0)
-    lik = pose_likelihood(pano, model, YAWS, use_identity=False)
+    lik = pose_likelihood(pano, model, YAWS, LikelihoodOptions(use_identity=False))
     positions = pano.positions
     # The square looks the same from its four sides: four equal peaks, 90 deg apart.
     for xy, yaw in (((0, -30), 0.0), ((30, 0), 270.0), ((0, 30), 180.0), ((-30, 0), 90.0)):
@@ -86,8 +86,8 @@ def test_identity_breaks_the_tie_between_twin_buildings() -> None:
     model = image_model_from_map(pano, true_index, 201.0, OFFSETS, with_identity=True)
     assert model.identity_building_ids.tolist() == [0]
     yaw = _yaw_index(201.0)
-    geometry = pose_likelihood(pano, model, YAWS, use_identity=False)
-    identity = pose_likelihood(pano, model, YAWS, use_identity=True)
+    geometry = pose_likelihood(pano, model, YAWS, LikelihoodOptions(use_identity=False))
+    identity = pose_likelihood(pano, model, YAWS, LikelihoodOptions(use_identity=True))
     assert geometry[true_index, yaw] == pytest.approx(geometry[twin_index, yaw], abs=1e-6) == pytest.approx(1.0)
     assert identity[true_index, yaw] == pytest.approx(1.0, abs=1e-5)
     assert identity[twin_index, yaw] == pytest.approx(0.0, abs=1e-6)
@@ -125,7 +125,9 @@ def test_likelihood_in_unit_interval(seed: int, identity: bool, normalization: s
     ids = np.arange(len(city.buildings)) if identity else None
     prob = rng.dirichlet(np.ones(len(city.buildings) + 1), size=k)[:, :-1] if identity else None
     model = ImageModel(OFFSETS, present, rng.uniform(-90, 90, k), ids, prob)
-    lik = pose_likelihood(pano, model, YAWS[::7], sigma_m=sigma, normalization=normalization, unknown_weight=0.3)
+    lik = pose_likelihood(
+        pano, model, YAWS[::7], LikelihoodOptions(sigma_m=sigma, normalization=normalization, unknown_weight=0.3)
+    )
     assert np.all(np.isfinite(lik)) and lik.min() >= 0.0 and lik.max() <= 1.0 + 1e-6
 
 

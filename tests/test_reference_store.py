@@ -12,8 +12,8 @@ import pytest
 
 from db import Database, connect, migrate, sbow, transaction
 from db import references as reference_store
+from geoloc.evaluation.store import InMemoryReferenceStore
 from geoloc.localize.anchors import MapAnchors
-from geoloc.localize.query import InMemoryReferenceStore
 from geoloc.localize.retrieval import Vocabulary
 from geoloc.localize.store import StoredReference
 from geoloc.vision.features import Features

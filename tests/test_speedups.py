@@ -17,6 +17,7 @@ from contracts.settings import shared_path
 from geoloc.localize.identity import IdentityMap
 from geoloc.localize.labeling import column_building_ids, pose_identities
 from geoloc.localize.likelihood import (
+    LikelihoodOptions,
     default_yaws_deg,
     image_model_from_map,
     known_building_heights,
@@ -119,8 +120,11 @@ def test_likelihood_kernel_equals_numpy(scene: Scene) -> None:
                 {"use_identity": True, "building_height_m": heights, "unknown_weight": 0.3},
             ):
                 image_model = with_identity if options["use_identity"] else model
-                fast = pose_likelihood(panoramas, image_model, yaws, **options)
-                slow = pose_likelihood_numpy(panoramas, image_model, yaws, **options)
+                keywords = dict(options)
+                heights_or_none = keywords.pop("building_height_m", None)
+                likelihood_options = LikelihoodOptions(**keywords)
+                fast = pose_likelihood(panoramas, image_model, yaws, likelihood_options, heights_or_none)
+                slow = pose_likelihood_numpy(panoramas, image_model, yaws, likelihood_options, heights_or_none)
                 assert fast.shape == slow.shape and fast.dtype == slow.dtype
                 assert slow.max() > 0.05
                 np.testing.assert_allclose(fast, slow, rtol=0, atol=2e-6)

@@ -39,9 +39,10 @@ from typing import Any
 import numpy as np
 
 from geoloc.evaluation.facades import orientation_errors
+from geoloc.evaluation.store import InMemoryReferenceStore
 from geoloc.localize.grid import DEFAULT_PRIOR_RADIUS_M, PositionPrior
 from geoloc.localize.identity import IdentityMap, identity_accuracy
-from geoloc.localize.query import InMemoryReferenceStore, QueryConfig, geolocate, retrieve, transfer
+from geoloc.localize.query import QueryConfig, geolocate, retrieve, transfer
 from geoloc.localize.reference import LabelledReference, label_reference_photo, stored_reference
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap

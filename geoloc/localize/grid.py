@@ -20,7 +20,8 @@ import shapely
 from shapely.ops import unary_union
 
 from geoloc.localize.labeling import heading_prior
-from geoloc.localize.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, known_building_heights, pose_likelihood
+from geoloc.localize.likelihood import default_yaws_deg
+from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.posterior import (
     DEFAULT_SHARPNESS,
     PoseGrid,
@@ -31,7 +32,6 @@ from geoloc.localize.posterior import (
     top_poses,
 )
 from geoloc.maps import CityMap
-from geoloc.maps.raycast import cast_panoramas
 from geoloc.vision.image_model import ImageModel
 
 DEFAULT_QUERY_CELL_M = 10.0
@@ -43,6 +43,22 @@ MIN_BUILDING_PROBABILITY = 0.05  # identity mass a building needs (max over colu
 
 DEFAULT_PRIOR_RADIUS_M = 50.0
 """Radius of a query's position prior when the request gives none (a phone's GPS in a street canyon)."""
+
+
+@dataclass(frozen=True)
+class GridOptions:
+    """How :func:`localize` searches: a grid of ``cell_m`` cells x ``n_yaws`` yaws over the search region.
+
+    search_radius_m: without a position prior, the region is within this distance of the identified
+    buildings. sharpness: the posterior is likelihood ** sharpness x priors. min_separation_m: between the
+    top-N answers (None: the grid cell).
+    """
+
+    cell_m: float = DEFAULT_QUERY_CELL_M
+    search_radius_m: float = DEFAULT_SEARCH_RADIUS_M
+    n_yaws: int = 120
+    sharpness: float = DEFAULT_SHARPNESS
+    min_separation_m: float | None = None
 
 
 @dataclass
@@ -134,39 +150,31 @@ def search_grid(
 
 
 def localize(
-    city_map: CityMap,
-    image_model: ImageModel,
+    likelihood: MapLikelihood,
+    options: GridOptions = GridOptions(),
     *,
-    use_identity: bool = True,
     candidate_buildings: list[int] | None = None,
     position_prior: PositionPrior | None = None,
     prior_yaw_deg: float | None = None,
-    cell_m: float = DEFAULT_QUERY_CELL_M,
-    search_radius_m: float = DEFAULT_SEARCH_RADIUS_M,
-    n_yaws: int = 120,
-    sigma_m: float = DEFAULT_SIGMA_M,
-    normalization: str = "weighted",
-    sharpness: float = DEFAULT_SHARPNESS,
     top_n: int = 10,
-    min_separation_m: float | None = None,
-    use_skyline: bool = True,
 ) -> Localization:
-    """Localise a photo from its image model (with identities, from transfer) on the map.
+    """Localise a photo from its map likelihood (its image model with identities, from transfer) on the map.
 
     candidate_buildings: the buildings that define the search region (default: those the image model's
-    identities name). With ``use_identity=False`` the same region is searched with the geometry-only
-    likelihood (the paper's baseline). prior_yaw_deg: local bearing. min_separation_m: between the
-    top-N answers (default: the grid cell).
+    identities name). With ``likelihood.options.use_identity`` False the same region is searched with the
+    geometry-only likelihood (the paper's baseline). prior_yaw_deg: local bearing.
     """
+    city_map, image_model = likelihood.city_map, likelihood.image_model
+    cell_m, n_yaws = options.cell_m, options.n_yaws
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     buildings = identified_buildings(image_model) if candidate_buildings is None else list(candidate_buildings)
-    grid, reason = search_grid(city_map, buildings, cell_m, search_radius_m, position_prior)
+    grid, reason = search_grid(city_map, buildings, cell_m, options.search_radius_m, position_prior)
     positions = grid.positions
     yaws = default_yaws_deg(n_yaws)
     has_identity = image_model.identity_prob is not None and float(image_model.identity_prob.sum()) > 0
     # Without any identity evidence the identity-aware likelihood is zero everywhere: use geometry.
-    identity_likelihood = bool(use_identity and has_identity)
+    identity_likelihood = bool(likelihood.options.use_identity and has_identity)
     search: dict[str, Any] = {
         "region": reason,
         "buildings": buildings,
@@ -182,27 +190,18 @@ def localize(
     timings["grid"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
-    panoramas = cast_panoramas(city_map, positions, bearing_step_deg=image_model.bin_deg)
+    panoramas = likelihood.panoramas(positions)
     timings["raycast"] = 1e3 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
-    heights = known_building_heights(city_map) if use_skyline else None
-    likelihood = pose_likelihood(
-        panoramas,
-        image_model,
-        yaws,
-        sigma_m=sigma_m,
-        use_identity=identity_likelihood,
-        normalization=normalization,
-        building_height_m=heights,
-    )
+    likelihood_table = likelihood.with_options(use_identity=identity_likelihood).of_panoramas(panoramas, yaws)
     timings["likelihood"] = 1e3 * (time.perf_counter() - t0)
 
     prior = _prior(positions, yaws, position_prior, prior_yaw_deg)
-    posterior = pose_posterior(likelihood, prior, sharpness)
-    separation = cell_m if min_separation_m is None else min_separation_m
-    poses = top_poses(positions, posterior, yaws, n=top_n, min_separation_m=separation, likelihood=likelihood)
+    posterior = pose_posterior(likelihood_table, prior, options.sharpness)
+    separation = cell_m if options.min_separation_m is None else options.min_separation_m
+    poses = top_poses(positions, posterior, yaws, n=top_n, min_separation_m=separation, likelihood=likelihood_table)
     heatmap = grid.to_image(position_heatmap(posterior))
-    return Localization(grid, positions, yaws, posterior, heatmap, poses, likelihood, search, timings)
+    return Localization(grid, positions, yaws, posterior, heatmap, poses, likelihood_table, search, timings)
 
 
 def _prior(

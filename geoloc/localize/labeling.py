@@ -23,11 +23,12 @@ import numpy as np
 
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.identity import IdentityMap
-from geoloc.localize.likelihood import DEFAULT_SIGMA_M, default_yaws_deg, known_building_heights, pose_likelihood
+from geoloc.localize.likelihood import DEFAULT_SIGMA_M, LikelihoodOptions, default_yaws_deg
+from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.posterior import DEFAULT_SHARPNESS, grid_around
 from geoloc.localize.refinement import RefinedPose, refine_pose
 from geoloc.maps import CityMap
-from geoloc.maps.raycast import Panoramas, cast_panoramas, panorama_window
+from geoloc.maps.raycast import Panoramas, panorama_window
 from geoloc.vision.image_model import ImageModel, column_bins
 
 DEFAULT_REFERENCE_CELL_M = 2.0
@@ -51,6 +52,36 @@ runner-up 27 of 28 had the right heading; of those with a runner-up within 2.5x,
 mirror view across the street, which the map's geometry cannot tell apart)."""
 MODE_MIN_RELATIVE_WEIGHT = 1e-3
 """Grid modes weaker than this share of the strongest are not refined."""
+
+
+@dataclass(frozen=True)
+class LabelOptions:
+    """How :func:`label_reference` labels a reference photo (the defaults are the measured ones above).
+
+    gps_sigma_m: Gaussian prior on the position around the GPS tag (m; None: uniform, as the paper).
+    sharpness: pose weights are likelihood ** sharpness (as the query posterior, :mod:`geoloc.localize.posterior`).
+    cell_m, half_size_m: the pose grid around the tag (m). n_yaws: yaws sampled over 360 deg. sigma_m,
+    normalization, use_skyline: the grid's pose likelihood (:class:`geoloc.localize.likelihood.LikelihoodOptions`;
+    the continuous refinement keeps the weighted normalisation and the skyline term whatever these say).
+    n_modes: the strongest distinct grid modes refined continuously.
+    """
+
+    gps_sigma_m: float | None = DEFAULT_GPS_SIGMA_M
+    sharpness: float = DEFAULT_SHARPNESS
+    cell_m: float = DEFAULT_REFERENCE_CELL_M
+    half_size_m: float = DEFAULT_REFERENCE_HALF_SIZE_M
+    n_yaws: int = 120
+    sigma_m: float = DEFAULT_SIGMA_M
+    normalization: str = "weighted"
+    use_skyline: bool = True
+    n_modes: int = 3
+
+    @property
+    def likelihood(self) -> LikelihoodOptions:
+        """The grid's likelihood options (geometry only: identities are what labelling finds)."""
+        return LikelihoodOptions(
+            sigma_m=self.sigma_m, use_identity=False, normalization=self.normalization, use_skyline=self.use_skyline
+        )
 
 
 @dataclass
@@ -186,41 +217,27 @@ def label_reference(
     gps_xy: tuple[float, float],
     *,
     prior_yaw_deg: float | None = None,
-    gps_sigma_m: float | None = DEFAULT_GPS_SIGMA_M,
-    sharpness: float = DEFAULT_SHARPNESS,
-    cell_m: float = DEFAULT_REFERENCE_CELL_M,
-    half_size_m: float = DEFAULT_REFERENCE_HALF_SIZE_M,
-    n_yaws: int = 120,
-    sigma_m: float = DEFAULT_SIGMA_M,
-    normalization: str = "weighted",
-    use_skyline: bool = True,
-    n_modes: int = 3,
+    options: LabelOptions = LabelOptions(),
 ) -> ReferenceLabel:
     """Label one geo-tagged photo with the map.
 
     image_model: the photo's facade evidence (geometry only; identities are what we want to find).
     building_mask: (H, W) bool building pixels. gps_xy: the GPS tag in the local frame (m).
     prior_yaw_deg: optional heading prior (local bearing), Gaussian with HEADING_PRIOR_SIGMA_DEG.
-    gps_sigma_m: optional Gaussian prior on the position around the GPS tag (None: uniform, as the paper).
-    sharpness: pose weights are likelihood ** sharpness (as the query posterior, :mod:`geoloc.localize.posterior`).
+    options: the labelling's :class:`LabelOptions`.
     Poses inside building footprints are not sampled; if every grid cell is inside, the GPS tag alone is used.
-    n_modes: the strongest distinct grid modes (e.g. the wall in front and the one behind) are refined
-    continuously (:func:`geoloc.localize.refinement.refine_pose`: vanishing-point yaw, 0.5 m position search) and
-    the best refined pose is the label's pose.
+    The ``options.n_modes`` strongest distinct grid modes (e.g. the wall in front and the one behind) are
+    refined continuously (:func:`geoloc.localize.refinement.refine_pose`: vanishing-point yaw, 0.5 m position
+    search) and the best refined pose is the label's pose.
     """
-    grid = grid_around(city_map, gps_xy, half_size_m, cell_m)
+    gps_sigma_m, sharpness = options.gps_sigma_m, options.sharpness
+    grid = grid_around(city_map, gps_xy, options.half_size_m, options.cell_m)
     positions = grid.positions if grid.valid.any() else np.asarray([gps_xy], dtype=float)
-    yaws = default_yaws_deg(n_yaws)
-    panoramas = cast_panoramas(city_map, positions, bearing_step_deg=image_model.bin_deg)
-    likelihood = pose_likelihood(
-        panoramas,
-        image_model.without_identity(),
-        yaws,
-        sigma_m=sigma_m,
-        normalization=normalization,
-        building_height_m=known_building_heights(city_map) if use_skyline else None,
-    )
-    weights = np.power(likelihood.astype(float), sharpness)
+    yaws = default_yaws_deg(options.n_yaws)
+    likelihood = MapLikelihood(city_map, image_model.without_identity(), options.likelihood)
+    panoramas = likelihood.panoramas(positions)
+    table = likelihood.of_panoramas(panoramas, yaws)
+    weights = np.power(table.astype(float), sharpness)
     if prior_yaw_deg is not None:
         weights = weights * heading_prior(yaws, prior_yaw_deg)[None, :]
     if gps_sigma_m:
@@ -231,17 +248,17 @@ def label_reference(
     best: RefinedPose | None = None
     best_score = -1.0
     refined_modes: list[tuple[float, RefinedPose]] = []
-    for p_index, y_index in distinct_modes(positions, yaws, weights, n_modes):
+    # The refinement's likelihood keeps the weighted normalisation and the skyline term (as it always has).
+    refining = likelihood.with_options(normalization="weighted", use_skyline=True)
+    for p_index, y_index in distinct_modes(positions, yaws, weights, options.n_modes):
         refined = refine_pose(
-            city_map,
-            image_model.without_identity(),
+            refining,
             float(positions[p_index, 0]),
             float(positions[p_index, 1]),
             float(yaws[y_index]),
             prior_xy=gps_xy if gps_sigma_m else None,
             prior_sigma_m=gps_sigma_m,
             sharpness=sharpness,
-            sigma_m=sigma_m,
         )
         score = refined.posterior * (
             1.0 if prior_yaw_deg is None else float(heading_prior(refined.yaw_deg, prior_yaw_deg))
@@ -252,7 +269,7 @@ def label_reference(
     assert best is not None  # distinct_modes always yields the strongest pose
 
     # Identities: greedy from the refined pose; marginalised over the grid poses of the chosen mode.
-    at_best = cast_panoramas(city_map, np.array([[best.x_m, best.y_m]]), bearing_step_deg=image_model.bin_deg)
+    at_best = likelihood.panoramas(np.array([[best.x_m, best.y_m]]))
     greedy_ids = column_building_ids(
         at_best, np.array([best.yaw_deg]), intrinsics, image_model.offsets_deg, image_model.bin_deg
     )[0, 0]
@@ -268,7 +285,7 @@ def label_reference(
         best_likelihood=best.likelihood,
         positions=positions,
         yaws_deg=yaws,
-        likelihood=likelihood,
+        likelihood=table,
         greedy=greedy,
         marginalized=marginal,
         position_covariance=best.position_covariance,

@@ -78,28 +78,43 @@ def default_yaws_deg(n_yaws: int = 120) -> np.ndarray:
     return np.arange(n_yaws) * (360.0 / n_yaws)
 
 
+@dataclass(frozen=True)
+class LikelihoodOptions:
+    """How the likelihood scores a pose (module docstring): one options object, passed whole.
+
+    sigma_m: distance weight scale (m). use_identity: the identity-aware likelihood where the image model
+    carries identities (False: the paper's geometry-only one). unknown_weight, normalization ("weighted" or
+    "paper"), use_distance, distance_sigma_log: see the module docstring. use_skyline: the skyline term where
+    building heights are known (``building_height_m``); height_sigma_log: its spread.
+    """
+
+    sigma_m: float = DEFAULT_SIGMA_M
+    use_identity: bool = True
+    unknown_weight: float = DEFAULT_UNKNOWN_WEIGHT
+    normalization: str = "weighted"
+    use_distance: bool = True
+    distance_sigma_log: float = DEFAULT_DISTANCE_SIGMA_LOG
+    use_skyline: bool = True
+    height_sigma_log: float = DEFAULT_HEIGHT_SIGMA_LOG
+
+
 def pose_likelihood(
     panoramas: Panoramas,
     image_model: ImageModel,
     yaws_deg: np.ndarray | None = None,
-    sigma_m: float = DEFAULT_SIGMA_M,
-    use_identity: bool = True,
-    unknown_weight: float = DEFAULT_UNKNOWN_WEIGHT,
-    normalization: str = "weighted",
-    use_distance: bool = True,
-    distance_sigma_log: float = DEFAULT_DISTANCE_SIGMA_LOG,
+    options: LikelihoodOptions = LikelihoodOptions(),
     building_height_m: np.ndarray | None = None,
-    height_sigma_log: float = DEFAULT_HEIGHT_SIGMA_LOG,
 ) -> np.ndarray:
     """p(I | g) for every position of ``panoramas`` and every yaw: array (P, Y) in [0, 1].
 
     panoramas: map panoramas at P positions (bearing step must match ``image_model.bin_deg``
         or divide it evenly: bins are looked up by rounding to the panorama step).
-    image_model: the photo's per-bin evidence. Identities are used if present and ``use_identity``.
+    image_model: the photo's per-bin evidence. Identities are used if present and ``options.use_identity``.
     yaws_deg: (Y,) camera yaws, bearing of the optical axis in the local frame (default 120 yaws).
-    sigma_m: distance weight scale (m). unknown_weight, normalization, use_distance, distance_sigma_log:
-    see module docstring. building_height_m: (B,) height of each map building where it is known (NaN where
-    the map only has a default), enabling the skyline term; height_sigma_log: its spread.
+    options: the likelihood's :class:`LikelihoodOptions`. building_height_m: (B,) height of each map
+    building where it is known (NaN where the map only has a default), enabling the skyline term (with
+    ``options.use_skyline``). :class:`geoloc.localize.map_likelihood.MapLikelihood` binds a map, an image
+    model and the options, and casts the panoramas.
 
     A compiled kernel (:func:`_likelihood_kernel`) evaluates the terms per (position, yaw, bin) in one pass,
     skipping bins where nothing can score; what does not depend on the yaw (distance weights, log
@@ -107,17 +122,8 @@ def pose_likelihood(
     plain numpy (the specification, and the reference of the tests and of ``benchmarks/bench_core.py``): the
     two agree to float32 rounding.
     """
-    terms = _terms(
-        panoramas,
-        image_model,
-        yaws_deg,
-        use_identity,
-        unknown_weight,
-        normalization,
-        use_distance,
-        building_height_m,
-    )
-    inv_two_sigma2 = 1.0 / (2.0 * sigma_m**2)
+    terms = _terms(panoramas, image_model, yaws_deg, options, building_height_m)
+    inv_two_sigma2 = 1.0 / (2.0 * options.sigma_m**2)
     # Per panorama bearing, as pose_likelihood_numpy computes them per (position, yaw, bin): same bits.
     dist = panoramas.distance_m
     hit = np.isfinite(dist)
@@ -141,12 +147,12 @@ def pose_likelihood(
         np.ascontiguousarray(panoramas.building_id, dtype=np.int32),
         terms.present,
         empty if terms.log_distance_hat is None else terms.log_distance_hat,
-        np.float32(distance_sigma_log),
+        np.float32(options.distance_sigma_log),
         empty if terms.log_top_hat is None else terms.log_top_hat,
         empty if terms.log_rise is None else terms.log_rise,
-        np.float32(height_sigma_log),
+        np.float32(options.height_sigma_log),
         np.zeros((0, 0), np.float32) if terms.identity_lut is None else terms.identity_lut,
-        normalization == "paper",
+        options.normalization == "paper",
         out,
     )
     return out
@@ -170,25 +176,22 @@ def _terms(
     panoramas: Panoramas,
     image_model: ImageModel,
     yaws_deg: np.ndarray | None,
-    use_identity: bool,
-    unknown_weight: float,
-    normalization: str,
-    use_distance: bool,
+    options: LikelihoodOptions,
     building_height_m: np.ndarray | None,
 ) -> _Terms:
-    if normalization not in NORMALIZATIONS:
-        raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
+    if options.normalization not in NORMALIZATIONS:
+        raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {options.normalization!r}")
     yaws = default_yaws_deg() if yaws_deg is None else np.asarray(yaws_deg, dtype=float)
     window = panorama_window(panoramas, yaws, image_model.offsets_deg)  # (Y, K)
     present = np.clip(image_model.facade_present, 0.0, 1.0).astype(np.float32)  # (K,)
     theta_hat = image_model.orientation_deg.astype(np.float32)
     identity_lut = None
     log_distance_hat = None
-    if use_distance and image_model.distance_m is not None and np.isfinite(image_model.distance_m).any():
+    if options.use_distance and image_model.distance_m is not None and np.isfinite(image_model.distance_m).any():
         log_distance_hat = np.log(image_model.distance_m).astype(np.float32)  # NaN where unknown
-    if use_identity and image_model.has_identity:
-        identity_lut = _identity_lookup(image_model, panoramas, unknown_weight)
-    skyline = _skyline_logs(image_model, building_height_m)
+    if options.use_identity and image_model.has_identity:
+        identity_lut = _identity_lookup(image_model, panoramas, options.unknown_weight)
+    skyline = _skyline_logs(image_model, building_height_m if options.use_skyline else None)
     log_rise, log_top_hat = skyline if skyline is not None else (None, None)
     return _Terms(yaws, window, present, theta_hat, log_distance_hat, identity_lut, log_rise, log_top_hat)
 
@@ -267,14 +270,8 @@ def pose_likelihood_numpy(
     panoramas: Panoramas,
     image_model: ImageModel,
     yaws_deg: np.ndarray | None = None,
-    sigma_m: float = DEFAULT_SIGMA_M,
-    use_identity: bool = True,
-    unknown_weight: float = DEFAULT_UNKNOWN_WEIGHT,
-    normalization: str = "weighted",
-    use_distance: bool = True,
-    distance_sigma_log: float = DEFAULT_DISTANCE_SIGMA_LOG,
+    options: LikelihoodOptions = LikelihoodOptions(),
     building_height_m: np.ndarray | None = None,
-    height_sigma_log: float = DEFAULT_HEIGHT_SIGMA_LOG,
     chunk_elements: int = 8_000_000,
 ) -> np.ndarray:
     """:func:`pose_likelihood` in plain vectorised numpy: (P, Y) arrays of every term, in chunks of positions.
@@ -282,16 +279,8 @@ def pose_likelihood_numpy(
     The specification of the compiled kernel (same arguments, results equal to float32 rounding); the
     tests and the core benchmark compare the two.
     """
-    terms = _terms(
-        panoramas,
-        image_model,
-        yaws_deg,
-        use_identity,
-        unknown_weight,
-        normalization,
-        use_distance,
-        building_height_m,
-    )
+    terms = _terms(panoramas, image_model, yaws_deg, options, building_height_m)
+    distance_sigma_log, height_sigma_log = options.distance_sigma_log, options.height_sigma_log
     yaws, window, present, theta_hat = terms.yaws, terms.window, terms.present, terms.theta_hat
     identity_lut, log_distance_hat = terms.identity_lut, terms.log_distance_hat
     log_rise, log_top_hat = terms.log_rise, terms.log_top_hat
@@ -299,7 +288,7 @@ def pose_likelihood_numpy(
     out = np.zeros((n_pos, len(yaws)), dtype=np.float32)
     per_position = max(1, window.size)
     step = max(1, chunk_elements // per_position)
-    inv_two_sigma2 = 1.0 / (2.0 * sigma_m**2)
+    inv_two_sigma2 = 1.0 / (2.0 * options.sigma_m**2)
     # The relative orientation theta_k = normal bearing - yaw; the yaw term is per row of the window.
     yaw_col = yaws.astype(np.float32)[None, :, None]
     for start in range(0, n_pos, step):
@@ -333,7 +322,7 @@ def pose_likelihood_numpy(
             k_index = np.broadcast_to(np.arange(len(present))[None, None, :], building.shape)
             score = score * identity_lut[k_index, building + 1]
         s = score.sum(axis=-1)
-        if normalization == "paper":
+        if options.normalization == "paper":
             s_max = present.sum() + ((1.0 - present)[None, None, :] * weight).sum(axis=-1)
         else:
             s_max = (weight + present[None, None, :] * ~hit).sum(axis=-1)

@@ -17,15 +17,7 @@ import numpy as np
 
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.localize.identity import IdentityMap
-from geoloc.localize.labeling import (
-    DEFAULT_GPS_SIGMA_M,
-    DEFAULT_REFERENCE_CELL_M,
-    DEFAULT_REFERENCE_HALF_SIZE_M,
-    ReferenceLabel,
-    label_reference,
-)
-from geoloc.localize.likelihood import DEFAULT_SIGMA_M
-from geoloc.localize.posterior import DEFAULT_SHARPNESS
+from geoloc.localize.labeling import LabelOptions, ReferenceLabel, label_reference
 from geoloc.localize.store import StoredReference
 from geoloc.maps import CityMap
 from geoloc.photos.photo import Photo
@@ -67,28 +59,6 @@ def _camera_pose(label: ReferenceLabel, evidence: PhotoEvidence, alternative: bo
     return CameraPose(label.x_m, label.y_m, label.yaw_deg, DEFAULT_CAMERA_HEIGHT_M, rotation)
 
 
-@dataclass(frozen=True)
-class LabelOptions:
-    """How :func:`label_reference_photo` labels a reference (:func:`geoloc.localize.labeling.label_reference`).
-
-    The defaults are ``label_reference``'s (a test checks that they agree). gps_sigma_m: Gaussian prior on the
-    position around the GPS tag (m; None: uniform). sharpness: pose weights are likelihood ** sharpness.
-    cell_m, half_size_m: the pose grid around the tag (m). n_yaws: yaws sampled over 360 deg. sigma_m,
-    normalization, use_skyline: the pose likelihood's (:func:`geoloc.localize.likelihood.pose_likelihood`).
-    n_modes: grid modes refined continuously.
-    """
-
-    gps_sigma_m: float | None = DEFAULT_GPS_SIGMA_M
-    sharpness: float = DEFAULT_SHARPNESS
-    cell_m: float = DEFAULT_REFERENCE_CELL_M
-    half_size_m: float = DEFAULT_REFERENCE_HALF_SIZE_M
-    n_yaws: int = 120
-    sigma_m: float = DEFAULT_SIGMA_M
-    normalization: str = "weighted"
-    use_skyline: bool = True
-    n_modes: int = 3
-
-
 def label_reference_photo(
     city_map: CityMap,
     photo: Photo,
@@ -117,15 +87,7 @@ def label_reference_photo(
         photo.intrinsics,
         gps_xy,
         prior_yaw_deg=prior_yaw_deg,
-        gps_sigma_m=options.gps_sigma_m,
-        sharpness=options.sharpness,
-        cell_m=options.cell_m,
-        half_size_m=options.half_size_m,
-        n_yaws=options.n_yaws,
-        sigma_m=options.sigma_m,
-        normalization=options.normalization,
-        use_skyline=options.use_skyline,
-        n_modes=options.n_modes,
+        options=options,
     )
     identity = label.marginalized if strategy == "marginalized" else label.greedy
     keypoint_identity = identity.probabilities_at(evidence.features.xy)
@@ -141,7 +103,7 @@ def label_reference_photo(
 
 
 def stored_reference(reference_id: Hashable, labelled: LabelledReference) -> StoredReference:
-    """What the query stage keeps of a labelled reference (:class:`geoloc.localize.query.StoredReference`)."""
+    """What the query stage keeps of a labelled reference (:class:`geoloc.localize.store.StoredReference`)."""
     return StoredReference(
         reference_id,
         labelled.evidence.features,

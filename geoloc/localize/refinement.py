@@ -13,8 +13,8 @@ give metres and degrees. Two refinements start from a grid pose:
   0.5 m) at a few yaws around the vanishing-point yaw, times a Gaussian position prior; the best pose, and
   the posterior's spread as a covariance of the position (the honest "how sure", not a grid cell).
 
-Both take the image model (its per-bin orientations and offsets), so references and queries use the same
-code.
+Both take the image model (its per-bin orientations and offsets; :func:`refine_pose` through the photo's
+:class:`geoloc.localize.map_likelihood.MapLikelihood`), so references and queries use the same code.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geoloc.localize.likelihood import DEFAULT_SIGMA_M, known_building_heights, pose_likelihood
+from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.posterior import DEFAULT_SHARPNESS
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import cast_panoramas
@@ -87,8 +87,7 @@ def vanishing_point_yaw(
 
 
 def refine_pose(
-    city_map: CityMap,
-    image_model: ImageModel,
+    likelihood: MapLikelihood,
     x_m: float,
     y_m: float,
     yaw_deg: float,
@@ -98,16 +97,16 @@ def refine_pose(
     half_size_m: float = 6.0,
     cell_m: float = 1.0,
     yaw_offsets_deg: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
-    use_identity: bool = False,
     sharpness: float = DEFAULT_SHARPNESS,
-    sigma_m: float = DEFAULT_SIGMA_M,
     use_vanishing_points: bool = True,
 ) -> RefinedPose:
     """Refine a pose: vanishing-point yaw, then the best of a fine grid of positions x yaws around it.
 
-    prior_xy, prior_sigma_m: optional Gaussian position prior (e.g. the GPS tag). Positions inside buildings
-    are skipped. use_identity: identity-aware likelihood (needs identities in the image model).
+    likelihood: the photo's map likelihood (identity-aware when its options ask for it and its image model
+    carries identities). prior_xy, prior_sigma_m: optional Gaussian position prior (e.g. the GPS tag).
+    Positions inside buildings are skipped.
     """
+    city_map, image_model = likelihood.city_map, likelihood.image_model
     yaw, vp_bins = (
         vanishing_point_yaw(city_map, image_model, x_m, y_m, yaw_deg) if use_vanishing_points else (yaw_deg, 0)
     )
@@ -118,16 +117,8 @@ def refine_pose(
     if len(positions) == 0:
         positions = np.array([[x_m, y_m]])
     yaws = yaw + np.asarray(yaw_offsets_deg, dtype=float)
-    panoramas = cast_panoramas(city_map, positions, bearing_step_deg=image_model.bin_deg)
-    likelihood = pose_likelihood(
-        panoramas,
-        image_model,
-        yaws,
-        sigma_m=sigma_m,
-        use_identity=use_identity and image_model.has_identity,
-        building_height_m=known_building_heights(city_map),
-    ).astype(float)
-    weight = np.power(likelihood, sharpness)
+    table = likelihood.of_poses(positions, yaws).astype(float)
+    weight = np.power(table, sharpness)
     if prior_xy is not None and prior_sigma_m:
         d2 = np.sum((positions - np.asarray(prior_xy, dtype=float)) ** 2, axis=1)
         weight = weight * np.exp(-0.5 * d2 / prior_sigma_m**2)[:, None]
@@ -154,7 +145,7 @@ def refine_pose(
         float(positions[best_p, 0]),
         float(positions[best_p, 1]),
         best_yaw % 360.0,
-        float(likelihood[best_p, best_y]),
+        float(table[best_p, best_y]),
         float(weight[best_p, best_y]),
         covariance,
         vp_bins,

@@ -1,0 +1,62 @@
+"""Retrieval and identity transfer: the SBoW shortlist re-ranked by verified inliers, the top k's identities."""
+
+from __future__ import annotations
+
+from collections.abc import Hashable, Sequence
+
+import numpy as np
+
+from geoloc.localize.grid import PositionPrior
+from geoloc.localize.identity import IdentityMap
+from geoloc.localize.query.config import PRIOR_SHORTLIST_FACTOR, QueryConfig
+from geoloc.localize.retrieval import Vocabulary
+from geoloc.localize.store import ReferenceStore, StoredReference
+from geoloc.localize.transfer import ReferenceEvidence, ReferenceMatch, rerank_by_inliers, transfer_identities
+from geoloc.vision.evidence import PhotoEvidence
+from geoloc.vision.features import Features
+
+
+def retrieve(
+    features: Features,
+    store: ReferenceStore,
+    vocabulary: Vocabulary,
+    config: QueryConfig,
+    position_prior: PositionPrior | None = None,
+) -> tuple[dict[Hashable, StoredReference], list[ReferenceMatch]]:
+    """SBoW shortlist of ``config.shortlist`` references re-ranked by verified inliers (best first).
+
+    With a position prior, references that stand too far from it to see what the query sees (beyond
+    ``prior_sigmas`` prior sigmas plus ``view_range_m``) are left out before the shortlist is cut: repeated
+    facade elements elsewhere in the city otherwise pass as matches.
+    """
+    words = vocabulary.words(features.descriptors)
+    wanted = config.shortlist * (PRIOR_SHORTLIST_FACTOR if position_prior is not None else 1)
+    ranked = store.shortlist(words, wanted)
+    if position_prior is not None:
+        # Positions first: only the references kept are loaded (features are the costly part to read).
+        reach = config.prior_sigmas * position_prior.sigma_m + config.view_range_m
+        centre = np.array([position_prior.x_m, position_prior.y_m])
+        positions = store.positions([ref_id for ref_id, _ in ranked])
+        ranked = [
+            (ref_id, score)
+            for ref_id, score in ranked
+            if ref_id in positions
+            and (not np.all(np.isfinite(positions[ref_id])) or np.hypot(*(positions[ref_id] - centre)) <= reach)
+        ]
+    stored = store.load([ref_id for ref_id, _ in ranked[: config.shortlist]])
+    shortlist = [(ref_id, score) for ref_id, score in ranked if ref_id in stored][: config.shortlist]
+    stored = {ref_id: stored[ref_id] for ref_id, _ in shortlist}
+    candidates = [(ref_id, score, stored[ref_id].features) for ref_id, score in shortlist]
+    return stored, rerank_by_inliers(features, candidates, len(candidates))
+
+
+def transfer(
+    evidence: PhotoEvidence, stored: dict[Hashable, StoredReference], matches: Sequence[ReferenceMatch], k: int
+) -> IdentityMap:
+    """The paper's identity transfer from the top ``k`` re-ranked references."""
+    evidences = [_reference_evidence(stored[m.reference_id], m) for m in matches[:k]]
+    return transfer_identities(evidence.features, evidence.building_mask, evidences).identity
+
+
+def _reference_evidence(ref: StoredReference, match: ReferenceMatch) -> ReferenceEvidence:
+    return ReferenceEvidence(ref.reference_id, ref.features, ref.keypoint_prob, ref.building_ids, match.score, match)
