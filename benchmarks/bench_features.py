@@ -66,7 +66,8 @@ from contracts.settings import shared_path
 from geoloc.core import labels as classes
 from geoloc.core.camera import Intrinsics
 from geoloc.evaluation.world import shown_by_references
-from geoloc.localize.retrieval import InvertedIndex, default_vocabulary
+from geoloc.localize.retrieval import default_vocabulary
+from geoloc.localize.sbow_index import SbowIndex
 from geoloc.localize.transfer import DEFAULT_MIN_INLIERS, geometric_verification, match_features
 from geoloc.maps import CityMap
 from geoloc.sim.render import Pose, rotation_matrix
@@ -322,7 +323,7 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
         }
         vocabulary = default_vocabulary(progress=False, method=parse_method(method)[0])
         words = {n: vocabulary.words(fm[n].descriptors) for n in names}
-        index = InvertedIndex.from_documents((r, words[r]) for r in refs)
+        index = SbowIndex.from_documents(vocabulary.n_words, ((i, words[r]) for i, r in enumerate(refs)))
         for mname in args.matcher_names:
             match = matcher(mname)
             rows = _pair_rows(city, fm, views, match, {"sharing": sharing, "wrong": wrong}, overlaps, covisible, args)
@@ -332,7 +333,7 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
             wrong_rows = [row for row in rows if row["kind"] == "wrong"]
             inl_sum = sum(row["inliers"] for row in share_rows)
             wrong_inl = np.array([row["inliers"] for row in wrong_rows])
-            in_top20, in_top4 = _retrieval_hits(queries, best_sets, index, words, by_pair, fm, match)
+            in_top20, in_top4 = _retrieval_hits(queries, best_sets, (index, refs), words, by_pair, fm, match)
             good = [row for row in share_rows if row["inliers"] and row["correct"] >= 0.5 * row["inliers"]]
             passing = [row for row in rows if row["inliers"] >= DEFAULT_MIN_INLIERS]
             top_right = top_any = 0
@@ -394,7 +395,7 @@ def _pair_rows(
 def _retrieval_hits(
     queries: list[str],
     best_sets: dict[str, set[str]],
-    index: InvertedIndex,
+    index: tuple[SbowIndex, list[str]],
     words: dict[str, np.ndarray],
     by_pair: dict[tuple[str, str], dict[str, Any]],
     fm: dict[str, Features],
@@ -402,6 +403,7 @@ def _retrieval_hits(
 ) -> tuple[list[bool], list[bool]]:
     """Retrieval: SBoW top 20, re-ranked by verified inliers (this matcher) to the top 4.
 
+    index: the references' SBoW index (document i: the i-th name of the list) and their names.
     For each query with a best-overlapping reference set: whether one of them is in the SBoW top 20, and in
     the re-ranked top 4.
     """
@@ -409,7 +411,7 @@ def _retrieval_hits(
     for q in queries:
         if not best_sets[q]:
             continue
-        shortlist = index.query(words[q], SHORTLIST)
+        shortlist = [(index[1][doc], score) for doc, score in index[0].top(words[q], SHORTLIST)]
         ranked = []
         for r, score in shortlist:
             row = by_pair.get((q, r))

@@ -13,7 +13,6 @@ from hypothesis import strategies as st
 
 from contracts.settings import shared_dir
 from geoloc.localize.retrieval import (
-    InvertedIndex,
     Vocabulary,
     build_vocabulary,
     default_vocabulary,
@@ -21,6 +20,7 @@ from geoloc.localize.retrieval import (
     tfidf_scores,
     vocabulary_path,
 )
+from geoloc.localize.sbow_index import SbowIndex
 from geoloc.vision.features import Features, extract_features, root_sift
 
 LUND = shared_dir() / "data" / "lund" / "images"
@@ -134,7 +134,9 @@ def test_build_vocabulary_is_deterministic_and_caps_words():
 
 
 # ----------------------------------------------------------------------------------------------
-# Inverted index
+# Inverted index (the one SBoW index, SbowIndex, against the documented formula and tfidf_scores)
+
+N_WORDS = 41  # words_st draws words 0..40
 
 
 def dense_scores(docs: dict[int, np.ndarray], query: np.ndarray, n_words: int) -> dict[int, float]:
@@ -160,10 +162,10 @@ words_st = st.lists(st.integers(0, 40), min_size=1, max_size=30).map(lambda v: n
     query=words_st,
 )
 def test_index_add_remove_matches_from_scratch(docs, extra, removed, query):
-    index = InvertedIndex()
+    index = SbowIndex(N_WORDS)
     for doc_id, words in {**docs, **extra}.items():
-        index.add(doc_id, words)
-    index.query(query, 3)  # compile, then change
+        index.add_words(doc_id, words)
+    index.top(query, 3)  # score, then change
     for doc_id in extra:
         index.remove(doc_id)
     kept = {k: v for k, v in docs.items() if k not in removed}
@@ -171,9 +173,9 @@ def test_index_add_remove_matches_from_scratch(docs, extra, removed, query):
         index.remove(doc_id)
     assert len(index) == len(kept)
     if not kept:
-        assert index.query(query, 5) == []
+        assert index.top(query, 5) == []
         return
-    scratch = InvertedIndex.from_documents(kept.items())
+    scratch = SbowIndex.from_documents(N_WORDS, kept.items())
     keys_a, s_a = index.scores(query)
     keys_b, s_b = scratch.scores(query)
     a = dict(zip(keys_a, s_a.tolist(), strict=True))
@@ -187,17 +189,17 @@ def test_index_add_remove_matches_from_scratch(docs, extra, removed, query):
 @settings(max_examples=60, deadline=None)
 @given(docs=st.lists(words_st, min_size=1, max_size=15), pick=st.integers(0, 100))
 def test_identical_document_ranks_first(docs, pick):
-    index = InvertedIndex.from_documents(enumerate(docs))
+    index = SbowIndex.from_documents(N_WORDS, enumerate(docs))
     target = pick % len(docs)
-    ranked = index.query(docs[target], len(docs))
+    ranked = index.top(docs[target], len(docs))
     top_score = ranked[0][1]
     assert dict(ranked)[target] == pytest.approx(top_score, rel=1e-12)
 
 
 def test_tfidf_scores_from_postings_rows_like_a_database():
     """A database passes the rows of the query's words (and maybe others); doc indices are its candidates."""
-    docs = {"a": np.array([1, 1, 2, 3]), "b": np.array([2, 5, 5]), "c": np.array([7, 8])}
-    index = InvertedIndex.from_documents(docs.items())
+    docs = {0: np.array([1, 1, 2, 3]), 1: np.array([2, 5, 5]), 2: np.array([7, 8])}
+    index = SbowIndex.from_documents(100, docs.items())
     query = np.array([1, 2, 2, 5])
     rows = [
         (int(w), i, int(c))
@@ -208,7 +210,8 @@ def test_tfidf_scores_from_postings_rows_like_a_database():
     w, d, c = (np.array(v) for v in zip(*rows, strict=True))
     lengths = np.array([len(v) for v in docs.values()])
     got = tfidf_scores(query, w, d, c, lengths, n_docs=3)
-    _, expected = index.scores(query)
+    ids, expected = index.scores(query)
+    assert ids.tolist() == [0, 1, 2]
     np.testing.assert_allclose(got, expected)
     assert got[2] == 0.0 and got[0] > 0 and got[1] > 0
 
@@ -240,8 +243,8 @@ def test_lund_sequence_neighbours_rank_in_top4():
         words.append(voc.words(extract_features(rgb, rough_building_mask(rgb), 800, max_side=768).descriptors))
     found, total = 0, 0
     for i in range(1, len(paths) - 1):
-        index = InvertedIndex.from_documents((j, words[j]) for j in range(len(paths)) if j != i)
-        top = [doc for doc, _ in index.query(words[i], 4)]
+        index = SbowIndex.from_documents(voc.n_words, ((j, words[j]) for j in range(len(paths)) if j != i))
+        top = [doc for doc, _ in index.top(words[i], 4)]
         found += (i - 1 in top) + (i + 1 in top)
         total += 2
     assert found / total >= 0.7, f"{found}/{total} neighbours in the top 4"

@@ -12,7 +12,8 @@ from contracts.settings import shared_path
 from geoloc.evaluation.world import KS, EvalRun, default_runs, evaluate_world
 from geoloc.localize.query import QueryConfig
 from geoloc.localize.reference import label_reference_photo
-from geoloc.localize.retrieval import InvertedIndex, default_vocabulary
+from geoloc.localize.retrieval import default_vocabulary
+from geoloc.localize.sbow_index import SbowIndex
 from geoloc.localize.transfer import rerank_by_inliers
 from geoloc.photos.photo import load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
@@ -63,9 +64,10 @@ def test_reference_labelling_recovers_headings(world_dir: Path, labelled: dict) 
 def test_retrieval_finds_the_reference_sharing_most_building_area(world_dir: Path, labelled: dict) -> None:
     world = load_world(world_dir)
     vocabulary = default_vocabulary(progress=False)
-    index = InvertedIndex()
-    for name, ref in labelled.items():
-        index.add(name, vocabulary.words(ref.evidence.features.descriptors))
+    names = list(labelled)
+    index = SbowIndex(vocabulary.n_words)
+    for doc_id, name in enumerate(names):
+        index.add_words(doc_id, vocabulary.words(labelled[name].evidence.features.descriptors))
     hits = []
     for image in world.queries:
         shares = {b["building_id"]: b["pixel_share"] for b in image.record["buildings"]}
@@ -80,8 +82,8 @@ def test_retrieval_finds_the_reference_sharing_most_building_area(world_dir: Pat
         best = {name for name, value in overlap.items() if value >= top - 0.02}  # ties share the top
         photo = load_photo(image.path)
         evidence = analyze_photo(photo, world.gt(image.name)["labels"])
-        shortlist = index.query(vocabulary.words(evidence.features.descriptors), 20)
-        candidates = [(name, score, labelled[name].evidence.features) for name, score in shortlist]
+        shortlist = index.top(vocabulary.words(evidence.features.descriptors), 20)
+        candidates = [(names[doc], score, labelled[names[doc]].evidence.features) for doc, score in shortlist]
         top4 = [m.reference_id for m in rerank_by_inliers(evidence.features, candidates, 4)]
         hits.append(bool(best & set(top4)))
     assert hits and np.mean(hits) >= 0.6, hits

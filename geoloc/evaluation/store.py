@@ -12,7 +12,7 @@ from collections.abc import Hashable, Sequence
 
 import numpy as np
 
-from geoloc.localize.retrieval import Vocabulary, bag
+from geoloc.localize.retrieval import Vocabulary
 from geoloc.localize.sbow_index import SbowIndex
 from geoloc.localize.store import StoredReference
 
@@ -33,8 +33,7 @@ class InMemoryReferenceStore:
         if ref_id not in self._index_id:
             self._index_id[ref_id] = len(self._reference_id)
             self._reference_id.append(ref_id)
-        words, counts = bag(self.vocabulary.words(reference.features.descriptors))
-        self.index.upsert(self._index_id[ref_id], words, counts, float(counts.sum()))
+        self.index.add_words(self._index_id[ref_id], self.vocabulary.words(reference.features.descriptors))
         self.references[ref_id] = reference
 
     def shortlist(self, words: np.ndarray, n: int) -> list[tuple[Hashable, float]]:

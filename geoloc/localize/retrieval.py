@@ -11,8 +11,9 @@ Vocabulary
     ``cache_dir()/models`` as ``sbow_vocabulary_<method>_<V>.npz``: retrieval works from the very first
     reference, and no map needs its own training. Words of one feature type mean nothing to another.
 
-Scoring (:func:`tfidf_scores`, the one formula used by :class:`InvertedIndex` and by a database-backed
-index): an idf-weighted histogram intersection of L1-normalised term frequencies,
+Scoring (:func:`tfidf_scores`, the one formula of the in-memory index,
+:class:`geoloc.localize.sbow_index.SbowIndex`, and of the database's): an idf-weighted histogram
+intersection of L1-normalised term frequencies,
 
     score(q, d) = sum_w idf_w * min(q_w / |q|, c_dw / |d|),      idf_w = ln(1 + N / df_w)
 
@@ -48,7 +49,7 @@ are synthetic); spatial re-ranking (:func:`geoloc.localize.transfer.rerank_by_in
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Hashable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -264,7 +265,7 @@ def default_vocabulary(n_words: int = DEFAULT_WORDS, progress: bool = True, meth
 
 
 # ----------------------------------------------------------------------------------------------
-# Scoring (shared by the in-memory and a database-backed index)
+# Scoring (the specification of the in-memory index and the database's)
 
 
 def idf(df: np.ndarray, n_docs: int) -> np.ndarray:
@@ -314,94 +315,3 @@ def tfidf_scores(
     d_tf = counts / np.maximum(np.asarray(doc_lengths, np.float64)[docs], 1.0)
     contrib = weights[slot] * np.minimum(q_tf[slot], d_tf)
     return np.bincount(docs, weights=contrib, minlength=len(doc_lengths))[: len(doc_lengths)]
-
-
-# ----------------------------------------------------------------------------------------------
-# In-memory inverted index
-
-
-_CompiledPostings = tuple[list[Hashable], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-"""An index's postings for queries: doc ids, then word-sorted words, doc positions and counts, and doc lengths."""
-
-
-class InvertedIndex:
-    """In-memory SBoW inverted index (documents = reference images, terms = visual words).
-
-    ``add(doc_id, words)`` / ``remove(doc_id)`` change it; ``query(words, k)`` ranks documents by
-    :func:`tfidf_scores`. Documents are kept as (distinct words, counts); the word-sorted postings arrays
-    used by queries are rebuilt lazily after a change (O(P log P) for P postings), so a batch of changes
-    costs one rebuild. Doc ids are any hashable (int or str).
-    """
-
-    def __init__(self) -> None:
-        self._docs: dict[Hashable, tuple[np.ndarray, np.ndarray]] = {}
-        self._compiled: _CompiledPostings | None = None
-
-    def __len__(self) -> int:
-        """Number of documents."""
-        return len(self._docs)
-
-    def __contains__(self, doc_id: Hashable) -> bool:
-        """Whether ``doc_id`` is indexed."""
-        return doc_id in self._docs
-
-    @property
-    def doc_ids(self) -> list[Hashable]:
-        """The indexed document ids, in insertion order."""
-        return list(self._docs)
-
-    def add(self, doc_id: Hashable, words: np.ndarray) -> None:
-        """Add (or replace) document ``doc_id`` with its (N,) word array (one entry per feature)."""
-        self._docs[doc_id] = bag(words)
-        self._compiled = None
-
-    def remove(self, doc_id: Hashable) -> None:
-        """Remove ``doc_id`` (KeyError if absent)."""
-        del self._docs[doc_id]
-        self._compiled = None
-
-    def postings(self, doc_id: Hashable) -> tuple[np.ndarray, np.ndarray]:
-        """The document's distinct words and their counts (what a database would store as postings rows)."""
-        return self._docs[doc_id]
-
-    def _compile(self) -> _CompiledPostings:
-        if self._compiled is None:
-            keys = list(self._docs)
-            bags = [self._docs[k] for k in keys]
-            words = np.concatenate([b[0] for b in bags]) if bags else np.zeros(0, np.int64)
-            counts = np.concatenate([b[1] for b in bags]) if bags else np.zeros(0, np.int64)
-            docs = np.repeat(np.arange(len(bags)), [len(b[0]) for b in bags]) if bags else np.zeros(0, np.int64)
-            order = np.argsort(words, kind="stable")
-            lengths = np.array([b[1].sum() for b in bags], np.int64)
-            self._compiled = (keys, words[order], docs[order], counts[order], lengths)
-        return self._compiled
-
-    def scores(self, words: np.ndarray) -> tuple[list[Hashable], np.ndarray]:
-        """All doc ids (insertion order) and their scores for a query with (N,) ``words``."""
-        keys, p_word, p_doc, p_count, lengths = self._compile()
-        qw = np.unique(np.asarray(words, dtype=np.int64))
-        # Gather the postings ranges of the query's words (word-sorted arrays) without a Python loop.
-        lo = np.searchsorted(p_word, qw, "left")
-        hi = np.searchsorted(p_word, qw, "right")
-        n = hi - lo
-        idx = np.repeat(lo - np.cumsum(n) + n, n) + np.arange(n.sum())
-        return keys, tfidf_scores(words, p_word[idx], p_doc[idx], p_count[idx], lengths, len(keys))
-
-    def query(self, words: np.ndarray, k: int = 8) -> list[tuple[Hashable, float]]:
-        """The ``k`` best documents as (doc_id, score), best first (ties: earlier insertion first).
-
-        Documents sharing no word with the query (score 0) are not returned.
-        """
-        keys, s = self.scores(words)
-        if len(keys) == 0 or k <= 0:
-            return []
-        order = np.argsort(-s, kind="stable")[:k]
-        return [(keys[i], float(s[i])) for i in order if s[i] > 0]
-
-    @classmethod
-    def from_documents(cls, documents: Iterable[tuple[Hashable, np.ndarray]]) -> InvertedIndex:
-        """An index with the given (doc_id, words) documents."""
-        index = cls()
-        for doc_id, words in documents:
-            index.add(doc_id, words)
-        return index

@@ -18,17 +18,27 @@ mark).
 Memory: per posting 4 bytes of document index, 4 (or 8) of weight and 2 of word (the document's word
 list, to forget it when it is removed); weights are float32 when that is exact, as the service's integer
 word counts are. 100,000 references of ~340 distinct words: 350 MB (``benchmarks/bench_sbow.py``).
+
+The one SBoW index (decided in issue 18): there were three, this one (the workers' path, measured at 100 k
+references), an in-memory ``InvertedIndex`` in :mod:`geoloc.localize.retrieval` (the evaluation's) and the SQL
+ranking of ``db/sbow.py``. This one stays, as the shipped and measured one; the evaluation ranks with it too
+(:class:`geoloc.evaluation.store.InMemoryReferenceStore`, documents added with :meth:`SbowIndex.add_words`),
+which gives the scores ``InvertedIndex`` gave: both compute :func:`geoloc.localize.retrieval.tfidf_scores`
+with each document's terms summed in increasing word order from 0.0, and the evaluation's ids are numbered
+in insertion order so that ties (lower id first) fall as ``InvertedIndex``'s did (earlier insertion first).
+The database keeps the postings as the source of truth; :func:`geoloc.localize.retrieval.tfidf_scores` stays
+as the formula's specification, the reference of the tests. The storage is :mod:`geoloc.localize.sbow_segments`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Hashable
-from dataclasses import dataclass
+from collections.abc import Hashable, Iterable
 
 import numba
 import numpy as np
 
 from geoloc.localize.retrieval import bag, idf
+from geoloc.localize.sbow_segments import RecentDocuments, Segment
 
 COMPACT_RECENT_SHARE = 0.05
 """The recent segment is merged into the base when it holds more than this share of the base's documents."""
@@ -36,196 +46,6 @@ COMPACT_MIN_RECENT = 2048
 """... and at least this many documents (small indexes live in the recent segment alone)."""
 COMPACT_DEAD_SHARE = 0.2
 """The base is rebuilt when this share of its documents has been removed or replaced."""
-
-
-@dataclass
-class _Segment:
-    """Documents as word-major postings, and each document's words (``doc_ptr``, ``doc_word``).
-
-    For word w, rows ``word_ptr[w]:word_ptr[w + 1]`` of ``doc``/``weight`` (documents in increasing order
-    within a word).
-
-    ids: (D,) int64 document ids; length: (D,) float64 word totals; live: (D,) bool (False: removed);
-    doc: (P,) int32 indices into ``ids``; weight: (P,) float32 or float64 term weights;
-    doc_word: (P,) the words of document d at ``doc_ptr[d]:doc_ptr[d + 1]`` (to forget a removed document).
-    """
-
-    ids: np.ndarray
-    length: np.ndarray
-    live: np.ndarray
-    word_ptr: np.ndarray
-    doc: np.ndarray
-    weight: np.ndarray
-    doc_ptr: np.ndarray
-    doc_word: np.ndarray
-
-    @classmethod
-    def empty(cls, n_words: int) -> _Segment:
-        return cls.from_postings(
-            n_words, np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-        )
-
-    @classmethod
-    def from_postings(
-        cls,
-        n_words: int,
-        ids: np.ndarray,
-        length: np.ndarray,
-        word: np.ndarray,
-        doc: np.ndarray,
-        weight: np.ndarray,
-    ) -> _Segment:
-        """A segment from postings rows in any order (``doc`` indexes ``ids``), sorted by word, then document.
-
-        Rows already in that order (a database's primary-key order) are kept as they are: no copy.
-        """
-        word = np.asarray(word)
-        doc = np.asarray(doc)
-        if len(word) and (word.min() < 0 or word.max() >= n_words):
-            raise ValueError(f"word ids must lie in [0, {n_words})")
-        if len(doc) and (doc.min() < 0 or doc.max() >= len(ids)):
-            raise ValueError("postings must refer to the documents given")
-        word_type = np.uint16 if n_words <= 1 << 16 else np.int32
-        by_doc, doc_ptr = _counting_sort(doc, len(ids))
-        doc_word = word[by_doc].astype(word_type)
-        if _sorted_by_word_then_doc(word, doc):
-            word_ptr = np.concatenate([[0], np.cumsum(np.bincount(word, minlength=n_words))]).astype(np.int64)
-            ordered_doc, ordered_weight = doc, np.asarray(weight)
-        else:
-            by_word, word_ptr = _counting_sort(doc_word, n_words)  # stable: documents stay in order
-            order = by_doc[by_word]
-            del by_word
-            ordered_doc, ordered_weight = doc[order], np.asarray(weight)[order]
-        del by_doc
-        return cls(
-            np.asarray(ids, np.int64),
-            np.asarray(length, np.float64),
-            np.ones(len(ids), bool),
-            word_ptr,
-            np.asarray(ordered_doc, np.int32),
-            _compact_weights(ordered_weight),
-            doc_ptr,
-            doc_word,
-        )
-
-    def words_of(self, row: int) -> np.ndarray:
-        """The distinct words of document ``row`` (int64, in no particular order)."""
-        return self.doc_word[self.doc_ptr[row] : self.doc_ptr[row + 1]].astype(np.int64)
-
-    def word_counts(self) -> np.ndarray:
-        """(V,) number of postings of each word (live or not)."""
-        return np.diff(self.word_ptr)
-
-    @property
-    def nbytes(self) -> int:
-        arrays = (self.ids, self.length, self.live, self.word_ptr, self.doc, self.weight, self.doc_ptr, self.doc_word)
-        return int(sum(a.nbytes for a in arrays))
-
-
-@numba.njit(cache=True, nogil=True)
-def _counting_sort_kernel(keys: np.ndarray, counts: np.ndarray, order: np.ndarray) -> None:  # pragma: no cover
-    for key in keys:
-        counts[key + 1] += 1
-    for k in range(len(counts) - 1):
-        counts[k + 1] += counts[k]
-    starts = counts[:-1].copy()
-    for i in range(len(keys)):
-        key = keys[i]
-        order[starts[key]] = i
-        starts[key] += 1
-
-
-def _counting_sort(keys: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
-    """Stable order of integer ``keys`` in [0, n_keys) and the (n_keys + 1,) start of each key's run: O(N)."""
-    keys = np.asarray(keys)
-    counts = np.zeros(int(n_keys) + 1, np.int64)
-    order = np.empty(len(keys), np.int32 if len(keys) < 2**31 else np.int64)
-    _counting_sort_kernel(keys, counts, order)
-    return order, counts
-
-
-@numba.njit(cache=True, nogil=True)
-def _sorted_by_word_then_doc(word: np.ndarray, doc: np.ndarray) -> bool:  # pragma: no cover
-    for i in range(1, len(word)):
-        if word[i] < word[i - 1] or (word[i] == word[i - 1] and doc[i] <= doc[i - 1]):
-            return False
-    return True
-
-
-def _compact_weights(weight: np.ndarray) -> np.ndarray:
-    """float32 when every weight is exactly a float32 (integer word counts are), else float64."""
-    if weight.dtype == np.float32:
-        return weight
-    weight = np.asarray(weight, np.float64)
-    single = weight.astype(np.float32)
-    return single if np.array_equal(single, weight) else weight
-
-
-class _Recent:
-    """Documents added since the base was built, document-major and appendable (arrays grow by doubling).
-
-    Row r holds words ``words[ptr[r]:ptr[r + 1]]`` (sorted) with their weights, ``length[r]``, ``ids[r]``;
-    a replaced or removed document's row stays, marked dead, until the next compaction. ``df``: live
-    documents per word.
-    """
-
-    def __init__(self, n_words: int) -> None:
-        self.row_of: dict[int, int] = {}
-        self.rows = 0
-        self.ids = np.zeros(16, np.int64)
-        self.length = np.zeros(16, np.float64)
-        self.live = np.zeros(16, bool)
-        self.ptr = np.zeros(17, np.int64)
-        self.words = np.zeros(1024, np.int32)
-        self.weights = np.zeros(1024, np.float64)
-        self.df = np.zeros(n_words, np.int64)
-
-    def __len__(self) -> int:
-        return len(self.row_of)
-
-    def add(self, doc_id: int, words: np.ndarray, weights: np.ndarray, length: float) -> None:
-        """Append a document (``words`` distinct and sorted); the caller removed any earlier one."""
-        r, start = self.rows, int(self.ptr[self.rows])
-        if r + 1 >= len(self.ids):
-            self.ids, self.length, self.live = (_grown(a, r + 2) for a in (self.ids, self.length, self.live))
-            self.ptr = _grown(self.ptr, r + 3)
-        if start + len(words) > len(self.words):
-            self.words, self.weights = (_grown(a, start + len(words)) for a in (self.words, self.weights))
-        self.ids[r], self.length[r], self.live[r] = doc_id, length, True
-        self.words[start : start + len(words)] = words
-        self.weights[start : start + len(words)] = weights
-        self.ptr[r + 1] = start + len(words)
-        self.df[words] += 1
-        self.row_of[doc_id] = r
-        self.rows += 1
-
-    def remove(self, doc_id: int) -> bool:
-        """Mark a document dead; False when it is not here."""
-        r = self.row_of.pop(doc_id, None)
-        if r is None:
-            return False
-        self.live[r] = False
-        self.df[self.words[self.ptr[r] : self.ptr[r + 1]]] -= 1
-        return True
-
-    def documents(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(ids, lengths, words, weights) of the live documents, one row per (document, word)."""
-        rows = np.flatnonzero(self.live[: self.rows])
-        sizes = self.ptr[rows + 1] - self.ptr[rows]
-        index = np.repeat(self.ptr[rows] - np.cumsum(sizes) + sizes, sizes) + np.arange(int(sizes.sum()))
-        return self.ids[rows], self.length[rows], np.repeat(np.arange(len(rows)), sizes), index
-
-    @property
-    def nbytes(self) -> int:
-        arrays = (self.ids, self.length, self.live, self.ptr, self.words, self.weights, self.df)
-        return int(sum(a.nbytes for a in arrays))
-
-
-def _grown(array: np.ndarray, needed: int) -> np.ndarray:
-    """``array`` in a buffer of at least twice ``needed`` elements (contents kept)."""
-    out = np.zeros(max(2 * needed, 16), array.dtype)
-    out[: len(array)] = array
-    return out
 
 
 class SbowIndex:
@@ -240,11 +60,11 @@ class SbowIndex:
 
     def __init__(self, n_words: int) -> None:
         self.n_words = int(n_words)
-        self._base = _Segment.empty(self.n_words)
+        self._base = Segment.empty(self.n_words)
         self._base_row: dict[int, int] = {}
         self._base_df = np.zeros(self.n_words, np.int64)  # live postings per word in the base
         self._dead = 0
-        self._recent = _Recent(self.n_words)
+        self._recent = RecentDocuments(self.n_words)
 
     # -- contents ----------------------------------------------------------------------------------
 
@@ -301,11 +121,11 @@ class SbowIndex:
         ids = np.asarray(ids, np.int64)
         if len(np.unique(ids)) != len(ids):
             raise ValueError("document ids must be distinct")
-        self._base = _Segment.from_postings(self.n_words, ids, lengths, post_word, post_doc, post_weight)
+        self._base = Segment.from_postings(self.n_words, ids, lengths, post_word, post_doc, post_weight)
         self._base_row = {int(d): i for i, d in enumerate(ids.tolist())}
         self._base_df = self._base.word_counts().astype(np.int64)
         self._dead = 0
-        self._recent = _Recent(self.n_words)
+        self._recent = RecentDocuments(self.n_words)
 
     def upsert(self, doc_id: int, words: np.ndarray, weights: np.ndarray, length: float) -> None:
         """Add or replace one document: its distinct ``words``, their ``weights`` and its word total ``length``.
@@ -324,6 +144,23 @@ class SbowIndex:
         order = np.argsort(words)
         self._recent.add(int(doc_id), words[order], weights[order], float(length))
         self._maybe_compact()
+
+    def add_words(self, doc_id: int, words: np.ndarray) -> None:
+        """Add or replace a document from its (N,) word array (one word per feature, repeats count).
+
+        Its postings are its distinct words with their counts and its length the number of words, as
+        :func:`db.sbow.index_reference` stores them.
+        """
+        distinct, counts = bag(words)
+        self.upsert(doc_id, distinct, counts, float(counts.sum()))
+
+    @classmethod
+    def from_documents(cls, n_words: int, documents: Iterable[tuple[int, np.ndarray]]) -> SbowIndex:
+        """An index over ``n_words`` words with the given (doc id, (N,) word array) documents."""
+        index = cls(n_words)
+        for doc_id, words in documents:
+            index.add_words(doc_id, words)
+        return index
 
     def remove(self, doc_id: int, *, missing_ok: bool = False) -> None:
         """Remove a document (KeyError when absent, unless ``missing_ok``)."""
@@ -383,9 +220,8 @@ class SbowIndex:
             dense_tf, dense_idf = np.zeros(self.n_words), np.zeros(self.n_words)
             dense_tf[qw], dense_idf[qw] = q_tf, weights
             live = recent.live[: recent.rows]
-            _score_documents(
-                dense_tf, dense_idf, recent.ptr, recent.words, recent.weights, recent.length, live, recent_scores
-            )
+            documents = (recent.ptr, recent.words, recent.weights, recent.length, live)
+            _score_documents(dense_tf, dense_idf, documents, recent_scores)
         live = recent.live[: recent.rows]
         ids = np.concatenate([base.ids[base.live], recent.ids[: recent.rows][live]])
         scores = np.concatenate([base_scores[base.live], recent_scores[live]])
@@ -411,16 +247,13 @@ class SbowIndex:
 
 @numba.njit(cache=True, nogil=True)
 def _score_documents(
-    dense_tf: np.ndarray,
-    dense_idf: np.ndarray,
-    ptr: np.ndarray,
-    words: np.ndarray,
-    weights: np.ndarray,
-    length: np.ndarray,
-    live: np.ndarray,
-    out: np.ndarray,
+    dense_tf: np.ndarray, dense_idf: np.ndarray, recent: tuple[np.ndarray, ...], out: np.ndarray
 ) -> None:  # pragma: no cover - compiled; checked against tfidf_scores in the tests
-    """out[d] = sum over document d's words w (increasing) that the query has of idf_w * min(q_w, c_dw / |d|)."""
+    """out[d] = sum over document d's words w (increasing) that the query has of idf_w * min(q_w, c_dw / |d|).
+
+    recent: the recent documents' (ptr, words, weights, length, live) arrays (:class:`RecentDocuments`).
+    """
+    ptr, words, weights, length, live = recent
     for d in range(live.shape[0]):
         if not live[d]:
             continue
