@@ -43,7 +43,7 @@ vocabularies from CamVid train building pixels, build time on the 2 shared cores
     (building the 4096-word default: ~20 s SIFT + ~35 s clustering)
 
 On simulated worlds a CamVid vocabulary does worse than one trained on rendered facades (their textures
-are synthetic); spatial re-ranking (:func:`geoloc.localize.transfer.rerank_by_inliers`) recovers much of it.
+are synthetic); spatial re-ranking (:func:`geoloc.localize.matching.rerank_by_inliers`) recovers much of it.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ This is the one retrieval / re-rank / transfer / localise stage; the workers' qu
 Steps, one module each:
 
 1. Retrieval (:mod:`.retrieve`): SBoW top ``shortlist`` references, re-ranked by RANSAC-verified inliers
-   (:func:`geoloc.localize.transfer.rerank_by_inliers`).
+   (:func:`geoloc.localize.matching.rerank_by_inliers`).
 2. Identity transfer from the top ``k`` (the paper's step; :mod:`.retrieve`,
    :func:`geoloc.localize.transfer.transfer_identities`).
 3. Map-anchored pose (beyond the paper, :mod:`.anchored`): the query's matches to the top ``anchor_references``

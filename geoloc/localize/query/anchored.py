@@ -8,9 +8,9 @@ import numpy as np
 
 from geoloc.core.parallel import thread_map
 from geoloc.localize.absolute_pose import PoseEstimate, estimate_pose_from_groups, group_proposal
+from geoloc.localize.matching import ReferenceMatch, match_features, ratio_matches
 from geoloc.localize.query.config import QueryConfig
 from geoloc.localize.store import StoredReference
-from geoloc.localize.transfer import ReferenceMatch, match_features, ratio_matches
 from geoloc.photos.photo import Photo
 from geoloc.vision.features import Features
 

@@ -8,10 +8,11 @@ import numpy as np
 
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.identity import IdentityMap
+from geoloc.localize.matching import ReferenceMatch, rerank_by_inliers
 from geoloc.localize.query.config import PRIOR_SHORTLIST_FACTOR, QueryConfig
 from geoloc.localize.retrieval import Vocabulary
 from geoloc.localize.store import ReferenceStore, StoredReference
-from geoloc.localize.transfer import ReferenceEvidence, ReferenceMatch, rerank_by_inliers, transfer_identities
+from geoloc.localize.transfer import ReferenceEvidence, transfer_identities
 from geoloc.vision.evidence import PhotoEvidence
 from geoloc.vision.features import Features
 
