@@ -1,0 +1,69 @@
+"""``geoloc eval photos``: real geo-tagged photos labelled on a map as the service labels references."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from geoloc.evaluation.summaries import angle_error_deg, mean_or_none
+from geoloc.localize.reference import label_reference_photo
+from geoloc.maps import load_map
+from geoloc.photos.photo import load_photo
+
+
+def evaluate_photos(
+    photos_dir: str | Path, map_path: str | Path, truth_csv: str | Path | None = None
+) -> dict[str, Any]:
+    """Label real geo-tagged photos on a map with their EXIF GPS (the service's reference labelling).
+
+    truth_csv: optional CSV with ``name`` and ``true_heading_deg`` columns (e.g. the phone's compass). Returns
+    per photo the estimated compass heading and position, how far labelling moved it from the GPS tag,
+    the buildings named, and the heading error against the truth.
+    """
+    city = load_map(map_path)
+    truth: dict[str, dict[str, str]] = {}
+    if truth_csv is not None:
+        with open(truth_csv, newline="") as handle:
+            truth = {row["name"]: row for row in csv.DictReader(handle)}
+    rows = []
+    for path in sorted(Path(photos_dir).iterdir()):
+        if path.suffix.lower() not in (".jpg", ".jpeg", ".png"):
+            continue
+        photo = load_photo(path)
+        if photo.gps is None:
+            continue
+        gps_x, gps_y = (float(v) for v in city.frame.to_local(*photo.gps))
+        labelled = label_reference_photo(city, photo, (gps_x, gps_y))
+        label = labelled.label
+        heading = float(city.frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m)) % 360.0
+        lat, lon = (float(v) for v in city.frame.to_wgs84(label.x_m, label.y_m))
+        names = []
+        for entry in labelled.identity.building_extents():
+            building = city.buildings[entry["building_id"]]
+            names.append(building.name or building.osm_id)
+        row: dict[str, Any] = {
+            "name": path.name,
+            "heading_deg": round(heading, 2),
+            "lat": round(lat, 7),
+            "lon": round(lon, 7),
+            "moved_m": round(math.hypot(label.x_m - gps_x, label.y_m - gps_y), 2),
+            "buildings": names,
+            "vanishing_point_bins": label.vp_bins,
+        }
+        if path.name in truth:
+            compass = float(truth[path.name]["true_heading_deg"])
+            row["compass_heading_deg"] = compass
+            row["heading_error_deg"] = round(angle_error_deg(heading, compass), 2)
+        rows.append(row)
+    errors = [r["heading_error_deg"] for r in rows if "heading_error_deg" in r]
+    return {
+        "map": str(map_path),
+        "photos_dir": str(photos_dir),
+        "photos": rows,
+        "heading_within_10deg": mean_or_none([float(e <= 10.0) for e in errors]),
+        "heading_error_median_deg": round(float(np.median(errors)), 2) if errors else None,
+    }

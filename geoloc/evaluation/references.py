@@ -1,0 +1,96 @@
+"""The evaluation's references: a world's reference photos labelled as the service labels them, and their store."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from geoloc.evaluation.facades import orientation_errors
+from geoloc.evaluation.ground_truth import gt_keypoint_identity
+from geoloc.evaluation.store import InMemoryReferenceStore
+from geoloc.evaluation.summaries import angle_error_deg, angle_summary, distance_summary, mean_or_none
+from geoloc.localize.identity import identity_accuracy
+from geoloc.localize.reference import LabelledReference, label_reference_photo, stored_reference
+from geoloc.localize.retrieval import Vocabulary
+from geoloc.maps import CityMap
+from geoloc.photos.photo import Photo, load_photo
+from geoloc.sim.world import World
+from geoloc.vision.evidence import PhotoEvidence, analyze_photo
+
+
+@dataclass
+class LabelledWorld:
+    """References of one world labelled with one segmentation, their store, and the analysed queries."""
+
+    store: InMemoryReferenceStore
+    gt_store: InMemoryReferenceStore  # same references with ground-truth keypoint identities
+    labelled: dict[str, LabelledReference]
+    summary: dict[str, Any]
+    queries: dict[str, tuple[Photo, PhotoEvidence]]
+
+
+def analyze(path: Path, labels: np.ndarray | None) -> tuple[Photo, PhotoEvidence]:
+    """The photo at ``path`` and its evidence (segmentation from ``labels`` when given, e.g. ground truth)."""
+    photo = load_photo(path)
+    return photo, analyze_photo(photo, labels)
+
+
+def label_references(
+    world: World, city: CityMap, vocabulary: Vocabulary, segmentation: str, say: Callable[[str], None]
+) -> LabelledWorld:
+    """Label every reference of ``world`` with ``segmentation`` ("model" or "gt"); stores and Table I figures."""
+    store, gt_store = InMemoryReferenceStore(vocabulary), InMemoryReferenceStore(vocabulary)
+    labelled: dict[str, LabelledReference] = {}
+    accuracy: dict[str, list[float]] = {"greedy": [], "marginalized": []}
+    heading_errors, position_errors, radius_held, orientation = [], [], [], []
+    timings: dict[str, list[float]] = defaultdict(list)
+    for i, image in enumerate(world.references):
+        gt = world.gt(image.name)
+        photo, evidence = analyze(image.path, gt["labels"] if segmentation == "gt" else None)
+        if photo.gps is None:
+            raise ValueError(f"reference {image.name} has no EXIF GPS")
+        gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
+        ref = label_reference_photo(city, photo, (gps_xy[0], gps_xy[1]), evidence=evidence)
+        labelled[image.name] = ref
+        for key, value in ref.timings_ms.items():
+            timings[key].append(value)
+        truth = gt["building_id"]
+        accuracy["greedy"].append(identity_accuracy(ref.label.greedy.pixel_ids(), truth))
+        accuracy["marginalized"].append(identity_accuracy(ref.label.marginalized.pixel_ids(), truth))
+        pose = image.pose
+        heading_errors.append(angle_error_deg(ref.label.yaw_deg, pose.yaw_deg))
+        error = math.hypot(ref.label.x_m - pose.x_m, ref.label.y_m - pose.y_m)
+        position_errors.append(error)
+        sigma = math.sqrt(float(np.linalg.eigvalsh(ref.label.position_covariance).max()))
+        radius_held.append(error <= math.sqrt(4.605) * sigma)
+        orientation.append(
+            orientation_errors(
+                evidence.image_model, gt["column_theta_deg"], gt["column_building_id"] >= 0, photo.intrinsics
+            )
+        )
+        store.add(stored_reference(image.name, ref))
+        gt_kp, gt_ids = gt_keypoint_identity(evidence.features.xy, truth)
+        gt_store.add(replace(stored_reference(image.name, ref), keypoint_prob=gt_kp, building_ids=gt_ids))
+        say(
+            f"[{segmentation}] reference {i + 1}/{len(world.references)} {image.name}: "
+            f"heading error {heading_errors[-1]:.1f} deg, position error {error:.1f} m"
+        )
+    summary = {
+        "identity_accuracy": {k: mean_or_none(v) for k, v in accuracy.items()},
+        "heading_error_deg": angle_summary(heading_errors),
+        "position_error_m": distance_summary(position_errors),
+        "position_90_region_holds_truth": mean_or_none([float(v) for v in radius_held]),
+        "facade_orientation": {
+            "median_abs_error_deg": mean_or_none([o.median_abs_error_deg for o in orientation]),
+            "within_5deg": mean_or_none([o.within_5deg for o in orientation]),
+            "coverage": mean_or_none([o.coverage for o in orientation]),
+        },
+        "timing_ms": {k: round(float(np.median(v)), 1) for k, v in sorted(timings.items())},
+    }
+    return LabelledWorld(store, gt_store, labelled, summary, {})

@@ -1,0 +1,87 @@
+"""Summaries of the evaluation's figures: errors, angles, means with confidence intervals, a run's blocks."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+QUERY_KINDS = ("between", "offset", "unseen")
+TOP_N = 10
+
+
+def run_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """A run's figures from its per-query rows: errors at N = 1 (all, shown, per kind), radii, best of top N."""
+
+    def block(subset: list[dict[str, Any]]) -> dict[str, Any]:
+        errors = np.array([r["error_m"] for r in subset], dtype=float)
+        heading = np.array([r["heading_error_deg"] for r in subset], dtype=float)
+        if len(errors) == 0:
+            return {"n": 0}
+        return {
+            "n": len(errors),
+            "median_error_m": round(float(np.median(errors)), 2),
+            "within_1m": round(float(np.mean(errors <= 1.0)), 4),
+            "within_5m": round(float(np.mean(errors <= 5.0)), 4),
+            "within_10m": round(float(np.mean(errors <= 10.0)), 4),
+            "heading_median_deg": round(float(np.median(heading)), 2),
+            "heading_within_5deg": round(float(np.mean(heading <= 5.0)), 4),
+        }
+
+    best_of_n = np.array([r["best_of_top_n_m"] for r in rows], dtype=float)
+    shown_rows = [r for r in rows if r["shown"]]
+    return {
+        "all": block(rows),
+        "shown": block(shown_rows),
+        "by_kind": {kind: block([r for r in rows if r["kind"] == kind]) for kind in QUERY_KINDS},
+        "uncertainty_radius_holds_truth": mean_or_none([float(r["inside_radius"]) for r in rows]),
+        "uncertainty_radius_median_m": round(float(np.median([r["uncertainty_radius_m"] for r in rows])), 2),
+        "anchored_share": mean_or_none([float(r["source"] == "anchors") for r in rows]),
+        "identity_accuracy_shown": mean_or_none([r["identity_accuracy"] for r in shown_rows]),
+        "top_n_error_m": {str(n): mean_ci(best_of_n[:, n - 1]) for n in range(1, TOP_N + 1)},
+    }
+
+
+def angle_error_deg(a: float, b: float) -> float:
+    """Absolute difference of two angles (deg), in [0, 180]."""
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def mean_or_none(values: list[float]) -> float | None:
+    """The mean of the values that are not None or NaN, to 4 decimals (None when there are none)."""
+    vals = [v for v in values if v is not None and not math.isnan(v)]
+    return round(float(np.mean(vals)), 4) if vals else None
+
+
+def mean_ci(values: np.ndarray) -> dict[str, Any]:
+    """Mean and 95 % confidence interval (normal approximation) of (N,) values, to 3 decimals."""
+    n = len(values)
+    mean = float(np.mean(values))
+    half = 1.96 * float(np.std(values, ddof=1)) / math.sqrt(n) if n > 1 else float("nan")
+    return {"mean": round(mean, 3), "ci95": [round(mean - half, 3), round(mean + half, 3)]}
+
+
+def angle_summary(errors: list[float]) -> dict[str, Any]:
+    """Count, median and share within 5 deg of angle errors (deg)."""
+    arr = np.asarray(errors, dtype=float)
+    if arr.size == 0:
+        return {"n": 0}
+    return {
+        "n": int(arr.size),
+        "median": round(float(np.median(arr)), 3),
+        "within_5deg": round(float(np.mean(arr <= 5.0)), 4),
+    }
+
+
+def distance_summary(errors: list[float]) -> dict[str, Any]:
+    """Count, median and shares within 5 and 10 m of distance errors (m)."""
+    arr = np.asarray(errors, dtype=float)
+    if arr.size == 0:
+        return {"n": 0}
+    return {
+        "n": int(arr.size),
+        "median_m": round(float(np.median(arr)), 2),
+        "within_5m": round(float(np.mean(arr <= 5.0)), 4),
+        "within_10m": round(float(np.mean(arr <= 10.0)), 4),
+    }
