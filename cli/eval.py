@@ -34,7 +34,7 @@ def scores(conf: Any) -> dict[str, Any]:
     """Per-class pixel accuracy (recall) and IoU plus overall pixel accuracy from a confusion matrix."""
     import numpy as np
 
-    from geoloc.core.labels import CLASS_NAMES
+    from geoloc.core.labels import CLASS_NAMES  # lazy: CLI start-up
 
     tp = np.diag(conf).astype(float)
     truth, pred = conf.sum(axis=1), conf.sum(axis=0)
@@ -59,10 +59,10 @@ def evaluate_camvid(
     import cv2
     import numpy as np
 
-    from contracts import settings as config
-    from geoloc.core.labels import CLASS_NAMES
-    from geoloc.export.models import segmentation_files
-    from geoloc.vision.segmentation import load_session, network_size, segment
+    from contracts import settings as config  # lazy: CLI start-up
+    from geoloc.core.labels import CLASS_NAMES  # lazy: CLI start-up
+    from geoloc.export.models import segmentation_files  # lazy: CLI start-up
+    from geoloc.vision.segmentation import load_session, network_size, segment  # lazy: CLI start-up
 
     root = config.shared_path("data", "camvid", split)
     images = sorted((root / "images").glob("*.png")) + sorted((root / "images").glob("*.jpg"))
@@ -117,8 +117,8 @@ def camvid(
     threads: int | None = typer.Option(None, "--threads", min=1, help="onnxruntime intra-op threads."),
 ) -> None:
     """Score our segmentation on CamVid: per-class accuracy (recall) and IoU, overall pixel accuracy."""
-    from geoloc.export.models import parse_size
-    from geoloc.vision.segmentation import ModelNotBuiltError
+    from geoloc.export.models import parse_size  # lazy: CLI start-up
+    from geoloc.vision.segmentation import ModelNotBuiltError  # lazy: CLI start-up
 
     try:
         net_size = parse_size(size) if size else None
@@ -165,8 +165,8 @@ def world(
     the error at N = 1 for all queries, for those whose buildings some reference shows and per query kind,
     the heading error, how often the uncertainty radius holds the truth, and Fig. 7 (best of top N).
     """
-    from geoloc.evaluation.world import default_runs, evaluate_world
-    from geoloc.localize.query import QueryConfig
+    from geoloc.evaluation.world import default_runs, evaluate_world  # lazy: CLI start-up
+    from geoloc.localize.query import QueryConfig  # lazy: CLI start-up
 
     config = QueryConfig()
     chosen = default_runs(config)
@@ -249,7 +249,7 @@ def photos(
     For each photo: the estimated compass heading and position, the buildings named, and with --truth the
     heading error against the recorded compass heading.
     """
-    from geoloc.evaluation.world import evaluate_photos
+    from geoloc.evaluation.world import evaluate_photos  # lazy: CLI start-up
 
     result = evaluate_photos(photos_dir, map_path, truth_csv)
     result["command"] = " ".join(["geoloc", *sys.argv[1:]])
@@ -278,14 +278,14 @@ def facades(
     """
     import numpy as np
 
-    from geoloc.evaluation.facades import column_orientation_errors
-    from geoloc.photos.photo import load_photo
-    from geoloc.sim.world import load_world
-    from geoloc.vision.facades import analyze_image
+    from geoloc.evaluation.facades import column_orientation_errors  # lazy: CLI start-up
+    from geoloc.photos.photo import load_photo  # lazy: CLI start-up
+    from geoloc.sim.world import load_world  # lazy: CLI start-up
+    from geoloc.vision.facades import analyze_image  # lazy: CLI start-up
 
     if segmentation not in ("model", "gt"):
         raise typer.BadParameter("segmentation must be 'model' or 'gt'")
-    from geoloc.vision.segmentation import segment
+    from geoloc.vision.segmentation import segment  # lazy: CLI start-up
 
     world_data = load_world(world_dir)
     errors, covered, building_columns = [], 0, 0

@@ -64,24 +64,20 @@ def mean_ci(values: np.ndarray) -> dict[str, Any]:
 
 def angle_summary(errors: list[float]) -> dict[str, Any]:
     """Count, median and share within 5 deg of angle errors (deg)."""
-    arr = np.asarray(errors, dtype=float)
-    if arr.size == 0:
-        return {"n": 0}
-    return {
-        "n": int(arr.size),
-        "median": round(float(np.median(arr)), 3),
-        "within_5deg": round(float(np.mean(arr <= 5.0)), 4),
-    }
+    return _error_summary(errors, ("median", 3), {"within_5deg": 5.0})
 
 
 def distance_summary(errors: list[float]) -> dict[str, Any]:
     """Count, median and shares within 5 and 10 m of distance errors (m)."""
+    return _error_summary(errors, ("median_m", 2), {"within_5m": 5.0, "within_10m": 10.0})
+
+
+def _error_summary(errors: list[float], median: tuple[str, int], within: dict[str, float]) -> dict[str, Any]:
+    """``n``, the median (key, decimals) and the share of errors at most each threshold (to 4 decimals)."""
     arr = np.asarray(errors, dtype=float)
     if arr.size == 0:
         return {"n": 0}
-    return {
-        "n": int(arr.size),
-        "median_m": round(float(np.median(arr)), 2),
-        "within_5m": round(float(np.mean(arr <= 5.0)), 4),
-        "within_10m": round(float(np.mean(arr <= 10.0)), 4),
-    }
+    key, digits = median
+    summary: dict[str, Any] = {"n": int(arr.size), key: round(float(np.median(arr)), digits)}
+    summary.update({name: round(float(np.mean(arr <= limit)), 4) for name, limit in within.items()})
+    return summary

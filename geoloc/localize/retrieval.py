@@ -57,6 +57,8 @@ from pathlib import Path
 import numpy as np
 
 from contracts.settings import cache_dir, shared_path
+from geoloc.core.labels import BUILDING
+from geoloc.vision.features import DESCRIPTOR_DIMS, canonical_method, extract_features
 
 DEFAULT_WORDS = 4096
 VOCABULARY_SEED = 0
@@ -167,7 +169,7 @@ def build_vocabulary(
     descriptors; then MiniBatchKMeans (``batch_size``, at most ``max_iter`` epochs, early stop after 5
     batches without improvement). ``n_words`` is capped at the number of descriptors.
     """
-    from sklearn.cluster import MiniBatchKMeans
+    from sklearn.cluster import MiniBatchKMeans  # heavy, and only to build a vocabulary
 
     d = np.ascontiguousarray(descriptors, dtype=np.float32)
     n_words = int(min(n_words, len(d)))
@@ -198,8 +200,6 @@ def vocabulary_path(n_words: int = DEFAULT_WORDS, method: str | None = None) -> 
 
     ``cache_dir()/models/sbow_vocabulary_<method>_<V>.npz`` (method None: the default feature type).
     """
-    from geoloc.vision.features import canonical_method
-
     return cache_dir() / "models" / f"sbow_vocabulary_{canonical_method(method)}_{n_words}.npz"
 
 
@@ -214,10 +214,7 @@ def camvid_building_descriptors(
 
     Of feature type ``method`` (None: the default type).
     """
-    from PIL import Image
-
-    from geoloc.core.labels import BUILDING
-    from geoloc.vision.features import DESCRIPTOR_DIMS, canonical_method, extract_features
+    from PIL import Image  # only to build the default vocabulary from CamVid images
 
     images = sorted(shared_path("data", "camvid", split, "images").glob("*.*"))
     label_dir = shared_path("data", "camvid", split, "labels")
@@ -244,8 +241,6 @@ def default_vocabulary(n_words: int = DEFAULT_WORDS, progress: bool = True, meth
     images (measured on the loaded 2-core box: RootSIFT 2 minutes, ALIKED-n16 4.5, ALIKED-t16 6.5);
     ``progress`` prints what it does. Cached per process.
     """
-    from geoloc.vision.features import canonical_method
-
     method = canonical_method(method)
     path = vocabulary_path(n_words, method)
     if path.exists():
