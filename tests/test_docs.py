@@ -48,7 +48,7 @@ def _anchors(page: Path) -> frozenset[str]:
 def _defines(path: Path, name: str) -> bool:
     """Whether a module defines ``name`` at its top level or in a class (def, class or assignment)."""
     pattern = rf"^\s*(?:async def|def|class) {re.escape(name)}\b|^\s*{re.escape(name)}\s*[:=]"
-    return re.search(pattern, path.read_text(), re.M) is not None
+    return path.is_file() and re.search(pattern, path.read_text(), re.M) is not None
 
 
 def test_the_readme_opens_with_its_two_commands_and_ci_runs_the_second() -> None:
