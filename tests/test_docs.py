@@ -98,7 +98,7 @@ def test_code_paths_and_names_exist(page: Path) -> None:
                 break
         if cut == len(parts) or not _defines(file, parts[cut]):
             missing.append(dotted)
-    assert missing == [], "the docs name code that is not there (moved? renamed?)"
+    assert missing == [], f"the docs name code that is not there (moved? renamed?): {missing}"
 
 
 def test_the_readme_links_every_page_and_every_page_links_back() -> None:
@@ -139,5 +139,5 @@ def test_the_layout_page_lists_every_folder_and_module() -> None:
             unlisted.append(path)
     for section, names in listed.items():
         gone += [f"{section}{name}" for name in names if not (ROOT / section / name).exists()]
-    assert unlisted == [], "modules missing from docs/layout.md's list"
-    assert gone == [], "docs/layout.md lists modules that are not there"
+    assert unlisted == [], f"modules missing from docs/layout.md's list: {unlisted}"
+    assert gone == [], f"docs/layout.md lists modules that are not there: {gone}"
