@@ -34,7 +34,7 @@ def scores(conf: Any) -> dict[str, Any]:
     """Per-class pixel accuracy (recall) and IoU plus overall pixel accuracy from a confusion matrix."""
     import numpy as np
 
-    from geoloc.core.labels import CLASS_NAMES
+    from geoloc.core.labels import CLASS_NAMES  # the method loads numpy and OpenCV: for CLI start-up time
 
     tp = np.diag(conf).astype(float)
     truth, pred = conf.sum(axis=1), conf.sum(axis=0)
@@ -290,10 +290,11 @@ def facades(
     """
     import numpy as np
 
+    # The method and the simulator load numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.evaluation.facades import column_orientation_errors
-    from geoloc.photos.photo import load_photo
-    from geoloc.sim.world import load_world
-    from geoloc.vision.facades import analyze_image
+    from geoloc.photos.photo import load_photo  # the same reason
+    from geoloc.sim.world import load_world  # the same reason
+    from geoloc.vision.facades import analyze_image  # the same reason
 
     if segmentation not in ("model", "gt"):
         raise typer.BadParameter("segmentation must be 'model' or 'gt'")
