@@ -72,7 +72,8 @@ from geoloc.maps import CityMap
 from geoloc.sim.render import Pose, rotation_matrix
 from geoloc.sim.world import World, load_world
 from geoloc.vision.features import Features, extract_features
-from geoloc.vision.segmentation import segment
+from geoloc.vision.segmentation import load_session, segment
+from workers.context import method_context
 
 METHODS = ("rootsift", "aliked-n16", "aliked-t16", "aliked-n16@1,0.5,0.25")
 MATCHERS = ("ratio0.8", "mnn+ratio0.8", "mnn+ratio0.9", "mnn+ratio0.95")
@@ -202,7 +203,8 @@ def correct_matches(
 
 def building_mask(rgb: np.ndarray, gt_labels: np.ndarray | None) -> np.ndarray:
     """The building mask the features are restricted to: network segmentation, or the given GT labels."""
-    return (gt_labels if gt_labels is not None else segment(rgb)) == classes.BUILDING
+    labels = gt_labels if gt_labels is not None else segment(rgb, session=load_session(method_context()))
+    return labels == classes.BUILDING
 
 
 def parse_method(spec: str) -> tuple[str, tuple[float, ...]]:
@@ -214,7 +216,7 @@ def parse_method(spec: str) -> tuple[str, tuple[float, ...]]:
 def extract(spec: str, rgb: np.ndarray, mask: np.ndarray, max_features: int) -> Features:
     """Features of one image for a method spec (see :func:`parse_method`)."""
     name, scales = parse_method(spec)
-    return extract_features(rgb, mask, max_features, method=name, aliked_scales=scales)
+    return extract_features(rgb, mask, max_features, method=name, aliked_scales=scales, context=method_context())
 
 
 def extract_all(
@@ -320,7 +322,7 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
             "keypoints_median": int(np.median([len(fm[n]) for n in names])),
             "matchers": {},
         }
-        vocabulary = default_vocabulary(progress=False, method=parse_method(method)[0])
+        vocabulary = default_vocabulary(method_context().models_dir, method=parse_method(method)[0])
         words = {n: vocabulary.words(fm[n].descriptors) for n in names}
         index = InvertedIndex.from_documents((r, words[r]) for r in refs)
         for mname in args.matcher_names:
