@@ -69,7 +69,7 @@ from geoloc.evaluation.world import shown_by_references
 from geoloc.localize.retrieval import InvertedIndex, default_vocabulary
 from geoloc.localize.transfer import DEFAULT_MIN_INLIERS, geometric_verification, match_features
 from geoloc.maps import CityMap
-from geoloc.sim.render import Pose, rotation_matrix
+from geoloc.sim.pose import Pose, rotation_matrix
 from geoloc.sim.world import World, load_world
 from geoloc.vision.features import Features, extract_features
 from geoloc.vision.segmentation import segment
