@@ -41,6 +41,7 @@ from geoloc.export.vocabulary import camvid_building_descriptors
 from geoloc.localize.retrieval import Vocabulary, build_vocabulary, default_vocabulary
 from geoloc.localize.sbow_index import SbowIndex
 from geoloc.photos.photo import load_photo
+from geoloc.sim.world import WorldOptions, generate_world, load_world
 from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.features import extract_features
 from workers.context import method_context
@@ -133,13 +134,9 @@ def main() -> None:
     print(f"machine: {figures['machine']}")
     world_dir = args.world
     if world_dir is None:
-        from geoloc.sim.world import WorldOptions, generate_world
-
         world_dir = Path(tempfile.mkdtemp(prefix="bench-vocabulary-")) / "world"
         options = WorldOptions(n_references=60, n_queries=30, seed=1)
         generate_world(shared_path("data", "osm", "helsinki.osm.pbf"), world_dir, options)
-    from geoloc.sim.world import load_world
-
     world = load_world(world_dir)
     t0 = time.perf_counter()
     images = [*world.references, *world.queries]

@@ -6,7 +6,7 @@
   reused while current (service data folders link to it with :func:`tests.model_fixtures.link_models`);
 - ``profile``: the two deployment profiles, ``embedded`` (SQLite, built-in workers) and ``distributed``
   (PostgreSQL and Celery on Redis, real servers started once per session on loopback, see
-  :mod:`tests.servers`). A test or module fixture that takes it runs once per profile; each deployment it
+  :mod:`benchmarks.servers`). A test or module fixture that takes it runs once per profile; each deployment it
   starts gets its own database from :meth:`Profile.new_env`.
 """
 
@@ -18,10 +18,10 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.servers import PostgresServer, RedisServer
 from contracts.settings import reset_settings
 
 from .model_fixtures import data_dir_environment
-from .servers import PostgresServer, RedisServer
 
 PROFILES = ("embedded", "distributed")
 
