@@ -13,7 +13,7 @@ import os
 import sys
 
 from contracts.settings import SettingsError, get_settings
-from geoloc.export.models import model_problems
+from workers.context import model_problems
 from workers.handlers import load_builtin_handlers, load_plugins
 from workers.worker import Worker, install_signal_handlers
 

@@ -4,10 +4,9 @@ Both compute first and then write everything in one transaction with replace sem
 runs again after a crash leaves the same state. Loaded maps and the segmentation session are cached
 per worker process.
 
-Threads: a worker process runs numpy's BLAS and OpenCV with ``GEOLOC_WORKER_THREADS`` threads (default 1;
-:func:`limit_threads`, called when this module is imported, i.e. in worker processes): the pool's processes
-are the parallelism. Measured on the shared 2-core machine (load average 5): one descriptor product of
-matching (1,400 x 1,200 RootSIFT) took 7.5 ms with one BLAS thread and 13.9 ms with two.
+The method runs with the process's context (:func:`workers.context.worker_context`: the models folder and
+the job and network threads from the settings; its first call in a process also limits numpy's BLAS and
+OpenCV to ``GEOLOC_WORKER_THREADS`` threads).
 """
 
 from __future__ import annotations
@@ -30,29 +29,18 @@ from db.jobs import LOCALIZE_QUERY
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.query import QueryAnswer, QueryConfig, geolocate
 from geoloc.localize.reference import label_reference_photo
-from geoloc.localize.retrieval import Vocabulary, default_vocabulary, vocabulary_path
+from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.vision.evidence import analyze_photo
+from geoloc.vision.model_files import vocabulary_path
 from geoloc.vision.segmentation import ModelNotBuiltError
 from workers.answers import checked_query_answer, checked_reference_labels
+from workers.context import worker_context
 from workers.handlers import LABEL_REFERENCE, PermanentJobError, register, treat_as_permanent
 from workers.reference_store import DatabaseReferenceStore, database_key
 
 treat_as_permanent(ModelNotBuiltError)  # a missing model stays missing until `geoloc models build` runs
-
-
-def limit_threads(threads: int | None = None) -> None:
-    """Run numpy's BLAS and OpenCV with ``threads`` threads (default ``GEOLOC_WORKER_THREADS``) in this process."""
-    import cv2
-    from threadpoolctl import threadpool_limits
-
-    count = threads or get_settings().worker_threads
-    threadpool_limits(limits=count, user_api="blas")
-    cv2.setNumThreads(count)
-
-
-limit_threads()
 
 
 @lru_cache(maxsize=4)
@@ -110,9 +98,10 @@ def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
         while len(_VOCABULARIES) > CACHED_VOCABULARIES:
             del _VOCABULARIES[next(iter(_VOCABULARIES))]  # the one read longest ago
         return _VOCABULARIES[key][1]
-    if not vocabulary_path().exists():  # built by `geoloc models build`, never inside a job (minutes of work)
-        raise PermanentJobError(f"SBoW vocabulary not found at {vocabulary_path()}; run `geoloc models build`")
-    vocabulary = default_vocabulary(progress=False)
+    models = worker_context().models_dir
+    if not vocabulary_path(models).exists():  # built by `geoloc models build`, never inside a job (minutes of work)
+        raise PermanentJobError(f"SBoW vocabulary not found at {vocabulary_path(models)}; run `geoloc models build`")
+    vocabulary = default_vocabulary(models)
     with transaction(db):
         if sbow.load_vocabulary(db, map_id) is None:
             sbow.save_vocabulary(db, map_id, {"centers": vocabulary.centroids})
@@ -122,6 +111,7 @@ def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
 @register(LABEL_REFERENCE)
 def label_reference(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
     """Label a reference with the map, extract and index its features, store its pose and identities."""
+    context = worker_context()
     reference_id, map_id = int(payload["reference_id"]), int(payload["map_id"])
     ref = reference_store.get_reference(db, reference_id)
     if ref is None:
@@ -134,7 +124,7 @@ def label_reference(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
     prior_yaw = None
     if ref["prior_heading_deg"] is not None:
         prior_yaw = float(frame.heading_to_bearing(ref["prior_heading_deg"], gps_x, gps_y))
-    labelled = label_reference_photo(city, photo, (gps_x, gps_y), prior_yaw_deg=prior_yaw)
+    labelled = label_reference_photo(city, photo, (gps_x, gps_y), prior_yaw_deg=prior_yaw, context=context)
     label, identity, features = labelled.label, labelled.identity, labelled.evidence.features
     vocabulary = vocabulary_for(db, map_id)
     words = vocabulary.words(features.descriptors)
@@ -220,6 +210,7 @@ def _describe_buildings(
 @register(LOCALIZE_QUERY)
 def localize_query(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
     """Answer a query with the query stage (:func:`geoloc.localize.query.geolocate`); store the JSON answer."""
+    context = worker_context()
     query_id, map_id = int(payload["query_id"]), int(payload["map_id"])
     query = query_store.get_query(db, query_id)
     if query is None:
@@ -229,7 +220,7 @@ def localize_query(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
     frame = city.frame
     t0 = time.perf_counter()
     photo = _stored_photo(query["image_path"], params.get("focal_length_35mm"))
-    evidence = analyze_photo(photo)
+    evidence = analyze_photo(photo, context=context)
     position_prior = prior_yaw = None
     prior = params.get("prior")
     if prior:
@@ -247,6 +238,7 @@ def localize_query(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
         position_prior=position_prior,
         prior_yaw_deg=prior_yaw,
         top_n=int(params["top_n"]),
+        context=context,
     )
     result = _query_result(city, photo, answer)
     result["timings_ms"] = {

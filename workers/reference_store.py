@@ -31,10 +31,10 @@ import numpy as np
 from db import Database, sbow
 from db import references as reference_store
 from geoloc.localize.anchors import MapAnchors
-from geoloc.localize.retrieval import DEFAULT_WORDS
 from geoloc.localize.sbow_index import SbowIndex
 from geoloc.localize.store import StoredReference
 from geoloc.vision.features import Features
+from geoloc.vision.model_files import DEFAULT_WORDS
 
 UNKNOWN_POSITION_SIGMA_M = 10.0
 """Position uncertainty credited to a reference stored before labelling recorded one."""

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from geoloc.core.context import MethodContext
 from geoloc.evaluation.summaries import angle_error_deg, mean_or_none
 from geoloc.localize.reference import label_reference_photo
 from geoloc.maps import load_map
@@ -16,9 +17,11 @@ from geoloc.photos.photo import load_photo
 
 
 def evaluate_photos(
-    photos_dir: str | Path, map_path: str | Path, truth_csv: str | Path | None = None
+    photos_dir: str | Path, map_path: str | Path, truth_csv: str | Path | None = None, *, context: MethodContext
 ) -> dict[str, Any]:
     """Label real geo-tagged photos on a map with their EXIF GPS (the service's reference labelling).
+
+    context: the models and threads the labelling runs with.
 
     truth_csv: optional CSV with ``name`` and ``true_heading_deg`` columns (e.g. the phone's compass). Returns
     per photo the estimated compass heading and position, how far labelling moved it from the GPS tag,
@@ -37,7 +40,7 @@ def evaluate_photos(
         if photo.gps is None:
             continue
         gps_x, gps_y = (float(v) for v in city.frame.to_local(*photo.gps))
-        labelled = label_reference_photo(city, photo, (gps_x, gps_y))
+        labelled = label_reference_photo(city, photo, (gps_x, gps_y), context=context)
         label = labelled.label
         heading = float(city.frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m)) % 360.0
         lat, lon = (float(v) for v in city.frame.to_wgs84(label.x_m, label.y_m))

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from geoloc.core.context import MethodContext
 from geoloc.evaluation.ground_truth import gt_identity_map
 from geoloc.evaluation.references import LabelledWorld
 from geoloc.evaluation.summaries import TOP_N, angle_error_deg, mean_or_none, run_summary
@@ -85,6 +86,7 @@ def answer_run(
     queries: list[Any],
     shown: dict[str, dict[str, Any]],
     say: Callable[[str], None],
+    context: MethodContext,
 ) -> dict[str, Any]:
     """Answer every query once as ``run`` says; the run's summary (:func:`run_summary`) with a per-query table."""
     rows = []
@@ -110,6 +112,7 @@ def answer_run(
             position_prior=prior,
             top_n=TOP_N,
             identity_override=override,
+            context=context,
         )
         timings["total"].append(1e3 * (time.perf_counter() - t0))
         for key, value in answer.timings_ms.items():

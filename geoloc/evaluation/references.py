@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from geoloc.core.context import MethodContext
 from geoloc.evaluation.facades import orientation_errors
 from geoloc.evaluation.ground_truth import gt_keypoint_identity
 from geoloc.evaluation.store import InMemoryReferenceStore
@@ -35,14 +36,19 @@ class LabelledWorld:
     queries: dict[str, tuple[Photo, PhotoEvidence]]
 
 
-def analyze(path: Path, labels: np.ndarray | None) -> tuple[Photo, PhotoEvidence]:
+def analyze(path: Path, labels: np.ndarray | None, context: MethodContext) -> tuple[Photo, PhotoEvidence]:
     """The photo at ``path`` and its evidence (segmentation from ``labels`` when given, e.g. ground truth)."""
     photo = load_photo(path)
-    return photo, analyze_photo(photo, labels)
+    return photo, analyze_photo(photo, labels, context=context)
 
 
 def label_references(
-    world: World, city: CityMap, vocabulary: Vocabulary, segmentation: str, say: Callable[[str], None]
+    world: World,
+    city: CityMap,
+    vocabulary: Vocabulary,
+    segmentation: str,
+    say: Callable[[str], None],
+    context: MethodContext,
 ) -> LabelledWorld:
     """Label every reference of ``world`` with ``segmentation`` ("model" or "gt"); stores and Table I figures."""
     store, gt_store = InMemoryReferenceStore(vocabulary), InMemoryReferenceStore(vocabulary)
@@ -52,11 +58,11 @@ def label_references(
     timings: dict[str, list[float]] = defaultdict(list)
     for i, image in enumerate(world.references):
         gt = world.gt(image.name)
-        photo, evidence = analyze(image.path, gt["labels"] if segmentation == "gt" else None)
+        photo, evidence = analyze(image.path, gt["labels"] if segmentation == "gt" else None, context)
         if photo.gps is None:
             raise ValueError(f"reference {image.name} has no EXIF GPS")
         gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
-        ref = label_reference_photo(city, photo, (gps_xy[0], gps_xy[1]), evidence=evidence)
+        ref = label_reference_photo(city, photo, (gps_xy[0], gps_xy[1]), evidence=evidence, context=context)
         labelled[image.name] = ref
         for key, value in ref.timings_ms.items():
             timings[key].append(value)

@@ -34,6 +34,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from geoloc.core.context import MethodContext
 from geoloc.evaluation.ground_truth import SHOWN_MIN_SHARE, gps_baseline, shown_by_references
 from geoloc.evaluation.photos import evaluate_photos
 from geoloc.evaluation.queries import KS, EvalRun, answer_run, transfer_tables
@@ -78,15 +79,19 @@ def evaluate_world(
     vocabulary: Vocabulary | None = None,
     max_queries: int | None = None,
     progress: Callable[[str], None] | None = None,
+    context: MethodContext,
 ) -> dict[str, Any]:
-    """Run the method on a world folder and compare with its ground truth; returns a JSON-ready dict."""
+    """Run the method on a world folder and compare with its ground truth; returns a JSON-ready dict.
+
+    context: the models and threads the method runs with (the figures do not depend on the thread counts).
+    """
     say = progress or (lambda _msg: None)
     started = time.perf_counter()
     config = config or QueryConfig()
     runs = runs if runs is not None else default_runs(config)
     world = load_world(world_dir)
     city = world.load_map()
-    vocabulary = vocabulary or default_vocabulary(progress=False)
+    vocabulary = vocabulary or default_vocabulary(context.models_dir)
     queries = world.queries[:max_queries] if max_queries else world.queries
     reference_names = [r.name for r in world.references]
     shown = {q.name: shown_by_references(world, q.name, reference_names) for q in queries}
@@ -94,9 +99,10 @@ def evaluate_world(
     worlds: dict[str, LabelledWorld] = {}
     segmentations = sorted({run.segmentation for run in runs}) or ["model"]
     for segmentation in segmentations:
-        worlds[segmentation] = label_references(world, city, vocabulary, segmentation, say)
+        worlds[segmentation] = label_references(world, city, vocabulary, segmentation, say, context)
         worlds[segmentation].queries = {
-            q.name: analyze(q.path, world.gt(q.name)["labels"] if segmentation == "gt" else None) for q in queries
+            q.name: analyze(q.path, world.gt(q.name)["labels"] if segmentation == "gt" else None, context)
+            for q in queries
         }
 
     result: dict[str, Any] = {
@@ -118,6 +124,6 @@ def evaluate_world(
     for run in runs:
         say(f"run {run.name}")
         labelled = worlds[run.segmentation]
-        result["runs"][run.name] = answer_run(world, city, labelled, vocabulary, run, queries, shown, say)
+        result["runs"][run.name] = answer_run(world, city, labelled, vocabulary, run, queries, shown, say, context)
     result["total_s"] = round(time.perf_counter() - started, 1)
     return result

@@ -21,7 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from geoloc.core.parallel import thread_map
+from geoloc.core.parallel import ONE_THREAD, JobThreads
 from geoloc.vision.features import Features
 
 DEFAULT_RATIO = 0.8
@@ -210,10 +210,12 @@ def rerank_by_inliers(
     ratio: float = DEFAULT_RATIO,
     threshold_px: float = DEFAULT_THRESHOLD_PX,
     min_inliers: int = DEFAULT_MIN_INLIERS,
+    threads: JobThreads = ONE_THREAD,
 ) -> list[ReferenceMatch]:
     """Spatial re-ranking: the ``k`` candidates with the most RANSAC inliers (ties: higher retrieval score).
 
     candidates: (reference id, retrieval score, features) of a longer SBoW shortlist (e.g. 20).
+    threads: the candidates are matched on these (the result does not depend on their number).
     Returns their :class:`ReferenceMatch` (pass each as ``ReferenceEvidence.match`` to skip re-matching; its
     ``neighbours`` give matches at another ratio without a second search).
     Measured on a simulated Helsinki world (60 references, 30 queries): shortlist 20 -> top 8 by inliers
@@ -228,6 +230,6 @@ def rerank_by_inliers(
             ref_id, float(score), len(pairs), int(inliers.sum()), model, pairs[inliers], pairs, neighbours
         )
 
-    out = thread_map(match, candidates)
+    out = threads.map(match, candidates)
     order = sorted(range(len(out)), key=lambda i: (-out[i].n_inliers, -out[i].score, i))
     return [out[i] for i in order[:k]]

@@ -6,7 +6,7 @@ from collections.abc import Hashable, Sequence
 
 import numpy as np
 
-from geoloc.core.parallel import thread_map
+from geoloc.core.parallel import ONE_THREAD, JobThreads
 from geoloc.localize.absolute_pose import PoseEstimate, estimate_pose_from_groups, group_proposal
 from geoloc.localize.matching import ReferenceMatch, match_features, ratio_matches
 from geoloc.localize.query.config import QueryConfig
@@ -21,8 +21,12 @@ def anchored_pose(
     stored: dict[Hashable, StoredReference],
     photo: Photo,
     config: QueryConfig,
+    *,
+    threads: JobThreads = ONE_THREAD,
 ) -> list[tuple[PoseEstimate, list[Hashable]]]:
     """PnP on the query's matches to the anchored keypoints of the given references.
+
+    threads: each reference group's PnP proposal runs on these (the result does not depend on their number).
 
     Returns the estimate with the references that contributed inliers, and a second one where the
     ambiguous references (:attr:`StoredReference.alternative_anchors`) use their runner-up pose's anchors;
@@ -58,7 +62,7 @@ def anchored_pose(
             group_of[key] = (anchors.xyz[pairs[valid, 1]], query_features.xy[pairs[valid, 0]])
             keys.append(key)
         variant_keys.append(keys)
-    proposals = thread_map(
+    proposals = threads.map(
         lambda group: group_proposal(*group, photo.intrinsics, threshold_px=config.pnp_threshold_px),
         group_of.values(),
     )

@@ -6,6 +6,7 @@ from collections.abc import Hashable, Sequence
 
 import numpy as np
 
+from geoloc.core.parallel import ONE_THREAD, JobThreads
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.identity import IdentityMap
 from geoloc.localize.matching import ReferenceMatch, rerank_by_inliers
@@ -23,8 +24,12 @@ def retrieve(
     vocabulary: Vocabulary,
     config: QueryConfig,
     position_prior: PositionPrior | None = None,
+    *,
+    threads: JobThreads = ONE_THREAD,
 ) -> tuple[dict[Hashable, StoredReference], list[ReferenceMatch]]:
     """SBoW shortlist of ``config.shortlist`` references re-ranked by verified inliers (best first).
+
+    threads: the re-ranking matches the references on these (the result does not depend on their number).
 
     With a position prior, references that stand too far from it to see what the query sees (beyond
     ``prior_sigmas`` prior sigmas plus ``view_range_m``) are left out before the shortlist is cut: repeated
@@ -48,7 +53,7 @@ def retrieve(
     shortlist = [(ref_id, score) for ref_id, score in ranked if ref_id in stored][: config.shortlist]
     stored = {ref_id: stored[ref_id] for ref_id, _ in shortlist}
     candidates = [(ref_id, score, stored[ref_id].features) for ref_id, score in shortlist]
-    return stored, rerank_by_inliers(features, candidates, len(candidates))
+    return stored, rerank_by_inliers(features, candidates, len(candidates), threads=threads)
 
 
 def transfer(

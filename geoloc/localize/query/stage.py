@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from geoloc.core.context import MethodContext
 from geoloc.localize.grid import PositionPrior, localize
 from geoloc.localize.identity import IdentityMap
 from geoloc.localize.likelihood import LikelihoodOptions
@@ -34,19 +35,21 @@ def geolocate(
     prior_yaw_deg: float | None = None,
     top_n: int = 10,
     identity_override: IdentityMap | None = None,
+    context: MethodContext,
 ) -> QueryAnswer:
     """Geolocate a photo (its evidence already analysed) against the references of ``store``.
 
     position_prior: optional Gaussian prior (e.g. the photo's GPS). prior_yaw_deg: optional heading prior
     (local bearing). identity_override: use these identities instead of the transferred ones (evaluation
-    ablation: ground-truth identities). Positions are local metres of ``city_map.frame``.
+    ablation: ground-truth identities). context: the job threads (the matching and the PnP proposals run on
+    them; the answer does not depend on their number). Positions are local metres of ``city_map.frame``.
 
     The photo's image model with its identities is built once, and one :class:`MapLikelihood` of it
     serves the grid, the trust checks, the refinements and the identities read at a trusted pose.
     """
     timings: dict[str, float] = dict(evidence.timings_ms)
     t0 = time.perf_counter()
-    stored, matches = retrieve(evidence.features, store, vocabulary, config, position_prior)
+    stored, matches = retrieve(evidence.features, store, vocabulary, config, position_prior, threads=context.threads)
     timings["retrieval"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
@@ -59,7 +62,8 @@ def geolocate(
     t0 = time.perf_counter()
     candidates = []
     if config.use_anchors:
-        candidates = anchored_pose(evidence.features, matches[: config.anchor_references], stored, photo, config)
+        references = matches[: config.anchor_references]
+        candidates = anchored_pose(evidence.features, references, stored, photo, config, threads=context.threads)
     timings["anchors"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
