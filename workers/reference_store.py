@@ -1,4 +1,4 @@
-"""The query stage's reference store backed by the service's database (:class:`geoloc.localize.query.ReferenceStore`).
+"""The query stage's reference store backed by the service's database (:class:`geoloc.localize.store.ReferenceStore`).
 
 Shortlist: each worker process keeps every map's SBoW index in memory (:class:`geoloc.localize.sbow_index.SbowIndex`,
 which ranks exactly as :func:`geoloc.localize.retrieval.tfidf_scores` on the database's postings, the formula the
