@@ -17,7 +17,7 @@ from fastapi.responses import JSONResponse
 from db import Database, transaction
 from db import maps as map_store
 from db.files import FileStore
-from service.answers import BoundingBox, LatLon
+from contracts.answers import BoundingBox, LatLon
 from service.auth import require_read, require_write
 from service.bounds import MapId
 from service.deps import get_db, get_settings, get_store

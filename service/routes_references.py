@@ -12,7 +12,7 @@ from db import Database, transaction
 from db import jobs as job_store
 from db import references as reference_store
 from db.files import FileStore
-from service.answers import EstimatedPose
+from contracts.answers import EstimatedPose
 from service.auth import require_read, require_write
 from service.bounds import MapId, ReferenceId, check_bounds, documented
 from service.deps import get_db, get_publisher, get_settings, get_store

@@ -15,7 +15,7 @@ from typing import Any
 import httpx
 import pytest
 
-from service.answers import QueryResult
+from contracts.answers import QueryResult
 from workers.answers import checked_query_answer, checked_reference_labels
 from workers.handlers import PermanentJobError
 

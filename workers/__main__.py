@@ -15,7 +15,7 @@ import sys
 from contracts.settings import SettingsError, get_settings
 from geoloc.export.models import model_problems
 from workers.handlers import load_builtin_handlers, load_plugins
-from workers.worker import Worker, install_signal_handlers
+from workers.worker import Worker, install_signal_handlers, limit_threads
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,6 +41,7 @@ def main(argv: list[str] | None = None) -> int:
         os.nice(settings.worker_nice)
     load_builtin_handlers()
     load_plugins(settings.worker_plugins)
+    limit_threads(settings.worker_threads)
     worker = Worker(settings)
     parent = os.environ.get("GEOLOC_SUPERVISOR_PID")
     worker.parent_pid = int(parent) if parent else None

@@ -42,7 +42,7 @@ from db import jobs as job_store
 from workers.broker import RECONCILE_INTERVAL_S, RUN_JOB_TASK, CeleryPublisher, celery_app, reconcile
 from workers.handlers import load_builtin_handlers, load_plugins
 from workers.retention import purge_interval_s
-from workers.worker import Worker
+from workers.worker import Worker, limit_threads
 
 log = logging.getLogger("geoloc.worker")
 
@@ -228,6 +228,7 @@ def main(argv: list[str] | None = None) -> int:
         os.nice(settings.worker_nice)
     load_builtin_handlers()
     load_plugins(settings.worker_plugins)
+    limit_threads(settings.worker_threads)
     app = create_app(settings, max(args.concurrency, 1))
     app.worker_main(
         [

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.localize.identity import IdentityMap
 from geoloc.localize.labeling import (
@@ -57,6 +58,39 @@ class LabelledReference:
     def camera_pose(self) -> CameraPose:
         """The labelled pose as a camera pose (pitch and roll from the photo's vertical vanishing point)."""
         return _camera_pose(self.label, self.evidence)
+
+    def keypoints(self) -> ReferenceKeypoints:
+        """What is stored of its keypoints (:class:`contracts.references.ReferenceKeypoints`; the store casts)."""
+        features, alternative = self.evidence.features, self.alternative_anchors
+        return ReferenceKeypoints(
+            xy=features.xy,
+            descriptors=features.descriptors,
+            sizes=features.sizes,
+            angles=features.angles,
+            responses=features.responses,
+            image_shape=features.image_shape,
+            scale=features.scale,
+            method=features.method,
+            identity=self.keypoint_identity,
+            building_ids=self.identity.building_ids,
+            anchor_xyz=self.anchors.xyz,
+            anchor_facade_id=self.anchors.facade_id,
+            anchor_building_id=self.anchors.building_id,
+            anchor_distance_m=self.anchors.distance_m,
+            position_covariance=self.label.position_covariance,
+            position_xy=np.array([self.label.x_m, self.label.y_m]),
+            alt_anchor_xyz=None if alternative is None else alternative.xyz,
+            alt_anchor_facade_id=None if alternative is None else alternative.facade_id,
+            alt_anchor_building_id=None if alternative is None else alternative.building_id,
+            alt_anchor_distance_m=None if alternative is None else alternative.distance_m,
+        )
+
+    def label_arrays(self) -> ReferenceLabelArrays:
+        """What is stored of its identity map (:class:`contracts.references.ReferenceLabelArrays`)."""
+        identity = self.identity
+        return ReferenceLabelArrays.from_mask(
+            identity.building_ids, identity.column_prob, identity.building_mask, self.label.likelihood
+        )
 
 
 def _camera_pose(label: ReferenceLabel, evidence: PhotoEvidence, alternative: bool = False) -> CameraPose:

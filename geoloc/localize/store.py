@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from contracts.references import ReferenceKeypoints
 from geoloc.localize.anchors import MapAnchors
 from geoloc.vision.features import Features
 
@@ -35,6 +36,29 @@ class StoredReference:
     position_covariance: np.ndarray
     position_xy: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     alternative_anchors: MapAnchors | None = None
+
+    @classmethod
+    def from_keypoints(cls, reference_id: Hashable, keypoints: ReferenceKeypoints) -> StoredReference:
+        """A reference read back from its stored keypoints (:class:`contracts.references.ReferenceKeypoints`)."""
+        k = keypoints
+        features = Features(k.xy, k.descriptors, k.sizes, k.angles, k.responses, k.image_shape, k.scale, k.method)
+        alternative = None
+        if k.alt_anchor_xyz is not None:
+            assert k.alt_anchor_facade_id is not None and k.alt_anchor_building_id is not None
+            assert k.alt_anchor_distance_m is not None
+            alternative = MapAnchors(
+                k.alt_anchor_xyz, k.alt_anchor_facade_id, k.alt_anchor_building_id, k.alt_anchor_distance_m
+            )
+        return cls(
+            reference_id,
+            features,
+            k.identity,
+            k.building_ids,
+            MapAnchors(k.anchor_xyz, k.anchor_facade_id, k.anchor_building_id, k.anchor_distance_m),
+            k.position_covariance,
+            k.position_xy,
+            alternative,
+        )
 
 
 class ReferenceStore(Protocol):
