@@ -2,8 +2,8 @@
 
 Kinds, statuses and payload models are in :mod:`contracts.jobs`. Lifecycle: ``queued`` -> ``running``
 (claimed, leased) -> ``done`` | ``failed`` (attempts used up) | back to ``queued`` (a failed attempt with
-attempts left, or a worker that released it on shutdown). A ``running`` job whose lease expired (its worker died) is claimable again. Jobs of a
-deleted reference or map that are still ``queued`` become ``cancelled``.
+attempts left, or a worker that released it on shutdown). A ``running`` job whose lease expired (its worker
+died) is claimable again. Jobs of a deleted reference or map that are still ``queued`` become ``cancelled``.
 
 All writes check ``lease_owner`` so that a worker whose lease was taken over cannot overwrite
 the new owner's outcome.

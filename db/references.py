@@ -17,7 +17,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from contracts.jobs import WORK_STATUSES, WorkStatus, reported_status
+from contracts.jobs import WORK_STATUSES, reported_status
 from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from db.blobs import pack_arrays, unpack_arrays
 from db.connection import Database
@@ -116,14 +116,14 @@ def list_references_after(db: Database, map_id: int, *, after_id: int = 0, limit
     return [_decode(row) for row in rows]
 
 
-def effective_status_counts(db: Database, map_id: int) -> dict[WorkStatus, int]:
+def effective_status_counts(db: Database, map_id: int) -> dict[str, int]:
     """Number of a map's references per reported status (:func:`contracts.jobs.reported_status`)."""
     rows = db.query(
         "SELECT r.status AS status, r.error AS error, j.status AS job_status, j.attempts AS attempts,"
         " j.error AS job_error FROM reference_images r LEFT JOIN jobs j ON j.id = r.job_id WHERE r.map_id = ?",
         (map_id,),
     )
-    counts: dict[WorkStatus, int] = dict.fromkeys(WORK_STATUSES, 0)
+    counts: dict[str, int] = dict.fromkeys(WORK_STATUSES, 0)
     for row in rows:
         state, _ = reported_status(row["status"], row["error"], row["job_status"], row["attempts"], row["job_error"])
         counts[state] += 1

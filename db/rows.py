@@ -8,8 +8,9 @@ there (a column added by a migration exists in every row once the database is mi
 
 from __future__ import annotations
 
-from typing import Any, TypedDict
+from typing import Any, Literal, TypedDict
 
+from contracts.jobs import JobStatus
 from contracts.queries import QueryParams
 
 
@@ -59,7 +60,7 @@ class ReferenceRow(TypedDict):
     height: int
     gps_lat: float
     gps_lon: float
-    position_source: str
+    position_source: Literal["exif", "request"]
     prior_heading_deg: float | None
     focal_length_35mm: float | None
     status: str
@@ -96,7 +97,7 @@ class JobRow(TypedDict):
     id: int
     kind: str
     payload: dict[str, Any]
-    status: str
+    status: JobStatus
     priority: int
     attempts: int
     max_attempts: int
