@@ -37,29 +37,6 @@ def _reference(rng: np.random.Generator, reference_id: int, n: int = 50) -> Stor
     return StoredReference(reference_id, features, identity, np.array([3, 4]), anchors, np.diag([4.0, 9.0]), position)
 
 
-def _keypoints(ref: StoredReference) -> ReferenceKeypoints:
-    """What is stored of a reference held in memory."""
-    features, anchors = ref.features, ref.anchors
-    return ReferenceKeypoints(
-        xy=features.xy,
-        descriptors=features.descriptors,
-        sizes=features.sizes,
-        angles=features.angles,
-        responses=features.responses,
-        image_shape=features.image_shape,
-        scale=features.scale,
-        method=features.method,
-        identity=ref.keypoint_prob,
-        building_ids=ref.building_ids,
-        anchor_xyz=anchors.xyz,
-        anchor_facade_id=anchors.facade_id,
-        anchor_building_id=anchors.building_id,
-        anchor_distance_m=anchors.distance_m,
-        position_covariance=ref.position_covariance,
-        position_xy=ref.position_xy,
-    )
-
-
 def _store_references(db: Database, seed: int = 0, count: int = 25) -> tuple[int, Vocabulary, InMemoryReferenceStore]:
     """Store and index ``count`` random references of a new map in ``db``; the same ones for the same seed.
 
@@ -75,7 +52,7 @@ def _store_references(db: Database, seed: int = 0, count: int = 25) -> tuple[int
         ref = _reference(rng, reference_id, n=int(rng.integers(20, 80)))
         words = vocabulary.words(ref.features.descriptors)
         with transaction(db):
-            reference_store.save_keypoints(db, reference_id, _keypoints(ref))
+            reference_store.save_keypoints(db, reference_id, ref.keypoints())
             sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
         memory.add(ref)
     return map_id, vocabulary, memory
@@ -160,7 +137,7 @@ def test_the_stored_format_keeps_its_dtypes_and_reads_old_references() -> None:
     ref = _reference(rng, 1, n=12)
     alternative = MapAnchors(rng.random((12, 3)), rng.integers(-1, 9, 12), rng.integers(-1, 3, 12), rng.random(12))
     keypoints = dataclasses.replace(
-        _keypoints(ref),
+        ref.keypoints(),
         alt_anchor_xyz=alternative.xyz,
         alt_anchor_facade_id=alternative.facade_id,
         alt_anchor_building_id=alternative.building_id,

@@ -61,29 +61,7 @@ class LabelledReference:
 
     def keypoints(self) -> ReferenceKeypoints:
         """What is stored of its keypoints (:class:`contracts.references.ReferenceKeypoints`; the store casts)."""
-        features, alternative = self.evidence.features, self.alternative_anchors
-        return ReferenceKeypoints(
-            xy=features.xy,
-            descriptors=features.descriptors,
-            sizes=features.sizes,
-            angles=features.angles,
-            responses=features.responses,
-            image_shape=features.image_shape,
-            scale=features.scale,
-            method=features.method,
-            identity=self.keypoint_identity,
-            building_ids=self.identity.building_ids,
-            anchor_xyz=self.anchors.xyz,
-            anchor_facade_id=self.anchors.facade_id,
-            anchor_building_id=self.anchors.building_id,
-            anchor_distance_m=self.anchors.distance_m,
-            position_covariance=self.label.position_covariance,
-            position_xy=np.array([self.label.x_m, self.label.y_m]),
-            alt_anchor_xyz=None if alternative is None else alternative.xyz,
-            alt_anchor_facade_id=None if alternative is None else alternative.facade_id,
-            alt_anchor_building_id=None if alternative is None else alternative.building_id,
-            alt_anchor_distance_m=None if alternative is None else alternative.distance_m,
-        )
+        return stored_reference(None, self).keypoints()
 
     def label_arrays(self) -> ReferenceLabelArrays:
         """What is stored of its identity map (:class:`contracts.references.ReferenceLabelArrays`)."""

@@ -37,6 +37,32 @@ class StoredReference:
     position_xy: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     alternative_anchors: MapAnchors | None = None
 
+    def keypoints(self) -> ReferenceKeypoints:
+        """What is stored of it (:class:`contracts.references.ReferenceKeypoints`; the format casts the dtypes)."""
+        features, anchors, alternative = self.features, self.anchors, self.alternative_anchors
+        return ReferenceKeypoints(
+            xy=features.xy,
+            descriptors=features.descriptors,
+            sizes=features.sizes,
+            angles=features.angles,
+            responses=features.responses,
+            image_shape=features.image_shape,
+            scale=features.scale,
+            method=features.method,
+            identity=self.keypoint_prob,
+            building_ids=self.building_ids,
+            anchor_xyz=anchors.xyz,
+            anchor_facade_id=anchors.facade_id,
+            anchor_building_id=anchors.building_id,
+            anchor_distance_m=anchors.distance_m,
+            position_covariance=self.position_covariance,
+            position_xy=self.position_xy,
+            alt_anchor_xyz=None if alternative is None else alternative.xyz,
+            alt_anchor_facade_id=None if alternative is None else alternative.facade_id,
+            alt_anchor_building_id=None if alternative is None else alternative.building_id,
+            alt_anchor_distance_m=None if alternative is None else alternative.distance_m,
+        )
+
     @classmethod
     def from_keypoints(cls, reference_id: Hashable, keypoints: ReferenceKeypoints) -> StoredReference:
         """A reference read back from its stored keypoints (:class:`contracts.references.ReferenceKeypoints`)."""
