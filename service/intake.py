@@ -1,4 +1,4 @@
-"""What the reference and query routes share: the map lookup, read errors, and the one photo-upload use-case.
+"""What the reference and query routes share: the map lookup, read errors, status, the one photo-upload use-case.
 
 A photo upload, a reference or a query, goes through :meth:`PhotoIntake.accept`: look the map up (404),
 check the form, receive the photo (413 over the size limit), check it by its content (415, 413, 422) and
@@ -20,13 +20,13 @@ from dataclasses import dataclass
 
 from fastapi import UploadFile
 
-from contracts.jobs import JobPayload
+from contracts.jobs import JobPayload, WorkStatus, reported_status
 from contracts.settings import Settings
 from db import Database, connect, transaction
 from db import jobs as job_store
 from db import maps as map_store
 from db.files import FileStore
-from db.rows import MapRow
+from db.rows import JobRow, MapRow
 from service.errors import ApiError
 from service.images import ImageInfo, validate_image
 from service.models import error_responses
@@ -43,6 +43,16 @@ def require_map(db: Database, map_id: int) -> MapRow:
     if row is None:
         raise ApiError(404, "not_found", f"map {map_id} not found")
     return row
+
+
+def work_status(status: str, error: str | None, job: JobRow | None) -> tuple[WorkStatus, str | None]:
+    """What to report for a reference or query with this status and error and this job (or none).
+
+    :func:`contracts.jobs.reported_status` on the job row's status, attempts and error.
+    """
+    if job is None:
+        return reported_status(status, error, None)
+    return reported_status(status, error, job["status"], job["attempts"], job["error"])
 
 
 @dataclass(frozen=True)

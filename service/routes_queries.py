@@ -23,7 +23,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
 from contracts.answers import QueryResult
-from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload, reported_status
+from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload
 from contracts.queries import PriorPosition, QueryParams
 from contracts.settings import Settings
 from db import Database, connect, transaction
@@ -36,7 +36,7 @@ from service.bounds import MapId, QueryId, bounded_form, check_bounds
 from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
 from service.images import STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
-from service.intake import READ_ERRORS, PhotoIntake
+from service.intake import READ_ERRORS, PhotoIntake, work_status
 from service.limits import require_queue_capacity
 from service.models import QueryOut, error_responses, timestamp
 from service.spec import QUEUE_FULL_RESPONSE
@@ -50,13 +50,7 @@ DEFAULT_PRIOR_RADIUS_M = 50.0
 
 def query_out(row: QueryRow, job: JobRow | None) -> QueryOut:
     """A query row (and its job) as its API model."""
-    state, error = reported_status(
-        row["status"],
-        row["error"],
-        None if job is None else job["status"],
-        0 if job is None else job["attempts"],
-        None if job is None else job["error"],
-    )
+    state, error = work_status(row["status"], row["error"], job)
     return QueryOut(
         id=row["id"],
         map_id=row["map_id"],

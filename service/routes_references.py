@@ -14,7 +14,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
 from contracts.answers import BuildingInPhoto, EstimatedPose
-from contracts.jobs import LABEL_REFERENCE, LabelReferencePayload, reported_status
+from contracts.jobs import LABEL_REFERENCE, LabelReferencePayload
 from contracts.settings import Settings
 from db import Database, transaction
 from db import jobs as job_store
@@ -26,7 +26,7 @@ from service.bounds import MapId, ReferenceId, bounded_form, check_bounds
 from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
 from service.images import STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
-from service.intake import READ_ERRORS, PhotoIntake, require_map
+from service.intake import READ_ERRORS, PhotoIntake, require_map, work_status
 from service.limits import require_queue_capacity
 from service.models import (
     Position,
@@ -207,13 +207,7 @@ async def upload_reference(
 
 def reference_out(row: ReferenceRow, job: JobRow | None) -> ReferenceOut:
     """A reference row (and its job) as its API model."""
-    status_now, error = reported_status(
-        row["status"],
-        row["error"],
-        None if job is None else job["status"],
-        0 if job is None else job["attempts"],
-        None if job is None else job["error"],
-    )
+    status_now, error = work_status(row["status"], row["error"], job)
     estimated, buildings = None, row["buildings_seen"]
     if row["estimated_lat"] is not None or row["estimated_heading_deg"] is not None:
         estimated = EstimatedPose(

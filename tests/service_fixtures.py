@@ -50,7 +50,7 @@ def _append_line(path: str, text: str) -> None:
 class RecordPayload(JobPayload):
     """``test_record``: append ``token pid`` to the file ``log`` after ``seconds``."""
 
-    token: str
+    token: int
     log: str
     seconds: float = 0.0
 
@@ -58,7 +58,7 @@ class RecordPayload(JobPayload):
 class RecordResult(JobResult):
     """``test_record``'s result: the token and the process that ran it."""
 
-    token: str
+    token: int
     pid: int
 
 
