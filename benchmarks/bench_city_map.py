@@ -48,6 +48,7 @@ from local_service import LocalService, status_mb
 
 from contracts.settings import shared_path
 from geoloc.core.geo import frame_for_bbox
+from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 TILE_GAP_M = 30.0
 ID_STRIDE = 10**10
@@ -233,8 +234,6 @@ def _median(values: list[float]) -> float:
 
 def _make_world(world_dir: Path, map_path: Path) -> Path:
     """A small simulated world (20 references, 5 queries, seed 1) of the map in ``world_dir``, unless there."""
-    from geoloc.sim.world import WorldOptions, generate_world
-
     if not (world_dir / "manifest.json").exists():
         t0 = time.perf_counter()
         generate_world(map_path, world_dir, WorldOptions(n_references=20, n_queries=5, seed=1))
@@ -277,8 +276,6 @@ def main() -> None:
     print(f"machine: {figures['machine']}; work folder {workdir}")
 
     world_dir = args.world or _make_world(workdir / "world", helsinki)
-    from geoloc.sim.world import load_world
-
     world = load_world(world_dir)
     figures["world"] = {"path": str(world_dir), "references": len(world.references), "queries": len(world.queries)}
 

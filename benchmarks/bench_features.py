@@ -20,7 +20,7 @@ as the pipeline does; ``--mask gt`` uses the renderer's labels), ``max_features`
 each followed by the pipeline's verification (:func:`geoloc.localize.transfer.geometric_verification`: USAC
 MAGSAC++ F and H, 3 working px, at least 12 inliers or none).
 
-Simulated world (ground truth: true poses, intrinsics, per-pixel facade ids):
+Simulated world (ground truth: true poses, intrinsics, per-pixel facade ids; ``match_truth.py``):
 
 - pairs: every query with every reference that sees at least ``--min-covisible`` (0.02) of the
   query image's area, and every query with every reference sharing *no* building ("wrong pairs").
@@ -55,24 +55,23 @@ import os
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
+from match_truth import GtView, correct_matches, covisible_shares, filled_facade_ids, overlap
 
 from contracts.settings import shared_path
 from geoloc.core import labels as classes
-from geoloc.core.camera import Intrinsics
 from geoloc.evaluation.world import shown_by_references
 from geoloc.localize.retrieval import InvertedIndex, default_vocabulary
 from geoloc.localize.transfer import DEFAULT_MIN_INLIERS, geometric_verification, match_features
 from geoloc.maps import CityMap
-from geoloc.sim.render import Pose, rotation_matrix
-from geoloc.sim.world import World, load_world
+from geoloc.sim.world import load_world
 from geoloc.vision.features import Features, extract_features
-from geoloc.vision.segmentation import segment
+from geoloc.vision.segmentation import load_session, segment
+from workers.context import method_context
 
 METHODS = ("rootsift", "aliked-n16", "aliked-t16", "aliked-n16@1,0.5,0.25")
 MATCHERS = ("ratio0.8", "mnn+ratio0.8", "mnn+ratio0.9", "mnn+ratio0.95")
@@ -118,95 +117,17 @@ def verified(query: Features, reference: Features, match: Callable[[Features, Fe
 
 
 # ----------------------------------------------------------------------------------------------
-# Ground truth geometry (local frame: x east, y north, z up; camera x right, y down, z forward)
-
-
-def _camera_axes(pose: Pose) -> np.ndarray:
-    """3x3 matrix whose rows are the upright camera's right, down and forward axes in the local frame."""
-    yaw = np.radians(pose.yaw_deg)
-    return np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [0.0, 0.0, -1.0], [np.sin(yaw), np.cos(yaw), 0.0]])
-
-
-def viewing_rays(pose: Pose, intr: Intrinsics, xy: np.ndarray) -> np.ndarray:
-    """(N, 3) local-frame directions of the rays through keypoints at (N, 2) pixel centres (OpenCV convention)."""
-    pix = np.column_stack([xy[:, 0] + 0.5, xy[:, 1] + 0.5, np.ones(len(xy))])
-    d_cam = pix @ np.linalg.inv(intr.matrix).T
-    d_up = d_cam @ rotation_matrix(pose.pitch_deg, pose.roll_deg)  # R^T d for each row
-    return d_up @ _camera_axes(pose)
-
-
-def project(pose: Pose, intr: Intrinsics, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 2) keypoint coordinates (OpenCV convention) and (N,) depth of local-frame points (N, 3)."""
-    centre = np.array([pose.x_m, pose.y_m, pose.height_m])
-    d_up = (points - centre) @ _camera_axes(pose).T
-    d_cam = d_up @ rotation_matrix(pose.pitch_deg, pose.roll_deg).T
-    z = d_cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        pix = d_cam @ intr.matrix.T
-        uv = pix[:, :2] / pix[:, 2:3] - 0.5
-    return uv, z
-
-
-def filled_facade_ids(facade_id: np.ndarray, radius: int = 2) -> np.ndarray:
-    """Facade id per pixel; pixels showing no facade take a facade id found within ``radius`` px (if any)."""
-    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
-    near = cv2.dilate((facade_id + 1).astype(np.float32), kernel).astype(np.int64) - 1
-    return np.where(facade_id >= 0, facade_id, near)
-
-
-def _ids_at(ids: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    h, w = ids.shape
-    return ids[np.clip(np.round(xy[:, 1]).astype(int), 0, h - 1), np.clip(np.round(xy[:, 0]).astype(int), 0, w - 1)]
-
-
-@dataclass
-class GtView:
-    """What the correctness check needs of one world image."""
-
-    pose: Pose
-    intrinsics: Intrinsics
-    facade_ids: np.ndarray  # filled (see filled_facade_ids)
-
-
-def correct_matches(
-    city: CityMap, query: GtView, reference: GtView, q_xy: np.ndarray, r_xy: np.ndarray, tol_px: float
-) -> np.ndarray:
-    """(K,) bool: which matches are correct.
-
-    A match is correct when both keypoints are on the same facade and the query ray, cut with that
-    facade's plane, reprojects into the reference within ``tol_px`` of the reference keypoint.
-    """
-    if len(q_xy) == 0:
-        return np.zeros(0, bool)
-    fq = _ids_at(query.facade_ids, q_xy)
-    fr = _ids_at(reference.facade_ids, r_xy)
-    ok = (fq >= 0) & (fq == fr)
-    f = np.maximum(fq, 0)
-    fac = city.facades
-    rays = viewing_rays(query.pose, query.intrinsics, q_xy)
-    centre = np.array([query.pose.x_m, query.pose.y_m, query.pose.height_m])
-    normal = fac.normal[f]
-    denom = np.einsum("ij,ij->i", rays[:, :2], normal)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.einsum("ij,ij->i", fac.start[f] - centre[:2], normal) / denom
-    ok &= np.isfinite(t) & (t > 0)
-    points = centre + np.where(ok, t, 0.0)[:, None] * rays
-    uv, depth = project(reference.pose, reference.intrinsics, points)
-    err = np.linalg.norm(uv - r_xy, axis=1)
-    return ok & (depth > 0) & (err <= tol_px)
-
-
-# ----------------------------------------------------------------------------------------------
 # Extraction
 
 
 def building_mask(rgb: np.ndarray, gt_labels: np.ndarray | None) -> np.ndarray:
     """The building mask the features are restricted to: network segmentation, or the given GT labels."""
-    return (gt_labels if gt_labels is not None else segment(rgb)) == classes.BUILDING
+    labels = gt_labels if gt_labels is not None else segment(rgb, session=load_session(method_context()))
+    return labels == classes.BUILDING
 
 
 def parse_method(spec: str) -> tuple[str, tuple[float, ...]]:
-    """"aliked-n16@1,0.5" -> ("aliked-n16", (1.0, 0.5)): a feature type and ALIKED's pyramid scales."""
+    """Split ``"aliked-n16@1,0.5"`` into ``("aliked-n16", (1.0, 0.5))``: a feature type and ALIKED's scales."""
     name, _, scales = spec.partition("@")
     return name, tuple(float(v) for v in scales.split(",")) if scales else (1.0,)
 
@@ -214,7 +135,7 @@ def parse_method(spec: str) -> tuple[str, tuple[float, ...]]:
 def extract(spec: str, rgb: np.ndarray, mask: np.ndarray, max_features: int) -> Features:
     """Features of one image for a method spec (see :func:`parse_method`)."""
     name, scales = parse_method(spec)
-    return extract_features(rgb, mask, max_features, method=name, aliked_scales=scales)
+    return extract_features(rgb, mask, max_features, method=name, aliked_scales=scales, context=method_context())
 
 
 def extract_all(
@@ -236,44 +157,6 @@ def extract_all(
 
 # ----------------------------------------------------------------------------------------------
 # Simulated world
-
-
-def covisible_shares(
-    city: CityMap, world: World, query: str, references: list[str], step_px: int = 4
-) -> dict[str, float]:
-    """Share of the query image whose facade point each reference sees on the same facade.
-
-    Pixels are sampled on a grid of ``step_px`` (see the module docstring).
-    """
-    fid = world.gt(query)["facade_id"]
-    grid = fid[::step_px, ::step_px]
-    ys, xs = np.nonzero(grid >= 0)
-    xy = np.column_stack([xs * step_px, ys * step_px]).astype(np.float64)
-    f = grid[ys, xs]
-    q = world.image(query)
-    rays = viewing_rays(q.pose, q.intrinsics, xy)
-    centre = np.array([q.pose.x_m, q.pose.y_m, q.pose.height_m])
-    normal = city.facades.normal[f]
-    t = np.einsum("ij,ij->i", city.facades.start[f] - centre[:2], normal) / np.einsum("ij,ij->i", rays[:, :2], normal)
-    points = centre + t[:, None] * rays
-    out = {}
-    for name in references:
-        r = world.image(name)
-        uv, depth = project(r.pose, r.intrinsics, points)
-        h, w = world.gt(name)["facade_id"].shape
-        u = np.round(uv).astype(np.int64)
-        ok = (depth > 0) & (u[:, 0] >= 0) & (u[:, 0] < w) & (u[:, 1] >= 0) & (u[:, 1] < h)
-        same = np.zeros(len(f), bool)
-        same[ok] = world.gt(name)["facade_id"][u[ok, 1], u[ok, 0]] == f[ok]
-        out[name] = float(same.sum() / grid.size)
-    return out
-
-
-def overlap(world: World, a: str, b: str) -> float:
-    """Sum over buildings of the smaller of the two images' pixel shares."""
-    sa = {x["building_id"]: x["pixel_share"] for x in world.image(a).record["buildings"]}
-    sb = {x["building_id"]: x["pixel_share"] for x in world.image(b).record["buildings"]}
-    return float(sum(min(s, sb.get(k, 0.0)) for k, s in sa.items()))
 
 
 def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
@@ -320,7 +203,7 @@ def bench_world(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
             "keypoints_median": int(np.median([len(fm[n]) for n in names])),
             "matchers": {},
         }
-        vocabulary = default_vocabulary(progress=False, method=parse_method(method)[0])
+        vocabulary = default_vocabulary(method_context().models_dir, method=parse_method(method)[0])
         words = {n: vocabulary.words(fm[n].descriptors) for n in names}
         index = InvertedIndex.from_documents((r, words[r]) for r in refs)
         for mname in args.matcher_names:
@@ -462,9 +345,11 @@ def bench_lund(args: argparse.Namespace, methods: tuple[str, ...]) -> dict:
 def print_tables(world: dict | None, lund: dict | None) -> None:
     if world:
         print("\nSimulated world: best co-visible pairs (>= 0.1), co-visible pairs, wrong pairs, retrieval")
-        head = (f"{'feature':<22} {'matcher':<14} {'ms/img':>7} {'>=12 ok':>8} {'>=30 ok':>8} {'med ok':>7} "
-                f"{'ok/inl':>7} {'inl/pair':>8} {'wrong>0':>8} {'wrongmax':>8} {'right/ver':>9} {'top1':>6} "
-                f"{'top20':>6} {'top4':>6}")
+        head = (
+            f"{'feature':<22} {'matcher':<14} {'ms/img':>7} {'>=12 ok':>8} {'>=30 ok':>8} {'med ok':>7} "
+            f"{'ok/inl':>7} {'inl/pair':>8} {'wrong>0':>8} {'wrongmax':>8} {'right/ver':>9} {'top1':>6} "
+            f"{'top20':>6} {'top4':>6}"
+        )
         print(head)
         for method, entry in world["features"].items():
             for mname, m in entry["matchers"].items():
@@ -479,8 +364,10 @@ def print_tables(world: dict | None, lund: dict | None) -> None:
                 )
     if lund:
         print(f"\nLund: verified inliers, {lund['adjacent_pairs']} adjacent pairs vs {lund['far_pairs']} far pairs")
-        print(f"{'feature':<22} {'matcher':<14} {'ms/img':>7} {'adj med':>8} {'adj mean':>8} {'adj>=30':>8} "
-              f"{'far>0':>6} {'farmax':>6}")
+        print(
+            f"{'feature':<22} {'matcher':<14} {'ms/img':>7} {'adj med':>8} {'adj mean':>8} {'adj>=30':>8} "
+            f"{'far>0':>6} {'farmax':>6}"
+        )
         for method, entry in lund["features"].items():
             for mname, m in entry["matchers"].items():
                 print(
@@ -494,8 +381,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("world", nargs="?", help="a world folder from `geoloc sim world` (omit to skip)")
     parser.add_argument("--json", type=Path, default=Path("bench_features.json"))
-    parser.add_argument("--methods", default=";".join(METHODS), help="feature types, ';'-separated; "
-                        "'aliked-n16@1,0.5' runs ALIKED on a pyramid of those scales")
+    parser.add_argument(
+        "--methods",
+        default=";".join(METHODS),
+        help="feature types, ';'-separated; 'aliked-n16@1,0.5' runs ALIKED on a pyramid of those scales",
+    )
     parser.add_argument("--mask", choices=("network", "gt"), default="network")
     parser.add_argument("--max-features", type=int, default=1500)
     parser.add_argument("--min-covisible", type=float, default=0.02)

@@ -5,7 +5,7 @@
 For each profile (``embedded``: SQLite and the built-in pool; ``distributed``: PostgreSQL and Celery
 workers on Redis) and each worker count, the benchmark starts a fresh deployment with ``geoloc serve
 --workers N`` on loopback (the distributed one on a private PostgreSQL cluster and ``redis-server`` it
-starts itself, as the tests do, with ``tests/servers.py``), uploads the Helsinki map, labels ``N`` warm-up
+starts itself, as the tests do, with ``benchmarks/servers.py``), uploads the Helsinki map, labels ``N`` warm-up
 references (each worker process loads its models and the map once), then uploads ``--references``
 references at once and times them from the first upload to the last reference ``done`` through the API.
 The photos are the references of a simulated world (``--world``, else one generated here from the
@@ -30,9 +30,10 @@ from typing import Any
 import httpx
 import numpy as np
 from local_service import LocalService
+from servers import PostgresServer, RedisServer
 
 from contracts.settings import shared_path
-from tests.servers import PostgresServer, RedisServer
+from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 TARGET_RATIO = 0.8
 """Distributed throughput per worker must be at least this share of the embedded one."""
@@ -103,8 +104,6 @@ def run_one(profile: str, workers: int, photos: list[Path], warmup: int, servers
 
 def world_photos(world: Path | None, count: int, tmp: Path) -> list[Path]:
     """Reference photos of ``world``, or of a world generated now (Helsinki, seed 5)."""
-    from geoloc.sim.world import WorldOptions, generate_world, load_world
-
     if world is None:
         world = tmp / "world"
         options = WorldOptions(n_references=count, n_queries=1, seed=5, radius_m=150.0)

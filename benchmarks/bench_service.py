@@ -51,6 +51,7 @@ import numpy as np
 from local_service import REPO_ROOT, LocalService, cpu_seconds, status_mb
 
 from contracts.settings import shared_path
+from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 TARGET_P50_MS = 400.0
 TARGET_P95_MS = 800.0
@@ -253,8 +254,6 @@ def main() -> None:
     print(f"machine: {figures['machine']}; work folder {workdir}")
     world_dir = args.world
     if world_dir is None:
-        from geoloc.sim.world import WorldOptions, generate_world
-
         world_dir = workdir / "world"
         if not (world_dir / "manifest.json").exists():
             generate_world(
@@ -262,8 +261,6 @@ def main() -> None:
                 world_dir,
                 WorldOptions(n_references=60, n_queries=30, seed=1),
             )
-    from geoloc.sim.world import load_world
-
     world = load_world(world_dir)
     references = [im.path for im in world.references]
     queries = [im.path for im in world.queries]

@@ -37,11 +37,14 @@ from PIL import Image
 from contracts.settings import shared_path
 from geoloc.core.labels import BUILDING
 from geoloc.evaluation.world import shown_by_references
-from geoloc.localize.retrieval import Vocabulary, build_vocabulary, camvid_building_descriptors, default_vocabulary
+from geoloc.export.vocabulary import camvid_building_descriptors
+from geoloc.localize.retrieval import Vocabulary, build_vocabulary, default_vocabulary
 from geoloc.localize.sbow_index import SbowIndex
 from geoloc.photos.photo import load_photo
+from geoloc.sim.world import WorldOptions, generate_world, load_world
 from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.features import extract_features
+from workers.context import method_context
 
 KS = (1, 5, 20, 60)
 BRANCHING = 256
@@ -131,17 +134,14 @@ def main() -> None:
     print(f"machine: {figures['machine']}")
     world_dir = args.world
     if world_dir is None:
-        from geoloc.sim.world import WorldOptions, generate_world
-
         world_dir = Path(tempfile.mkdtemp(prefix="bench-vocabulary-")) / "world"
         options = WorldOptions(n_references=60, n_queries=30, seed=1)
         generate_world(shared_path("data", "osm", "helsinki.osm.pbf"), world_dir, options)
-    from geoloc.sim.world import load_world
-
     world = load_world(world_dir)
     t0 = time.perf_counter()
     images = [*world.references, *world.queries]
-    descriptors = {im.name: analyze_photo(load_photo(im.path)).features.descriptors for im in images}
+    context = method_context()
+    descriptors = {im.name: analyze_photo(load_photo(im.path), context=context).features.descriptors for im in images}
     reference_names = [im.name for im in world.references]
     best = {q.name: shown_by_references(world, q.name, reference_names)["references"] for q in world.queries}
     shown = sum(bool(b) for b in best.values())
@@ -149,8 +149,8 @@ def main() -> None:
           f"{time.perf_counter() - t0:.0f} s; {shown} queries shown by a reference")  # fmt: skip
 
     t0 = time.perf_counter()
-    train = camvid_building_descriptors("train", per_image=1500)
-    flat = default_vocabulary(progress=False)
+    train = camvid_building_descriptors(method_context(), "train", per_image=1500)
+    flat = default_vocabulary(method_context().models_dir)
     tree = TreeVocabulary.build(train)
     build_s = time.perf_counter() - t0
     print(f"vocabularies: flat {len(flat):,} words (the service's); tree {len(tree):,} words built in {build_s:.0f} s "

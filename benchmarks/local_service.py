@@ -24,7 +24,7 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO_ROOT))
 
 from contracts.settings import cache_dir  # noqa: E402
-from geoloc.export.models import model_problems  # noqa: E402
+from workers.context import model_problems  # noqa: E402
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 

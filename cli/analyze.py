@@ -27,7 +27,7 @@ import typer
 if TYPE_CHECKING:
     import numpy as np
 
-    from geoloc.core.camera import Intrinsics
+    from geoloc.photos.photo import Photo
     from geoloc.vision.facades import ImageAnalysis
 
 # RGB colours for horizontal VPs 1, 2, ... (vertical: white; outliers: grey).
@@ -58,31 +58,21 @@ def vp_color(index: int) -> tuple[int, int, int]:
 # Loading
 
 
-def load_photo(path: Path, hfov_deg: float | None = None) -> tuple[np.ndarray, Intrinsics]:
-    """Read a photo (EXIF orientation applied) and its intrinsics.
+def read_photo(path: Path, hfov_deg: float | None = None) -> Photo:
+    """The photo as the service reads it (:func:`geoloc.photos.photo.load_photo`), its field of view overridden.
 
-    Focal length: ``hfov_deg`` if given (explicit override), else EXIF FocalLengthIn35mmFilm
-    (tag 41989), else the default horizontal field of view (:data:`geoloc.core.camera.DEFAULT_HFOV_DEG`).
-    Returns ((H, W, 3) uint8 RGB, Intrinsics).
+    Focal length: ``hfov_deg`` if given (explicit override, ``source="given"``), else EXIF
+    FocalLengthIn35mmFilm, else the default horizontal field of view (:data:`geoloc.core.camera.DEFAULT_HFOV_DEG`).
     """
-    import numpy as np
-    from PIL import Image, ImageOps
+    # The method's modules load numpy: imported when a command reads a photo, for CLI start-up time.
+    from geoloc.core.camera import Intrinsics
+    from geoloc.photos.photo import load_photo  # the same reason
 
-    from geoloc.core.camera import Intrinsics, intrinsics_from_focal
-
-    with Image.open(path) as im:
-        exif = im.getexif()
-        focal_35mm = None
-        try:
-            value = exif.get_ifd(0x8769).get(41989) or exif.get(41989)
-            focal_35mm = float(value) if value else None
-        except (TypeError, ValueError, KeyError):
-            focal_35mm = None
-        rgb = np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
-    h, w = rgb.shape[:2]
+    photo = load_photo(path)
     if hfov_deg is not None:
-        return rgb, Intrinsics.from_hfov(w, h, hfov_deg, source="given")
-    return rgb, intrinsics_from_focal(w, h, focal_35mm=focal_35mm)
+        width, height = photo.intrinsics.width, photo.intrinsics.height
+        photo.intrinsics = Intrinsics.from_hfov(width, height, hfov_deg, source="given")
+    return photo
 
 
 def load_labels(path: Path, shape: tuple[int, int]) -> np.ndarray:
@@ -138,6 +128,7 @@ def draw_segmentation(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
     """Class colours blended over the photo, with a legend."""
     import numpy as np
 
+    # The method's modules load numpy and OpenCV: imported when a command draws, for CLI start-up time.
     from geoloc.core.labels import CLASS_COLORS, CLASS_NAMES, colorize
 
     out = (0.45 * image + 0.55 * colorize(labels)).astype(np.uint8)
@@ -359,28 +350,33 @@ def analyze(
         None, "--labels", exists=True, dir_okay=False, help="Label image (class codes) to use instead of segmentation."
     ),
 ) -> None:
-    """Segmentation, lines, vanishing points and facade orientations of one photo, as overlays + JSON."""
+    """Segmentation, lines, vanishing points and facade orientations of one photo, as overlays + JSON.
+
+    The photo is read as the service reads it (:func:`geoloc.photos.photo.load_photo`: EXIF orientation, at
+    most 1024 pixels on the long side), so the overlays show the pixels the method sees.
+    """
     import time
 
+    # The method's modules load numpy and OpenCV: imported when the command runs, for CLI start-up time.
     from geoloc.vision.facades import analyze_image
 
     try:
-        rgb, intr = load_photo(image, hfov)
-    except OSError as exc:  # PIL's UnidentifiedImageError is an OSError
+        photo = read_photo(image, hfov)
+    except (OSError, ValueError) as exc:  # a missing file, or data Pillow cannot decode
         typer.echo(f"error: cannot read {image} as an image ({exc})", err=True)
         raise typer.Exit(2) from exc
+    rgb, intr = photo.image_rgb, photo.intrinsics
     t0 = time.perf_counter()
     if labels is not None:
         lab = load_labels(labels, rgb.shape[:2])
         seg_source = str(labels)
     else:
+        # Loads onnxruntime's session factory and the workers' settings: for CLI start-up time.
+        from geoloc.vision.segmentation import load_session, segment
+        from workers.context import method_context  # the same reason
+
         try:
-            from geoloc.vision.segmentation import segment
-        except ImportError as exc:  # the module is not there yet
-            typer.echo(f"error: segmentation is not available ({exc}); pass --labels LABELS.png", err=True)
-            raise typer.Exit(2) from exc
-        try:
-            lab = segment(rgb)
+            lab = segment(rgb, session=load_session(method_context()))
         except FileNotFoundError as exc:  # ONNX model not built
             typer.echo(f"error: {exc}\n(or pass --labels LABELS.png)", err=True)
             raise typer.Exit(2) from exc

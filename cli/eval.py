@@ -34,7 +34,7 @@ def scores(conf: Any) -> dict[str, Any]:
     """Per-class pixel accuracy (recall) and IoU plus overall pixel accuracy from a confusion matrix."""
     import numpy as np
 
-    from geoloc.core.labels import CLASS_NAMES
+    from geoloc.core.labels import CLASS_NAMES  # the method loads numpy and OpenCV: for CLI start-up time
 
     tp = np.diag(conf).astype(float)
     truth, pred = conf.sum(axis=1), conf.sum(axis=0)
@@ -56,20 +56,26 @@ def evaluate_camvid(
     split: str, limit: int | None, size: tuple[int, int] | None, stride: int, threads: int | None
 ) -> dict[str, Any]:
     """Segment CamVid ``split`` images and score them against the labels mapped to our classes."""
+    from dataclasses import replace
+
     import cv2
     import numpy as np
 
+    # The method and the settings load numpy, OpenCV and pydantic: imported per command, for CLI start-up time.
     from contracts import settings as config
-    from geoloc.core.labels import CLASS_NAMES
-    from geoloc.export.models import segmentation_files
-    from geoloc.vision.segmentation import load_session, network_size, segment
+    from geoloc.core.labels import CLASS_NAMES  # the same reason
+    from geoloc.vision.model_files import segmentation_files  # the same reason
+    from geoloc.vision.segmentation import load_session, network_size, segment  # the same reason
+    from workers.context import method_context  # the same reason
 
     root = config.shared_path("data", "camvid", split)
     images = sorted((root / "images").glob("*.png")) + sorted((root / "images").glob("*.jpg"))
     images = sorted(images)[::stride][:limit]
     if not images:
         raise FileNotFoundError(f"no images under {root / 'images'}")
-    session = load_session(size, threads)
+    context = method_context()
+    context = replace(context, onnx_threads=threads) if threads else context
+    session = load_session(context, size)
     lut = np.array(CAMVID_TO_OURS, dtype=np.uint8)
     n = len(CLASS_NAMES)
     conf = np.zeros((n, n), dtype=np.int64)
@@ -96,7 +102,7 @@ def evaluate_camvid(
             "limit": limit,
             "label_mapping_camvid_to_ours": list(CAMVID_TO_OURS),
         },
-        "model": {"network_size_wxh": [w, h], "onnx": str(segmentation_files((w, h)).onnx)},
+        "model": {"network_size_wxh": [w, h], "onnx": str(segmentation_files(context.models_dir, (w, h)).onnx)},
         "timing": {
             "total_s": round(total, 2),
             "segment_ms_per_image": round(1000 * seg_seconds / len(images), 1),
@@ -117,8 +123,9 @@ def camvid(
     threads: int | None = typer.Option(None, "--threads", min=1, help="onnxruntime intra-op threads."),
 ) -> None:
     """Score our segmentation on CamVid: per-class accuracy (recall) and IoU, overall pixel accuracy."""
-    from geoloc.export.models import parse_size
-    from geoloc.vision.segmentation import ModelNotBuiltError
+    # The method loads numpy and OpenCV: imported per command, for CLI start-up time.
+    from geoloc.vision.model_files import parse_size
+    from geoloc.vision.segmentation import ModelNotBuiltError  # the same reason
 
     try:
         net_size = parse_size(size) if size else None
@@ -165,8 +172,10 @@ def world(
     the error at N = 1 for all queries, for those whose buildings some reference shows and per query kind,
     the heading error, how often the uncertainty radius holds the truth, and Fig. 7 (best of top N).
     """
+    # The method loads numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.evaluation.world import default_runs, evaluate_world
-    from geoloc.localize.query import QueryConfig
+    from geoloc.localize.query import QueryConfig  # the same reason
+    from workers.context import method_context  # the same reason
 
     config = QueryConfig()
     chosen = default_runs(config)
@@ -183,6 +192,7 @@ def world(
         runs=chosen,
         max_queries=max_queries,
         progress=None if quiet else (lambda msg: typer.echo(msg, err=True)),
+        context=method_context(),
     )
     result["command"] = " ".join(["geoloc", *sys.argv[1:]])
     print_world_summary(result, time.perf_counter() - started)
@@ -249,9 +259,11 @@ def photos(
     For each photo: the estimated compass heading and position, the buildings named, and with --truth the
     heading error against the recorded compass heading.
     """
+    # The method loads numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.evaluation.world import evaluate_photos
+    from workers.context import method_context  # the same reason
 
-    result = evaluate_photos(photos_dir, map_path, truth_csv)
+    result = evaluate_photos(photos_dir, map_path, truth_csv, context=method_context())
     result["command"] = " ".join(["geoloc", *sys.argv[1:]])
     for row in result["photos"]:
         error = "" if row.get("heading_error_deg") is None else f", error {row['heading_error_deg']:.1f} deg"
@@ -278,22 +290,26 @@ def facades(
     """
     import numpy as np
 
+    # The method and the simulator load numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.evaluation.facades import column_orientation_errors
-    from geoloc.photos.photo import load_photo
-    from geoloc.sim.world import load_world
-    from geoloc.vision.facades import analyze_image
+    from geoloc.photos.photo import load_photo  # the same reason
+    from geoloc.sim.world import load_world  # the same reason
+    from geoloc.vision.facades import analyze_image  # the same reason
 
     if segmentation not in ("model", "gt"):
         raise typer.BadParameter("segmentation must be 'model' or 'gt'")
-    from geoloc.vision.segmentation import segment
+    # The segmentation loads onnxruntime's session factory: only for this command, for CLI start-up time.
+    from geoloc.vision.segmentation import load_session, segment
+    from workers.context import method_context  # the same reason
 
     world_data = load_world(world_dir)
+    session = load_session(method_context()) if segmentation == "model" else None
     errors, covered, building_columns = [], 0, 0
     started = time.perf_counter()
     for image in world_data.images:
         gt = world_data.gt(image.name)
         photo = load_photo(image.path)
-        labels = gt["labels"] if segmentation == "gt" else segment(photo.image_rgb)
+        labels = gt["labels"] if session is None else segment(photo.image_rgb, session=session)
         model = analyze_image(photo.image_rgb, labels, photo.intrinsics).image_model
         err, n_building, n_covered = column_orientation_errors(
             model, gt["column_theta_deg"], gt["column_building_id"] >= 0, photo.intrinsics

@@ -6,6 +6,12 @@ import time
 
 import typer
 
+from contracts.settings import models_dir
+from geoloc.export.models import build_aliked_model, build_segmentation_model
+from geoloc.vision.feature_types import canonical_method
+from geoloc.vision.model_files import ALIKED_CONFIG_NAMES, parse_size, read_meta, segmentation_files, vocabulary_path
+from workers.context import method_context
+
 app = typer.Typer(
     no_args_is_help=True, help="Build the exported models (ONNX networks, SBoW vocabularies) in the cache."
 )
@@ -29,16 +35,6 @@ def build(
     The segmentation network always, ALIKED when its features are asked for: everything the service
     needs at run time, so that nothing is built on a first request.
     """
-    from geoloc.export.models import (
-        ALIKED_CONFIG_NAMES,
-        build_aliked_model,
-        build_segmentation_model,
-        parse_size,
-        read_meta,
-        segmentation_files,
-    )
-    from geoloc.vision.features import canonical_method
-
     try:
         net_size = parse_size(size) if size else None
     except ValueError as exc:
@@ -54,7 +50,7 @@ def build(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
     seconds = time.perf_counter() - t0
-    meta = read_meta(segmentation_files(net_size)) or {}
+    meta = read_meta(segmentation_files(models_dir(), net_size)) or {}
     shape = meta.get("input", {}).get("shape")
     typer.echo(f"segmentation model  {path}")
     typer.echo(f"input shape         {shape}  (weights sha256 {str(meta.get('weights_sha256', '?'))[:12]}...)")
@@ -70,14 +66,17 @@ def build(
             raise typer.Exit(2) from exc
         typer.echo(f"{config_name + ' model':<20}{files.onnx}  ({time.perf_counter() - t0:.1f} s)")
 
-    from geoloc.localize.retrieval import default_vocabulary, vocabulary_path
+    # The vocabulary build loads the feature extraction (OpenCV): only here, for CLI start-up time.
+    from geoloc.export.vocabulary import build_default_vocabulary
 
+    context = method_context()
     for method in methods:
         t0 = time.perf_counter()
         try:
-            vocabulary = default_vocabulary(progress=True, method=method)
+            vocabulary = build_default_vocabulary(context, progress=True, method=method)
         except FileNotFoundError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(2) from exc
-        typer.echo(f"sbow vocabulary     {vocabulary_path(len(vocabulary), method)}  ({len(vocabulary)} words)")
+        path = vocabulary_path(context.models_dir, len(vocabulary), method)
+        typer.echo(f"sbow vocabulary     {path}  ({len(vocabulary)} words)")
         typer.echo(f"took                {time.perf_counter() - t0:.1f} s")

@@ -104,7 +104,8 @@ def _require_models() -> None:
     Only where workers run: the API alone (``serve --workers 0``) never loads the models, so it starts
     without them and its ``/readyz`` says what is missing.
     """
-    from geoloc.export.models import model_problems  # lazy: keeps `geoloc --help` fast (the method's packages)
+    # Loads the method (numpy, OpenCV) only when workers start: CLI start-up time.
+    from workers.context import model_problems
 
     problems = model_problems()
     if problems:

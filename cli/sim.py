@@ -48,23 +48,17 @@ def world(
 
     Writes the photos, their ground truth, manifest.json and contact_sheet.jpg.
     """
+    # lazy (CLI start-up time): the map reader and the simulator (pyproj, shapely, OpenCV, the compiled ray
+    # caster) load only for this command, so that `geoloc --help` and the other commands start without them.
     from geoloc.maps import MapLoadError
-    from geoloc.sim.world import WorldOptions, generate_world
+    from geoloc.sim.world import WorldOptions, generate_world  # lazy: as the line above
 
     width, height = _parse_size(size)
     opts = WorldOptions(
-        n_references=references,
-        n_queries=queries,
-        seed=seed,
-        gps_noise_m=gps_noise_m,
-        query_gps_noise_m=query_gps_noise_m,
-        width=width,
-        height=height,
-        hfov_deg=hfov,
-        radius_m=radius_m,
-        pitch_std_deg=pitch_std_deg,
-        roll_std_deg=roll_std_deg,
-    )
+        n_references=references, n_queries=queries, seed=seed, radius_m=radius_m,  # what, and where
+        gps_noise_m=gps_noise_m, query_gps_noise_m=query_gps_noise_m,  # the GPS the photos carry
+        width=width, height=height, hfov_deg=hfov, pitch_std_deg=pitch_std_deg, roll_std_deg=roll_std_deg,  # camera
+    )  # fmt: skip
     try:
         manifest = generate_world(map_path, out, opts, progress=lambda msg: typer.echo(msg, err=True))
     except MapLoadError as exc:

@@ -363,6 +363,11 @@ def cache_dir() -> Path:
     return path
 
 
+def models_dir() -> Path:
+    """Folder of the built models (ONNX networks, their metadata, SBoW vocabularies): ``DATA_DIR/cache/models``."""
+    return cache_dir() / "models"
+
+
 def shared_path(*parts: str) -> Path:
     """A path inside the shared folder.
 

@@ -19,6 +19,7 @@ from service.deps import app_settings, get_db
 from service.errors import ApiError, error_body
 from service.models import ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
 from workers.broker import broker_problem
+from workers.context import model_problems
 
 router = APIRouter()
 MODEL_CHECK_TTL_S = 10.0
@@ -28,9 +29,7 @@ _model_check_lock = threading.Lock()
 
 
 def model_problems_cached(settings: Settings) -> list[str]:
-    """:func:`geoloc.export.models.model_problems` for the app's data folder, cached for :data:`MODEL_CHECK_TTL_S`."""
-    from geoloc.export.models import model_problems
-
+    """:func:`workers.context.model_problems` for the app's data folder, cached for :data:`MODEL_CHECK_TTL_S`."""
     key = str(settings.data_dir)
     with _model_check_lock:
         checked_at, problems = _model_check.get(key, (-MODEL_CHECK_TTL_S, []))

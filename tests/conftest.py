@@ -6,7 +6,7 @@
   reused while current (service data folders link to it with :func:`tests.model_fixtures.link_models`);
 - ``profile``: the two deployment profiles, ``embedded`` (SQLite, built-in workers) and ``distributed``
   (PostgreSQL and Celery on Redis, real servers started once per session on loopback, see
-  :mod:`tests.servers`). A test or module fixture that takes it runs once per profile; each deployment it
+  :mod:`benchmarks.servers`). A test or module fixture that takes it runs once per profile; each deployment it
   starts gets its own database from :meth:`Profile.new_env`.
 """
 
@@ -18,10 +18,10 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.servers import PostgresServer, RedisServer
 from contracts.settings import reset_settings
 
 from .model_fixtures import data_dir_environment
-from .servers import PostgresServer, RedisServer
 
 PROFILES = ("embedded", "distributed")
 
@@ -107,15 +107,16 @@ def built_models(request: pytest.FixtureRequest) -> Path:
     """``DATA_DIR/cache/models`` with everything `geoloc models build` makes.
 
     Built into pytest's cache folder (``.pytest_cache/d/geoloc-models``, minutes on 2 cores) and reused by
-    later sessions while :func:`geoloc.export.models.model_problems` finds it complete and current.
+    later sessions while :func:`workers.context.model_problems` finds it complete and current.
     """
     with data_dir_environment(Path(request.config.cache.mkdir("geoloc-models"))) as data_dir:
-        from geoloc.export.models import build_segmentation_model, model_problems
+        from geoloc.export.models import build_segmentation_model
+        from geoloc.export.vocabulary import build_default_vocabulary
         from geoloc.localize.retrieval import default_vocabulary
+        from workers.context import method_context, model_problems
 
         if model_problems():
             build_segmentation_model()
             default_vocabulary.cache_clear()
-            default_vocabulary(progress=False)
-            default_vocabulary.cache_clear()
+            build_default_vocabulary(method_context(), progress=False)
     return data_dir / "cache" / "models"

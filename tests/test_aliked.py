@@ -17,10 +17,12 @@ import pytest
 
 from contracts import settings as config
 from geoloc.export import models
-from geoloc.localize.retrieval import vocabulary_path
 from geoloc.localize.transfer import match_and_verify
-from geoloc.vision import aliked
-from geoloc.vision.features import Features, canonical_method, extract_features
+from geoloc.vision import aliked, model_files
+from geoloc.vision.feature_types import canonical_method
+from geoloc.vision.features import Features, extract_features
+from geoloc.vision.model_files import vocabulary_path
+from workers.context import method_context
 
 from .model_fixtures import data_dir_environment
 
@@ -131,7 +133,7 @@ def test_onnx_runtime_matches_pytorch_on_a_real_photo(exported: Path, name: str)
     from geoloc.export.nets.aliked import load_aliked
 
     net = load_aliked(models.aliked_weights_path(name), name)
-    runtime = aliked.load_runtime(name)
+    runtime = aliked.load_runtime(method_context(), name)
     image = _lund("05", (500, 370))  # not a multiple of 32: exercises the padding
     found = aliked.aliked_keypoints(image, 1000, runtime=runtime)
     xy, scores, desc = found.xy, found.scores, found.descriptors
@@ -173,18 +175,22 @@ def test_detect_keypoints_local_maxima_mask_and_subpixel() -> None:
 
 def test_missing_export_says_how_to_build_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("GEOLOC_DATA_DIR", str(tmp_path))
+    config.reset_settings()
     with pytest.raises(aliked.AlikedNotBuiltError, match="geoloc models build"):
-        aliked.load_runtime("aliked-n16")
+        aliked.load_runtime(method_context(), "aliked-n16")
+    with pytest.raises(ValueError, match="MethodContext"):
+        extract_features(_lund("05", (320, 240)), None, 10, method="aliked")
 
 
 def test_export_is_cached_and_tracks_weights(exported: Path) -> None:
-    files = models.aliked_files("aliked-n16")
+    files = model_files.aliked_files(config.models_dir(), "aliked-n16")
     mtime = files.onnx.stat().st_mtime_ns
     assert models.build_aliked_model("aliked-n16") == files
     assert files.onnx.stat().st_mtime_ns == mtime  # not re-exported
-    sha = models.sha256_file(models.aliked_weights_path("aliked-n16"))
-    assert models.aliked_is_current(files, sha) and not models.aliked_is_current(files, "0" * 64)
-    assert aliked.export_metadata("aliked-n16")["descriptor_dim"] == 128
+    sha = model_files.sha256_file(models.aliked_weights_path("aliked-n16"))
+    assert model_files.aliked_is_current(files, sha) and not model_files.aliked_is_current(files, "0" * 64)
+    meta = model_files.read_meta(files)
+    assert meta is not None and meta["descriptor_dim"] == 128
 
 
 # ----------------------------------------------------------------------------------------------
@@ -195,7 +201,7 @@ def test_aliked_features_contract(exported: Path, tmp_path: Path) -> None:
     image = _lund("05")  # 1024 x 768
     mask = np.zeros(image.shape[:2], bool)
     mask[100:500, :600] = True
-    f = extract_features(image, mask, 800, method="aliked", max_side=640)
+    f = extract_features(image, mask, 800, method="aliked", context=method_context(), max_side=640)
     assert f.method == "aliked-n16" and len(f) == 800
     assert f.image_shape == (768, 1024) and f.scale == pytest.approx(0.625)
     assert f.descriptors.shape == (800, 128) and f.descriptors.dtype == np.float32
@@ -207,10 +213,10 @@ def test_aliked_features_contract(exported: Path, tmp_path: Path) -> None:
     # The same content at the working size gives the same keypoints, scaled.
     work = cv2.resize(image, (640, 480), interpolation=cv2.INTER_AREA)
     g = extract_features(work, cv2.resize(mask.astype(np.uint8), (640, 480), interpolation=cv2.INTER_NEAREST), 800,
-                         method="aliked")
+                         method="aliked", context=method_context())
     d = np.linalg.norm(((f.xy + 0.5) * f.scale - 0.5)[:, None, :] - g.xy[None, :, :], axis=2).min(axis=1)
     assert np.median(d) < 1e-3
-    again = extract_features(image, mask, 800, method="aliked", max_side=640)
+    again = extract_features(image, mask, 800, method="aliked", context=method_context(), max_side=640)
     np.testing.assert_array_equal(again.xy, f.xy)
     np.testing.assert_array_equal(again.descriptors, f.descriptors)
     # Storage keeps the type; other types and sizes.
@@ -218,11 +224,12 @@ def test_aliked_features_contract(exported: Path, tmp_path: Path) -> None:
     h = Features.load(tmp_path / "f.npz")
     assert h.method == "aliked-n16" and h.descriptor_dim == 128
     np.testing.assert_allclose(h.descriptors, f.descriptors, atol=1e-3)
-    t = extract_features(image, mask, 300, method="aliked-t16", max_side=640)
+    t = extract_features(image, mask, 300, method="aliked-t16", context=method_context(), max_side=640)
     assert t.descriptors.shape == (300, 64) and t.method == "aliked-t16"
-    empty = extract_features(image, np.zeros_like(mask), method="aliked-t16")
+    empty = extract_features(image, np.zeros_like(mask), method="aliked-t16", context=method_context())
     assert len(empty) == 0 and empty.descriptors.shape == (0, 64) and empty.method == "aliked-t16"
-    gray = extract_features(cv2.cvtColor(work, cv2.COLOR_RGB2GRAY), None, 100, method="aliked")
+    gray_image = cv2.cvtColor(work, cv2.COLOR_RGB2GRAY)
+    gray = extract_features(gray_image, None, 100, method="aliked", context=method_context())
     assert len(gray) == 100
 
 
@@ -232,7 +239,8 @@ def test_aliked_matches_overlapping_real_photos_and_rejects_distant_ones(exporte
 
     Photos 16 apart verify with a few (whole images: road, cars and trees match too).
     """
-    feats = {n: extract_features(_lund(n), None, 1500, method="aliked") for n in ("04", "05", "20")}
+    context = method_context()
+    feats = {n: extract_features(_lund(n), None, 1500, method="aliked", context=context) for n in ("04", "05", "20")}
     _, adjacent, _ = match_and_verify(feats["04"], feats["05"])
     _, far, _ = match_and_verify(feats["04"], feats["20"])
     assert adjacent.sum() >= 150
@@ -243,9 +251,9 @@ def test_feature_types_are_named_and_have_their_own_vocabulary_file() -> None:
     assert canonical_method(None) == "rootsift" and canonical_method("aliked") == "aliked-n16"
     with pytest.raises(ValueError, match="unknown feature method"):
         canonical_method("orb")
-    paths = {vocabulary_path(4096, m) for m in ("rootsift", "aliked", "aliked-t16")}
+    paths = {vocabulary_path(Path("models"), 4096, m) for m in ("rootsift", "aliked", "aliked-t16")}
     assert len(paths) == 3
-    assert vocabulary_path(4096, "aliked").name == "sbow_vocabulary_aliked-n16_4096.npz"
+    assert vocabulary_path(Path("models"), 4096, "aliked").name == "sbow_vocabulary_aliked-n16_4096.npz"
     stored = Features.empty((10, 10)).to_arrays()
     stored.pop("method")  # stored before feature types existed: RootSIFT
     assert Features.from_arrays(stored).method == "rootsift"
@@ -254,7 +262,7 @@ def test_feature_types_are_named_and_have_their_own_vocabulary_file() -> None:
 def test_pyramid_levels_are_the_image_at_that_size(exported: Path) -> None:
     """Keypoints found at pyramid scale 0.5 are those of the half-size image, positions in full-size pixels."""
     image = _lund("05", (640, 480))
-    runtime = aliked.load_runtime("aliked-n16")
+    runtime = aliked.load_runtime(method_context(), "aliked-n16")
     both = aliked.aliked_keypoints(image, 1200, runtime=runtime, scales=(1.0, 0.5))
     assert set(np.unique(both.scales).tolist()) == {0.5, 1.0}
     assert np.all(np.diff(both.scores) <= 0)
@@ -265,7 +273,7 @@ def test_pyramid_levels_are_the_image_at_that_size(exported: Path) -> None:
     nearest = dist.argmin(axis=1)
     np.testing.assert_allclose(dist[np.arange(len(in_half)), nearest], 0.0, atol=1e-4)
     np.testing.assert_allclose(both.descriptors[small], half.descriptors[nearest], atol=1e-5)
-    f = extract_features(image, None, 500, method="aliked", aliked_scales=(1.0, 0.5))
+    f = extract_features(image, None, 500, method="aliked", context=method_context(), aliked_scales=(1.0, 0.5))
     assert len(f) == 500 and f.sizes.max() == pytest.approx(2 * f.sizes.min())  # 5 px windows at both scales
 
 

@@ -7,7 +7,7 @@ from geoloc.core.camera import Intrinsics
 from geoloc.localize.absolute_pose import estimate_pose, estimate_pose_from_groups, project
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.maps import city_map_from_footprints
-from geoloc.vision.vanishing import rotation_upright_from_pitch_roll
+from geoloc.vision.vp_geometry import rotation_upright_from_pitch_roll
 
 from .scenes import box, square_building
 

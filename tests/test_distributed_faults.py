@@ -22,7 +22,8 @@ from typing import Any
 import httpx
 import pytest
 
-from .servers import PostgresServer, RedisServer
+from benchmarks.servers import PostgresServer, RedisServer
+
 from .service_fixtures import (
     INSIDE_ONE_BUILDING,
     ONE_BUILDING,

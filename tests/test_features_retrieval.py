@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from contracts.settings import shared_dir
+from contracts.settings import models_dir, shared_dir
 from geoloc.localize.retrieval import (
     InvertedIndex,
     Vocabulary,
@@ -19,9 +19,9 @@ from geoloc.localize.retrieval import (
     default_vocabulary,
     idf,
     tfidf_scores,
-    vocabulary_path,
 )
 from geoloc.vision.features import Features, extract_features, root_sift
+from geoloc.vision.model_files import vocabulary_path
 
 LUND = shared_dir() / "data" / "lund" / "images"
 CAMVID_TRAIN = shared_dir() / "data" / "camvid" / "train"
@@ -233,7 +233,7 @@ def small_camvid_vocabulary() -> Vocabulary:
 def test_lund_sequence_neighbours_rank_in_top4():
     """Consecutive Lund photos overlap: querying photo i (left out), photos i-1 and i+1 come in the top 4."""
     paths = sorted(LUND.glob("*.jpg"))[:14]
-    voc = default_vocabulary() if vocabulary_path().exists() else small_camvid_vocabulary()
+    voc = default_vocabulary(models_dir()) if vocabulary_path(models_dir()).exists() else small_camvid_vocabulary()
     words = []
     for p in paths:
         rgb = load_rgb(p)

@@ -9,7 +9,8 @@ import pytest
 
 from geoloc.core.camera import Intrinsics, vanishing_column_of_orientation, wrap_orientation_deg
 from geoloc.vision.lines import detect_line_segments
-from geoloc.vision.vanishing import estimate_vanishing_points, pitch_roll_deg, rotation_upright_from_pitch_roll
+from geoloc.vision.vanishing import estimate_vanishing_points
+from geoloc.vision.vp_geometry import pitch_roll_deg, rotation_upright_from_pitch_roll
 
 INTR = Intrinsics.from_hfov(1024, 768, 62.0)
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contracts.settings import shared_path
+from contracts.settings import models_dir, shared_path
 from geoloc.evaluation.world import KS, EvalRun, default_runs, evaluate_world
 from geoloc.localize.query import QueryConfig
 from geoloc.localize.reference import label_reference_photo
@@ -17,6 +17,7 @@ from geoloc.localize.transfer import rerank_by_inliers
 from geoloc.photos.photo import load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from geoloc.vision.evidence import analyze_photo
+from workers.context import method_context
 
 pytestmark = pytest.mark.slow  # the real method end to end: minutes
 
@@ -36,9 +37,9 @@ def labelled(world_dir: Path) -> dict:
     out = {}
     for image in world.references:
         photo = load_photo(image.path)
-        evidence = analyze_photo(photo, world.gt(image.name)["labels"])
+        evidence = analyze_photo(photo, world.gt(image.name)["labels"], context=method_context())
         gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
-        out[image.name] = label_reference_photo(city, photo, gps_xy, evidence=evidence)
+        out[image.name] = label_reference_photo(city, photo, gps_xy, evidence=evidence, context=method_context())
     return out
 
 
@@ -62,7 +63,7 @@ def test_reference_labelling_recovers_headings(world_dir: Path, labelled: dict) 
 
 def test_retrieval_finds_the_reference_sharing_most_building_area(world_dir: Path, labelled: dict) -> None:
     world = load_world(world_dir)
-    vocabulary = default_vocabulary(progress=False)
+    vocabulary = default_vocabulary(models_dir())
     index = InvertedIndex()
     for name, ref in labelled.items():
         index.add(name, vocabulary.words(ref.evidence.features.descriptors))
@@ -79,7 +80,7 @@ def test_retrieval_finds_the_reference_sharing_most_building_area(world_dir: Pat
             continue
         best = {name for name, value in overlap.items() if value >= top - 0.02}  # ties share the top
         photo = load_photo(image.path)
-        evidence = analyze_photo(photo, world.gt(image.name)["labels"])
+        evidence = analyze_photo(photo, world.gt(image.name)["labels"], context=method_context())
         shortlist = index.query(vocabulary.words(evidence.features.descriptors), 20)
         candidates = [(name, score, labelled[name].evidence.features) for name, score in shortlist]
         top4 = [m.reference_id for m in rerank_by_inliers(evidence.features, candidates, 4)]
@@ -95,7 +96,7 @@ def test_evaluation_writes_every_key(world_dir: Path) -> None:
             "paper_geometry/gps", "gps", "gt", "transferred", replace(config, use_anchors=False, use_identity=False)
         )
     )
-    result = evaluate_world(world_dir, config=config, runs=runs, max_queries=3)
+    result = evaluate_world(world_dir, config=config, runs=runs, max_queries=3, context=method_context())
     assert result["tables_segmentation"] == "gt" and result["config"] == config.as_dict()
     labelling = result["reference_labelling"]["gt"]
     assert set(labelling["identity_accuracy"]) == {"greedy", "marginalized"}

@@ -11,18 +11,26 @@ import pytest
 
 from contracts.settings import reset_settings
 from geoloc.core.camera import intrinsics_from_focal
-from geoloc.core.parallel import run_beside, thread_map
+from geoloc.core.parallel import JobThreads
 from geoloc.localize.absolute_pose import group_proposal
+from workers.context import method_context
 
 
 @pytest.fixture(params=[1, 2, 4])
-def threads(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> int:
-    monkeypatch.setenv("GEOLOC_JOB_THREADS", str(request.param))
+def threads(request: pytest.FixtureRequest) -> JobThreads:
+    return JobThreads(int(request.param))
+
+
+def test_the_workers_take_the_job_threads_from_the_settings(monkeypatch: pytest.MonkeyPatch) -> None:
+    for count in (1, 3):
+        monkeypatch.setenv("GEOLOC_JOB_THREADS", str(count))
+        reset_settings()
+        assert method_context().threads == JobThreads(count)
+        assert method_context() is method_context()  # once per process: one pool
     reset_settings()
-    return int(request.param)
 
 
-def test_thread_map_is_an_ordered_map(threads: int) -> None:
+def test_thread_map_is_an_ordered_map(threads: JobThreads) -> None:
     used: set[str] = set()
 
     def square(x: int) -> int:
@@ -30,33 +38,33 @@ def test_thread_map_is_an_ordered_map(threads: int) -> None:
         time.sleep(0.002)  # long enough for the helpers to take items
         return x * x
 
-    assert thread_map(square, range(40)) == [x * x for x in range(40)]
-    assert thread_map(square, []) == []
-    assert len(used) <= threads
-    if threads > 1:
+    assert threads.map(square, range(40)) == [x * x for x in range(40)]
+    assert threads.map(square, []) == []
+    assert len(used) <= threads.count
+    if threads.count > 1:
         assert any(name.startswith("geoloc-job") for name in used)
 
 
-def test_an_error_reaches_the_caller(threads: int) -> None:
+def test_an_error_reaches_the_caller(threads: JobThreads) -> None:
     def fail_on_7(x: int) -> int:
         if x == 7:
             raise ValueError("item 7")
         return x
 
     with pytest.raises(ValueError, match="item 7"):
-        thread_map(fail_on_7, range(20))
-    assert thread_map(fail_on_7, range(7)) == list(range(7))  # the pool still works afterwards
+        threads.map(fail_on_7, range(20))
+    assert threads.map(fail_on_7, range(7)) == list(range(7))  # the pool still works afterwards
 
 
-def test_nested_calls_finish(threads: int) -> None:
+def test_nested_calls_finish(threads: JobThreads) -> None:
     # An item that maps again on the (busy) pool: the caller drains its own items, nothing waits forever.
-    rows = thread_map(lambda row: thread_map(lambda col: row * 10 + col, range(5)), range(6))
+    rows = threads.map(lambda row: threads.map(lambda col: row * 10 + col, range(5)), range(6))
     assert rows == [[row * 10 + col for col in range(5)] for row in range(6)]
-    inner = run_beside(lambda: thread_map(lambda x: -x, range(9)))
+    inner = threads.beside(lambda: threads.map(lambda x: -x, range(9)))
     assert inner() == [-x for x in range(9)]
 
 
-def test_pnp_proposals_on_threads_equal_the_loop(threads: int) -> None:
+def test_pnp_proposals_on_threads_equal_the_loop(threads: JobThreads) -> None:
     # OpenCV's RANSAC per group, the query stage's use: the same poses on threads as one after another.
     rng = np.random.default_rng(3)
     intrinsics = intrinsics_from_focal(640, 480)
@@ -69,21 +77,21 @@ def test_pnp_proposals_on_threads_equal_the_loop(threads: int) -> None:
         px[:20] = rng.uniform(0, 480, (20, 2))  # outliers
         groups.append((xyz, px))
     sequential = [group_proposal(*group, intrinsics) for group in groups]
-    parallel = thread_map(lambda group: group_proposal(*group, intrinsics), groups)
+    parallel = threads.map(lambda group: group_proposal(*group, intrinsics), groups)
     for one, other in zip(sequential, parallel, strict=True):
         assert one is not None and other is not None
         assert np.array_equal(one[0], other[0]) and np.array_equal(one[1], other[1])
 
 
-def _map_in_child(queue: multiprocessing.Queue[list[int]]) -> None:
-    queue.put(thread_map(lambda x: x + 1, range(10)))
+def _map_in_child(threads: JobThreads, queue: multiprocessing.Queue[list[int]]) -> None:
+    queue.put(threads.map(lambda x: x + 1, range(10)))
 
 
-def test_a_forked_child_makes_its_own_threads(threads: int) -> None:
-    thread_map(lambda x: x, range(4))  # the parent's executor exists (and its threads do not survive a fork)
+def test_a_forked_child_makes_its_own_threads(threads: JobThreads) -> None:
+    threads.map(lambda x: x, range(4))  # the parent's executor exists (and its threads do not survive a fork)
     context = multiprocessing.get_context("fork")
     queue: multiprocessing.Queue[list[int]] = context.Queue()
-    child = context.Process(target=_map_in_child, args=(queue,))
+    child = context.Process(target=_map_in_child, args=(threads, queue))
     child.start()
     assert queue.get(timeout=30) == list(range(1, 11))
     child.join(30)

@@ -8,6 +8,7 @@ import pytest
 
 from contracts.settings import shared_path
 from geoloc.evaluation.world import evaluate_photos
+from workers.context import method_context
 
 from .model_fixtures import data_dir_environment
 
@@ -17,7 +18,8 @@ pytestmark = pytest.mark.slow  # the segmentation network on three 8 MP photos
 def test_berlin_photos_get_their_compass_heading_and_the_building(built_models: Path) -> None:
     berlin = shared_path("data", "berlin")
     with data_dir_environment(built_models.parent.parent):
-        result = evaluate_photos(berlin / "images", berlin / "berlin_mitte.osm.gz", berlin / "exif_gps_heading.csv")
+        osm, truth = berlin / "berlin_mitte.osm.gz", berlin / "exif_gps_heading.csv"
+        result = evaluate_photos(berlin / "images", osm, truth, context=method_context())
     rows = {row["name"]: row for row in result["photos"]}
     assert sorted(rows) == ["01.jpg", "02.jpg", "03.jpg"]
     for row in rows.values():

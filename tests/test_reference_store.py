@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.servers import PostgresServer
 from contracts.references import UNKNOWN_POSITION_SIGMA_M, ReferenceKeypoints
 from db import Database, connect, migrate, sbow, transaction
 from db import references as reference_store
@@ -23,7 +24,6 @@ from geoloc.vision.features import Features
 from workers.reference_store import DatabaseReferenceStore
 
 from .conftest import Profile
-from .servers import PostgresServer
 from .test_db import add_map, add_reference
 
 

@@ -17,7 +17,8 @@ import pytest
 from contracts import settings as config
 from geoloc.core import labels
 from geoloc.export import models
-from geoloc.vision import segmentation
+from geoloc.vision import model_files, segmentation
+from workers.context import method_context
 
 from .model_fixtures import data_dir_environment
 
@@ -38,7 +39,7 @@ def _rgb(path: Path) -> np.ndarray:
 @pytest.fixture(scope="session")
 def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """A temporary GEOLOC_DATA_DIR holding the ONNX export for the whole session."""
-    _shared_or_skip("models", models.SEG_WEIGHTS)
+    _shared_or_skip("models", model_files.SEG_WEIGHTS)
     with data_dir_environment(tmp_path_factory.mktemp("geoloc_data")) as folder:
         yield folder
 
@@ -78,10 +79,10 @@ def test_onnx_matches_torch(onnx_path: Path, camvid_pair: tuple[np.ndarray, np.n
     torch = pytest.importorskip("torch")
     from geoloc.export.nets.espnetv2 import NormalizedSegmenter, load_espnetv2
 
-    session = segmentation.load_session()
+    session = segmentation.load_session(method_context())
     x = segmentation._prepare(camvid_pair[0], segmentation.network_size(session))
     onnx_logits = session.run(None, {"image": x})[0]
-    net = load_espnetv2(models.weights_path(), s=models.SEG_SCALE)  # reference ops, not the export's
+    net = load_espnetv2(models.weights_path(), s=model_files.SEG_SCALE)  # reference ops, not the export's
     net.full_resolution = False
     with torch.no_grad():
         torch_logits = NormalizedSegmenter(net)(torch.from_numpy(x)).numpy()
@@ -93,24 +94,25 @@ def test_onnx_matches_torch(onnx_path: Path, camvid_pair: tuple[np.ndarray, np.n
 
 @pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_build_is_cached_and_tracks_weights(onnx_path: Path) -> None:
-    files = models.segmentation_files()
+    files = model_files.segmentation_files(config.models_dir())
     meta = json.loads(files.meta.read_text())
-    assert meta["weights_sha256"] == models.sha256_file(models.weights_path())
+    assert meta["weights_sha256"] == model_files.sha256_file(models.weights_path())
     mtime = onnx_path.stat().st_mtime_ns
     assert models.build_segmentation_model() == onnx_path
     assert onnx_path.stat().st_mtime_ns == mtime  # not re-exported
-    assert not models.is_current(files, "0" * 64)  # other weights -> stale -> rebuilt
+    assert not model_files.is_current(files, "0" * 64)  # other weights -> stale -> rebuilt
 
 
 @pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds
 def test_segment_shape_dtype_on_phone_photo(onnx_path: Path) -> None:
     image = _rgb(_shared_or_skip("data", "lund", "images", "05.jpg"))
-    out = segmentation.segment(image)
+    session = segmentation.load_session(method_context())
+    out = segmentation.segment(image, session=session)
     assert out.shape == image.shape[:2] and out.dtype == np.uint8
     assert out.max() < len(labels.CLASS_NAMES)
-    odd = segmentation.segment(image[:301, :457])
+    odd = segmentation.segment(image[:301, :457], session=session)
     assert odd.shape == (301, 457)
-    probs = segmentation.class_probabilities(image[:301, :457])
+    probs = segmentation.class_probabilities(image[:301, :457], session=session)
     assert probs.shape == (301, 457, len(labels.CLASS_NAMES))
     np.testing.assert_allclose(probs.sum(axis=2), 1.0, atol=1e-4)
 
@@ -121,7 +123,7 @@ def test_segment_camvid_building_pixels(onnx_path: Path, camvid_pair: tuple[np.n
 
     image, label = camvid_pair
     truth = np.array(CAMVID_TO_OURS, dtype=np.uint8)[label]
-    pred = segmentation.segment(image)
+    pred = segmentation.segment(image, session=segmentation.load_session(method_context()))
     building_truth, building_pred = truth == labels.BUILDING, pred == labels.BUILDING
     recall = (building_pred & building_truth).sum() / building_truth.sum()
     iou = (building_pred & building_truth).sum() / (building_pred | building_truth).sum()
@@ -134,7 +136,7 @@ def test_missing_model_error_is_clear(tmp_path: Path, monkeypatch: pytest.Monkey
     monkeypatch.setenv("GEOLOC_DATA_DIR", str(tmp_path))
     config.reset_settings()
     with pytest.raises(segmentation.ModelNotBuiltError, match="geoloc models build"):
-        segmentation.segment(np.zeros((60, 80, 3), dtype=np.uint8))
+        segmentation.load_session(method_context())
 
 
 @pytest.mark.slow  # loads the PyTorch weights (directly or to export ONNX): tens of seconds

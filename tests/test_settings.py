@@ -1,4 +1,4 @@
-"""The one settings object: defaults, parsing, clear errors, the README table, and the entry points."""
+"""The one settings object: defaults, parsing, clear errors, the docs' table, and the entry points."""
 
 from __future__ import annotations
 
@@ -14,16 +14,17 @@ from contracts import settings as config
 from contracts.settings import REPO_ROOT, Settings, SettingsError, get_settings, reset_settings, settings_table
 
 
-def test_readme_settings_table_is_generated_from_the_settings_class() -> None:
-    readme = (REPO_ROOT / "README.md").read_text()
-    match = re.search(r"<!-- settings table: [^\n]*-->\n(.*?)\n<!-- end of settings table -->", readme, re.S)
-    assert match, "README.md has no generated settings table"
-    assert match.group(1) == settings_table(), "README settings table is stale: paste `python -m contracts.settings`"
+def test_docs_settings_table_is_generated_from_the_settings_class() -> None:
+    operations = (REPO_ROOT / "docs" / "operations.md").read_text()
+    match = re.search(r"<!-- settings table: [^\n]*-->\n(.*?)\n<!-- end of settings table -->", operations, re.S)
+    assert match, "docs/operations.md has no generated settings table"
+    stale = "docs/operations.md's settings table is stale: paste `python -m contracts.settings`"
+    assert match.group(1) == settings_table(), stale
 
 
 def test_every_field_is_documented_with_a_description() -> None:
     for name, info in Settings.model_fields.items():
-        assert info.description, f"Settings.{name} has no description (it becomes the README row)"
+        assert info.description, f"Settings.{name} has no description (it becomes the row in docs/operations.md)"
 
 
 def test_defaults_ignore_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:

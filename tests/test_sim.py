@@ -170,7 +170,7 @@ def test_pitch_and_roll_are_a_rotation_homography(tmp_path: Path) -> None:
     upright = _clean(scene, Pose(o[0], o[1], 10.0))
     tilted = _clean(scene, Pose(o[0], o[1], 10.0, pitch_deg=3.0, roll_deg=2.0))
     # Pitch up moves the horizon down; the building is still where the rotation puts it.
-    from geoloc.sim.render import rotation_matrix
+    from geoloc.sim.pose import rotation_matrix
 
     k = INTR.matrix
     hmat = k @ rotation_matrix(3.0, 2.0) @ np.linalg.inv(k)

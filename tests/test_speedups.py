@@ -28,6 +28,7 @@ from geoloc.maps import CityMap, raycast
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from geoloc.vision.evidence import PhotoEvidence, analyze_photo
+from workers.context import method_context
 
 pytestmark = pytest.mark.slow  # a rendered world and the numpy formulations: about a minute
 
@@ -51,7 +52,7 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Scene:
     photos: list[tuple[np.ndarray, PhotoEvidence, Photo]] = []
     for image in [*world.references, *world.queries]:
         photo = load_photo(image.path)
-        evidence = analyze_photo(photo, world.gt(image.name)["labels"])
+        evidence = analyze_photo(photo, world.gt(image.name)["labels"], context=method_context())
         assert photo.gps is not None
         photos.append((np.array(city.frame.to_local(*photo.gps), dtype=np.float64), evidence, photo))
     return Scene(city, photos)

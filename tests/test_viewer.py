@@ -6,7 +6,7 @@ all through the page; then check what is drawn against the API's own answer, wit
 independently (pyproj, the service's map frame). No console error, page error or failed request is allowed.
 
 The screenshot of the answered page is written to the test's folder; set ``GEOLOC_VIEWER_SCREENSHOT`` to a
-path (the README's is ``docs/viewer.png``) to write it there too.
+path (``docs/viewer.md`` shows ``docs/viewer.png``) to write it there too.
 """
 
 from __future__ import annotations

@@ -13,9 +13,9 @@ import os
 import sys
 
 from contracts.settings import SettingsError, get_settings
-from geoloc.export.models import model_problems
+from workers.context import model_problems
 from workers.handlers import load_builtin_handlers, load_plugins
-from workers.worker import Worker, install_signal_handlers, limit_threads
+from workers.worker import Worker, install_signal_handlers
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,7 +41,6 @@ def main(argv: list[str] | None = None) -> int:
         os.nice(settings.worker_nice)
     load_builtin_handlers()
     load_plugins(settings.worker_plugins)
-    limit_threads(settings.worker_threads)
     worker = Worker(settings)
     parent = os.environ.get("GEOLOC_SUPERVISOR_PID")
     worker.parent_pid = int(parent) if parent else None

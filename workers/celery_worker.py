@@ -40,9 +40,10 @@ from contracts.settings import Settings, SettingsError, get_settings
 from db import Database, connect, migrate
 from db import jobs as job_store
 from workers.broker import RECONCILE_INTERVAL_S, RUN_JOB_TASK, CeleryPublisher, celery_app, reconcile
+from workers.context import model_problems
 from workers.handlers import load_builtin_handlers, load_plugins
 from workers.retention import purge_interval_s
-from workers.worker import Worker, limit_threads
+from workers.worker import Worker
 
 log = logging.getLogger("geoloc.worker")
 
@@ -199,8 +200,6 @@ def create_app(settings: Settings, concurrency: int = 1) -> Any:
 
 def main(argv: list[str] | None = None) -> int:
     """Check settings and models, prepare the database, run the Celery worker until it is stopped."""
-    from geoloc.export.models import model_problems
-
     parser = argparse.ArgumentParser(prog="python -m workers.celery_worker", description="Run a geoloc Celery worker.")
     parser.add_argument("--concurrency", "-c", type=int, default=1, help="worker processes (prefork)")
     parser.add_argument("--log-level", default=None, help="default: GEOLOC_LOG_LEVEL")
@@ -228,7 +227,6 @@ def main(argv: list[str] | None = None) -> int:
         os.nice(settings.worker_nice)
     load_builtin_handlers()
     load_plugins(settings.worker_plugins)
-    limit_threads(settings.worker_threads)
     app = create_app(settings, max(args.concurrency, 1))
     app.worker_main(
         [

@@ -4,9 +4,11 @@ Both compute first, build their answer as the API's models (:mod:`contracts.answ
 :func:`workers.handlers.answer_checked`: a malformed answer fails the job at once and nothing is stored), and
 then write everything in one transaction with replace semantics, so a job that runs again after a crash
 leaves the same state. A reference's arrays are stored in the format of :mod:`contracts.references`. Loaded
-maps and the segmentation session are cached per worker process. Importing this module has no side effect
-beyond registering the handlers: the BLAS/OpenCV thread limit is set where a worker process starts
-(:func:`workers.worker.limit_threads`).
+maps and the segmentation session are cached per worker process.
+
+The method runs with the process's context (:func:`workers.context.worker_context`: the models folder and
+the job and network threads from the settings; its first call in a process also limits numpy's BLAS and
+OpenCV to ``GEOLOC_WORKER_THREADS`` threads). Importing this module only registers the handlers.
 """
 
 from __future__ import annotations
@@ -47,11 +49,13 @@ from db.files import open_store
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.query import QueryAnswer, QueryConfig, geolocate
 from geoloc.localize.reference import label_reference_photo
-from geoloc.localize.retrieval import Vocabulary, default_vocabulary, vocabulary_path
+from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.vision.evidence import analyze_photo
+from geoloc.vision.model_files import vocabulary_path
 from geoloc.vision.segmentation import ModelNotBuiltError
+from workers.context import worker_context
 from workers.handlers import PermanentJobError, answer_checked, register, treat_as_permanent
 from workers.reference_store import DatabaseReferenceStore, database_key
 
@@ -113,9 +117,10 @@ def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
         while len(_VOCABULARIES) > CACHED_VOCABULARIES:
             del _VOCABULARIES[next(iter(_VOCABULARIES))]  # the one read longest ago
         return _VOCABULARIES[key][1]
-    if not vocabulary_path().exists():  # built by `geoloc models build`, never inside a job (minutes of work)
-        raise PermanentJobError(f"SBoW vocabulary not found at {vocabulary_path()}; run `geoloc models build`")
-    vocabulary = default_vocabulary(progress=False)
+    models = worker_context().models_dir
+    if not vocabulary_path(models).exists():  # built by `geoloc models build`, never inside a job (minutes of work)
+        raise PermanentJobError(f"SBoW vocabulary not found at {vocabulary_path(models)}; run `geoloc models build`")
+    vocabulary = default_vocabulary(models)
     with transaction(db):
         if sbow.load_vocabulary(db, map_id) is None:
             sbow.save_vocabulary(db, map_id, {"centers": vocabulary.centroids})
@@ -125,6 +130,7 @@ def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
 @register(LABEL_REFERENCE, LabelReferencePayload)
 def label_reference(db: Database, payload: LabelReferencePayload) -> LabelReferenceResult:
     """Label a reference with the map, extract and index its features, store its pose and identities."""
+    context = worker_context()
     reference_id, map_id = payload.reference_id, payload.map_id
     ref = reference_store.get_reference(db, reference_id)
     if ref is None:
@@ -137,7 +143,7 @@ def label_reference(db: Database, payload: LabelReferencePayload) -> LabelRefere
     prior_yaw = None
     if ref["prior_heading_deg"] is not None:
         prior_yaw = float(frame.heading_to_bearing(ref["prior_heading_deg"], gps_x, gps_y))
-    labelled = label_reference_photo(city, photo, (gps_x, gps_y), prior_yaw_deg=prior_yaw)
+    labelled = label_reference_photo(city, photo, (gps_x, gps_y), prior_yaw_deg=prior_yaw, context=context)
     label, identity, features = labelled.label, labelled.identity, labelled.evidence.features
     vocabulary = vocabulary_for(db, map_id)
     words = vocabulary.words(features.descriptors)
@@ -200,6 +206,7 @@ def _describe_buildings(
 @register(LOCALIZE_QUERY, LocalizeQueryPayload)
 def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQueryResult:
     """Answer a query with the query stage (:func:`geoloc.localize.query.geolocate`); store the JSON answer."""
+    context = worker_context()
     query_id, map_id = payload.query_id, payload.map_id
     query = query_store.get_query(db, query_id)
     if query is None:
@@ -211,7 +218,7 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
     if query["image_path"] is None:
         raise PermanentJobError(f"query {query_id} has no stored photo")
     photo = _stored_photo(query["image_path"], params.focal_length_35mm)
-    evidence = analyze_photo(photo)
+    evidence = analyze_photo(photo, context=context)
     position_prior = prior_yaw = None
     if params.prior is not None:
         x, y = (float(v) for v in frame.to_local(params.prior.lat, params.prior.lon))
@@ -228,6 +235,7 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         position_prior=position_prior,
         prior_yaw_deg=prior_yaw,
         top_n=params.top_n,
+        context=context,
     )
     timings_ms = {
         **{k: round(v, 1) for k, v in answer.timings_ms.items()},

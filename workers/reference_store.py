@@ -29,9 +29,9 @@ import numpy as np
 
 from db import Database, sbow
 from db import references as reference_store
-from geoloc.localize.retrieval import DEFAULT_WORDS
 from geoloc.localize.sbow_index import SbowIndex
 from geoloc.localize.store import StoredReference
+from geoloc.vision.model_files import DEFAULT_WORDS
 
 LOOKBACK_CHANGES = 256
 """Change-log rows re-read behind the high-water mark (see the module docstring)."""

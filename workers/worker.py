@@ -40,20 +40,6 @@ MAX_RETRY_DELAY_S = 300.0
 TRACEBACK_LINES = 12
 
 
-def limit_threads(threads: int) -> None:
-    """Run numpy's BLAS and OpenCV with ``threads`` threads in this process (``GEOLOC_WORKER_THREADS``).
-
-    Called where a worker process starts (``python -m workers`` and the Celery worker's main), never at import:
-    the pool's processes are the parallelism. Measured on the shared 2-core machine (load average 5): one
-    descriptor product of matching (1,400 x 1,200 RootSIFT) took 7.5 ms with one BLAS thread and 13.9 ms with two.
-    """
-    import cv2  # heavy (OpenCV): only worker processes need it
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(limits=threads, user_api="blas")
-    cv2.setNumThreads(threads)
-
-
 def new_worker_id() -> str:
     """``host:pid:random`` — unique per process start."""
     return f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(3)}"

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from geoloc.core.context import MethodContext
 from geoloc.evaluation.facades import orientation_errors
 from geoloc.localize.grid import DEFAULT_PRIOR_RADIUS_M, PositionPrior
 from geoloc.localize.identity import IdentityMap, identity_accuracy
@@ -91,15 +92,19 @@ def evaluate_world(
     vocabulary: Vocabulary | None = None,
     max_queries: int | None = None,
     progress: Callable[[str], None] | None = None,
+    context: MethodContext,
 ) -> dict[str, Any]:
-    """Run the method on a world folder and compare with its ground truth; returns a JSON-ready dict."""
+    """Run the method on a world folder and compare with its ground truth; returns a JSON-ready dict.
+
+    context: the models and threads the method runs with (the figures do not depend on the thread counts).
+    """
     say = progress or (lambda _msg: None)
     started = time.perf_counter()
     config = config or QueryConfig()
     runs = runs if runs is not None else default_runs(config)
     world = load_world(world_dir)
     city = world.load_map()
-    vocabulary = vocabulary or default_vocabulary(progress=False)
+    vocabulary = vocabulary or default_vocabulary(context.models_dir)
     queries = world.queries[:max_queries] if max_queries else world.queries
     reference_names = [r.name for r in world.references]
     shown = {q.name: shown_by_references(world, q.name, reference_names) for q in queries}
@@ -107,9 +112,10 @@ def evaluate_world(
     worlds: dict[str, _Labelled] = {}
     segmentations = sorted({run.segmentation for run in runs}) or ["model"]
     for segmentation in segmentations:
-        worlds[segmentation] = _label_references(world, city, vocabulary, segmentation, say)
+        worlds[segmentation] = _label_references(world, city, vocabulary, segmentation, say, context)
         worlds[segmentation].queries = {
-            q.name: _analyze(q.path, world.gt(q.name)["labels"] if segmentation == "gt" else None) for q in queries
+            q.name: _analyze(q.path, world.gt(q.name)["labels"] if segmentation == "gt" else None, context)
+            for q in queries
         }
 
     result: dict[str, Any] = {
@@ -130,7 +136,8 @@ def evaluate_world(
     result["runs"] = {}
     for run in runs:
         say(f"run {run.name}")
-        result["runs"][run.name] = _run(world, city, worlds[run.segmentation], vocabulary, run, queries, shown, say)
+        labelled = worlds[run.segmentation]
+        result["runs"][run.name] = _run(world, city, labelled, vocabulary, run, queries, shown, say, context)
     result["total_s"] = round(time.perf_counter() - started, 1)
     return result
 
@@ -150,13 +157,18 @@ class _Labelled:
     queries: dict[str, tuple[Photo, PhotoEvidence]]
 
 
-def _analyze(path: Path, labels: np.ndarray | None) -> tuple[Photo, PhotoEvidence]:
+def _analyze(path: Path, labels: np.ndarray | None, context: MethodContext) -> tuple[Photo, PhotoEvidence]:
     photo = load_photo(path)
-    return photo, analyze_photo(photo, labels)
+    return photo, analyze_photo(photo, labels, context=context)
 
 
 def _label_references(
-    world: World, city: CityMap, vocabulary: Vocabulary, segmentation: str, say: Callable[[str], None]
+    world: World,
+    city: CityMap,
+    vocabulary: Vocabulary,
+    segmentation: str,
+    say: Callable[[str], None],
+    context: MethodContext,
 ) -> _Labelled:
     store, gt_store = InMemoryReferenceStore(vocabulary), InMemoryReferenceStore(vocabulary)
     labelled: dict[str, LabelledReference] = {}
@@ -165,11 +177,11 @@ def _label_references(
     timings: dict[str, list[float]] = defaultdict(list)
     for i, image in enumerate(world.references):
         gt = world.gt(image.name)
-        photo, evidence = _analyze(image.path, gt["labels"] if segmentation == "gt" else None)
+        photo, evidence = _analyze(image.path, gt["labels"] if segmentation == "gt" else None, context)
         if photo.gps is None:
             raise ValueError(f"reference {image.name} has no EXIF GPS")
         gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
-        ref = label_reference_photo(city, photo, (gps_xy[0], gps_xy[1]), evidence=evidence)
+        ref = label_reference_photo(city, photo, (gps_xy[0], gps_xy[1]), evidence=evidence, context=context)
         labelled[image.name] = ref
         for key, value in ref.timings_ms.items():
             timings[key].append(value)
@@ -269,6 +281,7 @@ def _run(
     queries: list[Any],
     shown: dict[str, dict[str, Any]],
     say: Callable[[str], None],
+    context: MethodContext,
 ) -> dict[str, Any]:
     rows = []
     timings: dict[str, list[float]] = defaultdict(list)
@@ -293,6 +306,7 @@ def _run(
             position_prior=prior,
             top_n=TOP_N,
             identity_override=override,
+            context=context,
         )
         timings["total"].append(1e3 * (time.perf_counter() - t0))
         for key, value in answer.timings_ms.items():
@@ -467,9 +481,11 @@ def _distance_summary(errors: list[float]) -> dict[str, Any]:
 
 
 def evaluate_photos(
-    photos_dir: str | Path, map_path: str | Path, truth_csv: str | Path | None = None
+    photos_dir: str | Path, map_path: str | Path, truth_csv: str | Path | None = None, *, context: MethodContext
 ) -> dict[str, Any]:
     """Label real geo-tagged photos on a map with their EXIF GPS (the service's reference labelling).
+
+    context: the models and threads the labelling runs with.
 
     truth_csv: optional CSV with ``name`` and ``true_heading_deg`` columns (e.g. the phone's compass). Returns
     per photo the estimated compass heading and position, how far labelling moved it from the GPS tag,
@@ -492,7 +508,7 @@ def evaluate_photos(
         if photo.gps is None:
             continue
         gps_x, gps_y = (float(v) for v in city.frame.to_local(*photo.gps))
-        labelled = label_reference_photo(city, photo, (gps_x, gps_y))
+        labelled = label_reference_photo(city, photo, (gps_x, gps_y), context=context)
         label = labelled.label
         heading = float(city.frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m)) % 360.0
         lat, lon = (float(v) for v in city.frame.to_wgs84(label.x_m, label.y_m))

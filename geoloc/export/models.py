@@ -1,78 +1,45 @@
-"""Exported models: build the networks' ONNX files in the cache, outside git.
+"""Exported models: build the networks' ONNX files in the models folder, outside git (needs torch).
 
 ``build_segmentation_model`` reads the published ESPNetv2 Cityscapes weights from the shared
-folder (``GEOLOC_SHARED/models``), exports them to ONNX with a fixed input size into
-``contracts.settings.cache_dir()/models/`` and writes a JSON beside it with the weights' sha256; the
-export is redone when that hash (or the export recipe version) changes, or with ``force``.
-Only this path imports torch (lazily, inside ``_export``); install it with the ``export`` extra.
-
-The ONNX graph: input ``image`` (1, 3, H, W) float32 RGB in 0..255 (normalisation is inside the
-graph); output ``logits`` (1, 20, H/2, W/2) float32 in Cityscapes trainId order (19 = void).
+folder (``GEOLOC_SHARED/models``), exports them to ONNX with a fixed input size into the models folder
+(default: the settings', ``contracts.settings.models_dir()``) and writes a JSON beside it with the weights'
+sha256; the export is redone when that hash (or the export recipe version) changes, or with ``force``.
+Only this package imports torch (lazily, inside the exports); install it with the ``export`` extra.
 
 ``build_aliked_model`` does the same for the ALIKED local-feature network (``aliked-n16``,
-``aliked-t16``, :mod:`geoloc.export.nets.aliked`): ``<config>.onnx`` is the dense part (input ``image``
-(1, 3, H, W) float32 RGB 0..255, H and W any multiples of 32; outputs ``score`` and ``level1..4``),
-``<config>_head.npz`` the sparse descriptor head's weights as float32 arrays (the head runs in numpy,
-:mod:`geoloc.vision.aliked`), and ``<config>.json`` the metadata with the weights' sha256.
+``aliked-t16``, :mod:`geoloc.export.nets.aliked`). The files, their graphs and metadata are described in
+:mod:`geoloc.vision.model_files`, the runtime's view of them, which this module uses for the paths and the
+currency checks (so the runtime never imports the export).
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import time
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from contracts import settings as config
+from geoloc.vision.model_files import (
+    ALIKED_EXPORT_VERSION,
+    EXPORT_VERSION,
+    OUTPUT_STRIDE,
+    SEG_CLASSES,
+    SEG_DEFAULT_SIZE,
+    SEG_SCALE,
+    SEG_WEIGHTS,
+    AlikedModelFiles,
+    aliked_files,
+    aliked_is_current,
+    check_size,
+    is_current,
+    segmentation_files,
+    sha256_file,
+)
 
-SEG_WEIGHTS = "espnetv2_s_2.0_city_1024x512.pth"
-SEG_SCALE = 2.0
-SEG_CLASSES = 20
-# Network input size (W, H) used by default; chosen by measuring accuracy against time on CamVid
-# (table in geoloc/vision/segmentation.py). Multiples of 16.
-SEG_DEFAULT_SIZE: tuple[int, int] = (768, 384)
-OUTPUT_STRIDE = 2  # the graph returns logits at 1/2 of the input size
-EXPORT_VERSION = 1  # bump when the export recipe changes, to force a rebuild
 OPSET = 17
-ALIKED_EXPORT_VERSION = 1  # bump when the ALIKED export recipe changes
-ALIKED_CONFIG_NAMES = ("aliked-n16", "aliked-t16")
-
-
-@dataclass(frozen=True)
-class SegModelFiles:
-    """Where a segmentation export lives: the ONNX file and its JSON metadata."""
-
-    onnx: Path
-    meta: Path
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """'768x384' -> (768, 384); both multiples of 16 and at least 64, else ValueError."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError as exc:
-        raise ValueError(f"size must look like WxH (e.g. 768x384), got {text!r}") from exc
-    check_size((w, h))
-    return w, h
-
-
-def check_size(size: tuple[int, int]) -> None:
-    """Raise ValueError unless (W, H) are multiples of 16 and at least 64."""
-    w, h = size
-    if w % 16 or h % 16 or w < 64 or h < 64:
-        raise ValueError(f"network size must be multiples of 16 and >= 64, got {w}x{h}")
-
-
-def segmentation_files(size: tuple[int, int] | None = None) -> SegModelFiles:
-    """Paths of the ONNX export for network input ``size`` = (W, H) (default ``SEG_DEFAULT_SIZE``)."""
-    w, h = size or SEG_DEFAULT_SIZE
-    stem = f"espnetv2_s{SEG_SCALE:g}_city_{w}x{h}"
-    folder = config.cache_dir() / "models"
-    return SegModelFiles(onnx=folder / f"{stem}.onnx", meta=folder / f"{stem}.json")
 
 
 def weights_path() -> Path:
@@ -80,36 +47,9 @@ def weights_path() -> Path:
     return config.shared_path("models", SEG_WEIGHTS)
 
 
-def sha256_file(path: Path) -> str:
-    """Hex sha256 of a file's bytes."""
-    digest = hashlib.sha256()
-    with path.open("rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def read_meta(files: SegModelFiles) -> dict[str, Any] | None:
-    """The export's JSON metadata, or None if missing/unreadable."""
-    try:
-        meta = json.loads(files.meta.read_text())
-    except (OSError, ValueError):
-        return None
-    return meta if isinstance(meta, dict) else None
-
-
-def is_current(files: SegModelFiles, weights_sha256: str) -> bool:
-    """True if the ONNX exists and was exported from these weights with this recipe."""
-    meta = read_meta(files)
-    return (
-        files.onnx.exists()
-        and meta is not None
-        and meta.get("weights_sha256") == weights_sha256
-        and meta.get("export_version") == EXPORT_VERSION
-    )
-
-
-def build_segmentation_model(force: bool = False, size: tuple[int, int] | None = None) -> Path:
+def build_segmentation_model(
+    force: bool = False, size: tuple[int, int] | None = None, models_dir: Path | None = None
+) -> Path:
     """Export ESPNetv2 (s=2.0, Cityscapes) to ONNX in the cache unless an up-to-date export exists.
 
     Parameters
@@ -118,6 +58,8 @@ def build_segmentation_model(force: bool = False, size: tuple[int, int] | None =
         Re-export even if the cached file matches the weights.
     size
         Network input (W, H), multiples of 16; default ``SEG_DEFAULT_SIZE``.
+    models_dir
+        Where to write; default the settings' models folder.
 
     Returns
     -------
@@ -126,7 +68,7 @@ def build_segmentation_model(force: bool = False, size: tuple[int, int] | None =
     """
     size = size or SEG_DEFAULT_SIZE
     check_size(size)
-    files = segmentation_files(size)
+    files = segmentation_files(models_dir or config.models_dir(), size)
     weights = weights_path()
     sha = sha256_file(weights)
     if not force and is_current(files, sha):
@@ -164,6 +106,7 @@ def _export(weights: Path, out: Path, size: tuple[int, int]) -> dict[str, str]:
     try:
         import torch
 
+        # The networks import torch, a heavy optional dependency (the export extra): only when exporting.
         from geoloc.export.nets.espnetv2 import NormalizedSegmenter, load_espnetv2
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise RuntimeError("exporting the segmentation model needs torch: pip install -e '.[export]'") from exc
@@ -203,44 +146,14 @@ def _trace_to_onnx(
 # ALIKED
 
 
-@dataclass(frozen=True)
-class AlikedModelFiles:
-    """Where an ALIKED export lives: the dense ONNX graph, the descriptor head's weights, the metadata."""
-
-    onnx: Path
-    head: Path
-    meta: Path
-
-
-def aliked_files(config_name: str) -> AlikedModelFiles:
-    """Paths of the ALIKED export of ``config_name`` ("aliked-n16" or "aliked-t16") in the cache."""
-    if config_name not in ALIKED_CONFIG_NAMES:
-        raise ValueError(f"unknown ALIKED config {config_name!r}; known: {', '.join(ALIKED_CONFIG_NAMES)}")
-    folder = config.cache_dir() / "models"
-    stem = folder / config_name
-    return AlikedModelFiles(stem.with_suffix(".onnx"), folder / f"{config_name}_head.npz", stem.with_suffix(".json"))
-
-
 def aliked_weights_path(config_name: str) -> Path:
     """The shared ALIKED weights of a config (FileNotFoundError with a hint if absent)."""
     return config.shared_path("models", f"{config_name}.pth")
 
 
-def aliked_is_current(files: AlikedModelFiles, weights_sha256: str) -> bool:
-    """True if the ALIKED export exists and was made from these weights with this recipe."""
-    try:
-        meta = json.loads(files.meta.read_text())
-    except (OSError, ValueError):
-        return False
-    return (
-        files.onnx.exists()
-        and files.head.exists()
-        and meta.get("weights_sha256") == weights_sha256
-        and meta.get("export_version") == ALIKED_EXPORT_VERSION
-    )
-
-
-def build_aliked_model(config_name: str = "aliked-n16", force: bool = False) -> AlikedModelFiles:
+def build_aliked_model(
+    config_name: str = "aliked-n16", force: bool = False, models_dir: Path | None = None
+) -> AlikedModelFiles:
     """Export ALIKED ``config_name`` to the cache (ONNX dense graph + head weights) unless up to date.
 
     Parameters
@@ -249,13 +162,15 @@ def build_aliked_model(config_name: str = "aliked-n16", force: bool = False) -> 
         "aliked-n16" (128-D descriptors) or "aliked-t16" (64-D).
     force
         Re-export even if the cached files match the weights.
+    models_dir
+        Where to write; default the settings' models folder.
 
     Returns
     -------
     AlikedModelFiles
         The exported files.
     """
-    files = aliked_files(config_name)
+    files = aliked_files(models_dir or config.models_dir(), config_name)
     weights = aliked_weights_path(config_name)
     sha = sha256_file(weights)
     if not force and aliked_is_current(files, sha):
@@ -295,6 +210,7 @@ def _export_aliked(
         import numpy as np
         import torch
 
+        # The networks import torch, a heavy optional dependency (the export extra): only when exporting.
         from geoloc.export.nets.aliked import AlikedDense, load_aliked
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise RuntimeError("exporting ALIKED needs torch: pip install -e '.[export]'") from exc
@@ -309,49 +225,3 @@ def _export_aliked(
     cfg = net.config
     info = {"descriptor_dim": cfg.dim, "sddh_kernel": cfg.kernel, "sddh_samples": cfg.n_samples}
     return {"torch": torch.__version__}, info
-
-def model_problems(size: tuple[int, int] | None = None) -> list[str]:
-    """What is wrong with the built models the workers need; empty when all are present and current.
-
-    Checked: the segmentation ONNX for network input ``size`` (default ``SEG_DEFAULT_SIZE``) exists;
-    its JSON metadata exists and records this export recipe (``EXPORT_VERSION``) and, when the shared
-    weights are present, their sha256 (a mismatch means the weights changed since the export); the
-    SBoW vocabulary exists and opens. ``geoloc serve``, ``geoloc worker`` and the worker processes
-    refuse to start on any of these, and ``/readyz`` lists them.
-
-    Returns
-    -------
-    list[str]
-        One sentence per problem, each saying how to fix it.
-    """
-    import numpy as np
-
-    from geoloc.localize.retrieval import vocabulary_path
-
-    fix = "run `geoloc models build` (needs the export extra: pip install -e '.[export]')"
-    files = segmentation_files(size)
-    problems = []
-    meta = read_meta(files)
-    if not files.onnx.exists():
-        problems.append(f"segmentation model not found at {files.onnx}; {fix}")
-    elif meta is None or meta.get("export_version") != EXPORT_VERSION:
-        problems.append(f"segmentation model {files.onnx} is stale (export recipe changed); {fix} --force")
-    else:
-        try:
-            weights = weights_path()
-        except FileNotFoundError:
-            weights = None  # nothing to compare with: the recorded export stands
-        if weights is not None and meta.get("weights_sha256") != sha256_file(weights):
-            problems.append(
-                f"segmentation model {files.onnx} is stale: it was exported from other weights than {weights}; "
-                f"{fix} --force"
-            )
-    vocabulary = vocabulary_path()
-    try:
-        with np.load(vocabulary, allow_pickle=False) as npz:
-            npz.files  # noqa: B018 - reads the archive's directory: a truncated file fails here
-    except FileNotFoundError:
-        problems.append(f"SBoW vocabulary not found at {vocabulary}; {fix}")
-    except (OSError, ValueError) as exc:
-        problems.append(f"SBoW vocabulary {vocabulary} is unreadable ({exc}); delete it and {fix}")
-    return problems

@@ -35,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from geoloc.core.parallel import thread_map
+from geoloc.core.context import MethodContext
+from geoloc.core.parallel import ONE_THREAD, JobThreads
 from geoloc.localize.absolute_pose import PoseEstimate, estimate_pose_from_groups, group_proposal
 from geoloc.localize.grid import Localization, PositionPrior, localize
 from geoloc.localize.identity import IdentityMap
@@ -171,16 +172,18 @@ def geolocate(
     prior_yaw_deg: float | None = None,
     top_n: int = 10,
     identity_override: IdentityMap | None = None,
+    context: MethodContext,
 ) -> QueryAnswer:
     """Geolocate a photo (its evidence already analysed) against the references of ``store``.
 
     position_prior: optional Gaussian prior (e.g. the photo's GPS). prior_yaw_deg: optional heading prior
     (local bearing). identity_override: use these identities instead of the transferred ones (evaluation
-    ablation: ground-truth identities). Positions are local metres of ``city_map.frame``.
+    ablation: ground-truth identities). context: the job threads (the matching and the PnP proposals run on
+    them; the answer does not depend on their number). Positions are local metres of ``city_map.frame``.
     """
     timings: dict[str, float] = dict(evidence.timings_ms)
     t0 = time.perf_counter()
-    stored, matches = retrieve(evidence.features, store, vocabulary, config, position_prior)
+    stored, matches = retrieve(evidence.features, store, vocabulary, config, position_prior, threads=context.threads)
     timings["retrieval"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
@@ -192,7 +195,8 @@ def geolocate(
     t0 = time.perf_counter()
     candidates = []
     if config.use_anchors:
-        candidates = anchored_pose(evidence.features, matches[: config.anchor_references], stored, photo, config)
+        references = matches[: config.anchor_references]
+        candidates = anchored_pose(evidence.features, references, stored, photo, config, threads=context.threads)
     timings["anchors"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
@@ -267,8 +271,12 @@ def retrieve(
     vocabulary: Vocabulary,
     config: QueryConfig,
     position_prior: PositionPrior | None = None,
+    *,
+    threads: JobThreads = ONE_THREAD,
 ) -> tuple[dict[Hashable, StoredReference], list[ReferenceMatch]]:
     """SBoW shortlist of ``config.shortlist`` references re-ranked by verified inliers (best first).
+
+    threads: the re-ranking matches the references on these (the result does not depend on their number).
 
     With a position prior, references that stand too far from it to see what the query sees (beyond
     ``prior_sigmas`` prior sigmas plus ``view_range_m``) are left out before the shortlist is cut: repeated
@@ -292,7 +300,7 @@ def retrieve(
     shortlist = [(ref_id, score) for ref_id, score in ranked if ref_id in stored][: config.shortlist]
     stored = {ref_id: stored[ref_id] for ref_id, _ in shortlist}
     candidates = [(ref_id, score, stored[ref_id].features) for ref_id, score in shortlist]
-    return stored, rerank_by_inliers(features, candidates, len(candidates))
+    return stored, rerank_by_inliers(features, candidates, len(candidates), threads=threads)
 
 
 def transfer(
@@ -309,8 +317,12 @@ def anchored_pose(
     stored: dict[Hashable, StoredReference],
     photo: Photo,
     config: QueryConfig,
+    *,
+    threads: JobThreads = ONE_THREAD,
 ) -> list[tuple[PoseEstimate, list[Hashable]]]:
     """PnP on the query's matches to the anchored keypoints of the given references.
+
+    threads: each reference group's PnP proposal runs on these (the result does not depend on their number).
 
     Returns the estimate with the references that contributed inliers, and a second one where the
     ambiguous references (:attr:`StoredReference.alternative_anchors`) use their runner-up pose's anchors;
@@ -346,7 +358,7 @@ def anchored_pose(
             group_of[key] = (anchors.xyz[pairs[valid, 1]], query_features.xy[pairs[valid, 0]])
             keys.append(key)
         variant_keys.append(keys)
-    proposals = thread_map(
+    proposals = threads.map(
         lambda group: group_proposal(*group, photo.intrinsics, threshold_px=config.pnp_threshold_px),
         group_of.values(),
     )

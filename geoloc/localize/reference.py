@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
+from geoloc.core.context import MethodContext
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.localize.identity import IdentityMap
 from geoloc.localize.labeling import (
@@ -110,17 +111,19 @@ def label_reference_photo(
     evidence: PhotoEvidence | None = None,
     strategy: str = "marginalized",
     options: LabelOptions | None = None,
+    context: MethodContext,
 ) -> LabelledReference:
     """Label a geo-tagged reference photo (GPS tag in local metres) with the map.
 
     prior_yaw_deg: optional heading prior (local bearing, deg). evidence: the photo's analysis when already
     done. strategy: "marginalized" (default, the paper's better one) or "greedy" chooses which identity
-    map the keypoints carry. options: the labelling's tuning (default :class:`LabelOptions`).
+    map the keypoints carry. options: the labelling's tuning (default :class:`LabelOptions`). context: the
+    models and threads the photo's analysis runs with (:func:`geoloc.vision.evidence.analyze_photo`).
     """
     if strategy not in ("marginalized", "greedy"):
         raise ValueError(f"strategy must be 'marginalized' or 'greedy', got {strategy!r}")
     options = options or LabelOptions()
-    evidence = evidence or analyze_photo(photo)
+    evidence = evidence or analyze_photo(photo, context=context)
     t0 = time.perf_counter()
     label = label_reference(
         city_map,

@@ -5,11 +5,13 @@ bag of words (:func:`geoloc.vision.features.extract_features` is given the build
 
 Vocabulary
     ``V`` centroids of local descriptors (MiniBatchKMeans). A descriptor's word is its nearest
-    centroid. :func:`default_vocabulary` is trained once per feature type (``method``, see
-    :mod:`geoloc.vision.features`), deterministically, on the building pixels of the CamVid *train* images
-    (real street photos, their ground-truth Building labels as masks) and cached under
-    ``cache_dir()/models`` as ``sbow_vocabulary_<method>_<V>.npz``: retrieval works from the very first
-    reference, and no map needs its own training. Words of one feature type mean nothing to another.
+    centroid. The default vocabulary (:func:`default_vocabulary` loads it) is trained once per feature type
+    (``method``, see :mod:`geoloc.vision.features`) by ``geoloc models build``
+    (:mod:`geoloc.export.vocabulary`), deterministically, on the building pixels of the CamVid *train* images
+    (real street photos, their ground-truth Building labels as masks) and kept in the models folder as
+    ``sbow_vocabulary_<method>_<V>.npz`` (:func:`geoloc.vision.model_files.vocabulary_path`): retrieval works
+    from the very first reference, and no map needs its own training. Words of one feature type mean nothing
+    to another.
 
 Scoring (:func:`tfidf_scores`, the one formula used by :class:`InvertedIndex` and by a database-backed
 index): an idf-weighted histogram intersection of L1-normalised term frequencies,
@@ -48,19 +50,16 @@ are synthetic); spatial re-ranking (:func:`geoloc.localize.transfer.rerank_by_in
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Hashable, Iterable
+from collections.abc import Hashable, Iterable
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from contracts.settings import cache_dir, shared_path
+from geoloc.vision.model_files import BUILD_HINT, DEFAULT_WORDS, vocabulary_path
 
-DEFAULT_WORDS = 4096
 VOCABULARY_SEED = 0
-# Descriptors per CamVid image used for the default vocabulary (its 367 train images give ~70k).
-_VOCAB_FEATURES_PER_IMAGE = 600
 
 
 # ----------------------------------------------------------------------------------------------
@@ -192,75 +191,17 @@ def build_vocabulary(
     )
 
 
-def vocabulary_path(n_words: int = DEFAULT_WORDS, method: str | None = None) -> Path:
-    """Where :func:`default_vocabulary` caches a vocabulary.
-
-    ``cache_dir()/models/sbow_vocabulary_<method>_<V>.npz`` (method None: the default feature type).
-    """
-    from geoloc.vision.features import canonical_method
-
-    return cache_dir() / "models" / f"sbow_vocabulary_{canonical_method(method)}_{n_words}.npz"
-
-
-def camvid_building_descriptors(
-    split: str = "train",
-    *,
-    per_image: int = _VOCAB_FEATURES_PER_IMAGE,
-    progress: Callable[[str], None] | None = None,
-    method: str | None = None,
-) -> np.ndarray:
-    """Descriptors on the ground-truth Building pixels of the CamVid ``split`` images, in file order.
-
-    Of feature type ``method`` (None: the default type).
-    """
-    from PIL import Image
-
-    from geoloc.core.labels import BUILDING
-    from geoloc.vision.features import DESCRIPTOR_DIMS, canonical_method, extract_features
-
-    images = sorted(shared_path("data", "camvid", split, "images").glob("*.*"))
-    label_dir = shared_path("data", "camvid", split, "labels")
-    chunks = []
-    for i, image_path in enumerate(images):
-        label_path = label_dir / f"{image_path.stem}.png"
-        if not label_path.exists():
-            continue
-        rgb = np.asarray(Image.open(image_path).convert("RGB"))
-        mask = np.asarray(Image.open(label_path)) == BUILDING
-        chunks.append(extract_features(rgb, mask, per_image, method=method).descriptors)
-        if progress and (i + 1) % 50 == 0:
-            progress(f"  features: {i + 1}/{len(images)} images, {sum(map(len, chunks))} descriptors")
-    return np.concatenate(chunks) if chunks else np.zeros((0, DESCRIPTOR_DIMS[canonical_method(method)]), np.float32)
-
-
 @lru_cache(maxsize=4)
-def default_vocabulary(n_words: int = DEFAULT_WORDS, progress: bool = True, method: str | None = None) -> Vocabulary:
-    """The SBoW vocabulary: loaded from the cache, or built and cached when missing.
+def default_vocabulary(models_dir: Path, n_words: int = DEFAULT_WORDS, method: str | None = None) -> Vocabulary:
+    """The default SBoW vocabulary of feature type ``method`` (None: the default type), cached per process.
 
-    Of feature type ``method`` (None: the default type), with ``n_words`` words.
-
-    Built deterministically (seed :data:`VOCABULARY_SEED`) from the building pixels of the CamVid train
-    images (measured on the loaded 2-core box: RootSIFT 2 minutes, ALIKED-n16 4.5, ALIKED-t16 6.5);
-    ``progress`` prints what it does. Cached per process.
+    Read from ``models_dir`` (:func:`geoloc.vision.model_files.vocabulary_path`), where ``geoloc models build``
+    put it; FileNotFoundError saying so when it is not there.
     """
-    from geoloc.vision.features import canonical_method
-
-    method = canonical_method(method)
-    path = vocabulary_path(n_words, method)
-    if path.exists():
-        return Vocabulary.load(path)
-    say: Callable[[str], None] = (lambda s: print(s, flush=True)) if progress else (lambda s: None)
-    say(f"Building SBoW vocabulary ({method}, {n_words} words) from CamVid train building pixels -> {path}")
-    t0 = time.perf_counter()
-    desc = camvid_building_descriptors("train", progress=say, method=method)
-    t1 = time.perf_counter()
-    say(f"  {len(desc)} descriptors in {t1 - t0:.1f} s; clustering")
-    vocab = build_vocabulary(desc, n_words, VOCABULARY_SEED)
-    vocab.meta["source"] = "camvid/train building pixels"
-    vocab.meta["method"] = method
-    say(f"  clustered in {time.perf_counter() - t1:.1f} s (total {time.perf_counter() - t0:.1f} s)")
-    vocab.save(path)
-    return vocab
+    path = vocabulary_path(models_dir, n_words, method)
+    if not path.exists():
+        raise FileNotFoundError(f"SBoW vocabulary not found at {path}; {BUILD_HINT}")
+    return Vocabulary.load(path)
 
 
 # ----------------------------------------------------------------------------------------------

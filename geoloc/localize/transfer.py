@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from geoloc.core.parallel import thread_map
+from geoloc.core.parallel import ONE_THREAD, JobThreads
 from geoloc.localize.identity import IdentityMap
 from geoloc.vision.features import Features
 
@@ -308,10 +308,12 @@ def rerank_by_inliers(
     ratio: float = DEFAULT_RATIO,
     threshold_px: float = DEFAULT_THRESHOLD_PX,
     min_inliers: int = DEFAULT_MIN_INLIERS,
+    threads: JobThreads = ONE_THREAD,
 ) -> list[ReferenceMatch]:
     """Spatial re-ranking: the ``k`` candidates with the most RANSAC inliers (ties: higher retrieval score).
 
     candidates: (reference id, retrieval score, features) of a longer SBoW shortlist (e.g. 20).
+    threads: the candidates are matched on these (the result does not depend on their number).
     Returns their :class:`ReferenceMatch` (pass each as ``ReferenceEvidence.match`` to skip re-matching; its
     ``neighbours`` give matches at another ratio without a second search).
     Measured on a simulated Helsinki world (60 references, 30 queries): shortlist 20 -> top 8 by inliers
@@ -326,7 +328,7 @@ def rerank_by_inliers(
             ref_id, float(score), len(pairs), int(inliers.sum()), model, pairs[inliers], pairs, neighbours
         )
 
-    out = thread_map(match, candidates)
+    out = threads.map(match, candidates)
     order = sorted(range(len(out)), key=lambda i: (-out[i].n_inliers, -out[i].score, i))
     return [out[i] for i in order[:k]]
 

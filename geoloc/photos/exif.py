@@ -242,17 +242,8 @@ def write_jpeg(
     rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
     h, w = rgb.shape[:2]
     block = exif_bytes(
-        width=w,
-        height=h,
-        lat=lat,
-        lon=lon,
-        altitude=altitude,
-        focal_35mm=focal_35mm,
-        focal_mm=focal_mm,
-        heading_deg=heading_deg,
-        make=make,
-        model=model,
-        taken=taken,
+        width=w, height=h, lat=lat, lon=lon, altitude=altitude, heading_deg=heading_deg,  # where
+        focal_35mm=focal_35mm, focal_mm=focal_mm, make=make, model=model, taken=taken,  # the camera
     )
     Image.fromarray(rgb, "RGB").save(path, "JPEG", quality=int(quality), exif=block)
     return path

@@ -15,7 +15,8 @@ from shapely.geometry.base import BaseGeometry
 
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import FacadeIndex
-from geoloc.sim.textures import BuildingLook, cloud_panorama, make_look, tree_sprites
+from geoloc.sim.looks import BuildingLook, make_look
+from geoloc.sim.sky_trees import cloud_panorama, tree_sprites
 
 ROAD_HALF_WIDTH_M = 4.0
 ROAD_RASTER_M = 0.25  # metres per road-raster cell

@@ -11,22 +11,19 @@ Layout of a world folder (``geoloc sim world``)::
                            column_building_id, column_facade_id (W,) int32
     contact_sheet.jpg      thumbnails with names, and a map of the poses
 
-Sampling (deterministic for a seed): the world is a disk of ``radius_m`` around a centre near the
-buildings' median. References stand along streets (OSM highways; without streets, in free space
-8-25 m in front of facades), mostly facing across the street (perpendicular +- 15 deg) with at
-least 60 % of the view on buildings within 60 m, at least ``min_ref_spacing_m`` apart. Queries are
-of three kinds: ``between`` two nearby references, ``offset`` from one reference (moved and turned
-20-70 deg), and ``unseen``: looking at a building that no reference shows with more than 2 % of
-its pixels.
+The poses are sampled by :mod:`geoloc.sim.sampling` (deterministic for a seed), rendered by
+:func:`geoloc.sim.render.render` and written here; :func:`load_world` reads a world folder back.
+:class:`WorldOptions` and :func:`camera_for` live in :mod:`geoloc.sim.options` and are named here too,
+where the simulator's users import them.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -35,292 +32,17 @@ import numpy as np
 
 from geoloc.core.camera import Intrinsics
 from geoloc.maps import CityMap, load_map
-from geoloc.maps.raycast import cast_panoramas, panorama_window
 from geoloc.photos.exif import write_jpeg
-from geoloc.sim.render import Pose, Render, render
+from geoloc.sim.contact_sheet import contact_sheet
+from geoloc.sim.options import WorldOptions, camera_for
+from geoloc.sim.pose import Pose
+from geoloc.sim.render import Render, render
+from geoloc.sim.sampling import QUERY_KINDS, sample_queries, sample_references, world_centre
 from geoloc.sim.scene import Scene
 
-FULL_FRAME_WIDTH_MM = 36.0
-PHONE_CROP_FACTOR = 7.0  # 35 mm-equivalent / physical focal length of a typical phone main camera
-QUERY_KINDS = ("between", "offset", "unseen")
+__all__ = ["MANIFEST_VERSION", "World", "WorldImage", "WorldOptions", "camera_for", "generate_world", "load_world"]
+
 MANIFEST_VERSION = 1
-
-
-@dataclass
-class WorldOptions:
-    """Options of :func:`generate_world` (see ``geoloc sim world --help``)."""
-
-    n_references: int = 60
-    n_queries: int = 30
-    seed: int = 1
-    gps_noise_m: float = 5.0
-    query_gps_noise_m: float = 20.0  # negative: queries carry no GPS
-    width: int = 640
-    height: int = 480
-    hfov_deg: float = 60.0
-    radius_m: float = 220.0  # 0: the whole map
-    min_ref_spacing_m: float = 10.0
-    pitch_std_deg: float = 1.0
-    roll_std_deg: float = 0.3
-    jpeg_quality: int = 90
-
-
-def camera_for(width: int, height: int, hfov_deg: float) -> tuple[Intrinsics, int, float]:
-    """Intrinsics whose focal length is an integer 35 mm equivalent (as EXIF stores it).
-
-    Returns (intrinsics, focal_35mm, focal_mm); the field of view is the nearest one to ``hfov_deg``
-    that an integer FocalLengthIn35mmFilm gives on the image's longer side.
-    """
-    long_side = max(width, height)
-    f35_exact = FULL_FRAME_WIDTH_MM / 2.0 / math.tan(math.radians(hfov_deg) / 2.0) * long_side / width
-    f35 = max(1, int(round(f35_exact)))
-    focal_px = f35 / FULL_FRAME_WIDTH_MM * long_side
-    intr = Intrinsics(width, height, focal_px, width / 2.0, height / 2.0, "exif_35mm")
-    return intr, f35, round(f35 / PHONE_CROP_FACTOR, 2)
-
-
-# ----------------------------------------------------------------------------------------------
-# Pose sampling
-
-
-@dataclass
-class _Candidates:
-    xy: np.ndarray  # (N, 2)
-    yaw_deg: np.ndarray  # (N,)
-
-
-def _world_centre(city_map: CityMap) -> np.ndarray:
-    cent = np.array([b.polygon.centroid.coords[0] for b in city_map.buildings])
-    centre: np.ndarray = np.median(cent, axis=0)
-    return centre
-
-
-def _street_points(
-    city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray, radius_m: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` random points on streets inside the disk (uniform by length): (n, 2) xy, (n, 2) unit directions."""
-    segs_a, segs_b = [], []
-    for line in city_map.streets:
-        if len(line) >= 2:
-            segs_a.append(line[:-1])
-            segs_b.append(line[1:])
-    if not segs_a:
-        return np.zeros((0, 2)), np.zeros((0, 2))
-    a, b = np.concatenate(segs_a), np.concatenate(segs_b)
-    mid = (a + b) / 2
-    if radius_m > 0:
-        keep = np.hypot(*(mid - centre).T) <= radius_m
-        a, b = a[keep], b[keep]
-    length = np.hypot(*(b - a).T)
-    ok = length > 0.5
-    a, b, length = a[ok], b[ok], length[ok]
-    if len(a) == 0:
-        return np.zeros((0, 2)), np.zeros((0, 2))
-    k = rng.choice(len(a), n, p=length / length.sum())
-    t = rng.random(n)[:, None]
-    return a[k] + t * (b[k] - a[k]), (b[k] - a[k]) / length[k, None]
-
-
-def _facade_points(
-    city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray, radius_m: float
-) -> _Candidates:
-    """Free-space fallback: points 8-25 m in front of random facades, looking at them."""
-    fac = city_map.facades
-    mid = (fac.start + fac.end) / 2
-    ok = fac.length_m > 3.0
-    if radius_m > 0:
-        ok &= np.hypot(*(mid - centre).T) <= radius_m
-    idx = np.flatnonzero(ok) if ok.any() else np.arange(len(fac))
-    k = rng.choice(idx, n, p=fac.length_m[idx] / fac.length_m[idx].sum())
-    along = (fac.end[k] - fac.start[k]) * rng.uniform(0.1, 0.9, (n, 1))
-    xy = fac.start[k] + along + fac.normal[k] * rng.uniform(8.0, 25.0, (n, 1))
-    yaw = (fac.normal_bearing_deg[k] + 180.0 + rng.normal(0, 20.0, n)) % 360.0
-    return _Candidates(xy, yaw)
-
-
-def _street_candidates(
-    city_map: CityMap, rng: np.random.Generator, n: int, centre: np.ndarray, radius_m: float
-) -> _Candidates:
-    """Street positions (on the road or the pavement) looking across the street, either side."""
-    xy, d = _street_points(city_map, rng, n, centre, radius_m)
-    if len(xy) == 0:
-        return _facade_points(city_map, rng, n, centre, radius_m)
-    normal = np.column_stack([d[:, 1], -d[:, 0]])
-    side = rng.choice([-1.0, 1.0], len(xy))[:, None]
-    xy = xy + normal * side * rng.uniform(-2.0, 7.0, (len(xy), 1))  # mostly on the far side of the street
-    look = -normal * side  # mostly across the street
-    yaw = (np.degrees(np.arctan2(look[:, 0], look[:, 1])) + rng.normal(0, 15.0, len(xy))) % 360.0
-    return _Candidates(xy, yaw)
-
-
-@dataclass
-class _View:
-    """Cheap view statistics from the ray-cast panorama: building coverage, median distance, main building."""
-
-    coverage: np.ndarray
-    median_dist_m: np.ndarray
-    main_building: np.ndarray
-
-
-def _views(scene: Scene, xy: np.ndarray, yaw_deg: np.ndarray, hfov_deg: float, near_m: float = 60.0) -> _View:
-    pano = cast_panoramas(scene.map, xy, bearing_step_deg=1.0, max_range_m=near_m * 2, index=scene.index)
-    offsets = np.arange(-hfov_deg / 2 + 0.5, hfov_deg / 2, 1.0)
-    win = panorama_window(pano, yaw_deg, offsets)  # (N, K)
-    rows = np.arange(len(xy))[:, None]
-    dist = pano.distance_m[rows, win]
-    bid = pano.building_id[rows, win]
-    near = dist <= near_m
-    coverage = near.mean(axis=1)
-    masked = np.where(near, dist, np.inf)
-    med = np.where(
-        near.any(axis=1), np.sort(masked, axis=1)[np.arange(len(xy)), np.maximum(near.sum(1) // 2, 0)], np.inf
-    )
-    main = np.full(len(xy), -1)
-    for i in range(len(xy)):
-        ids = bid[i][near[i]]
-        if len(ids):
-            main[i] = np.bincount(ids).argmax()
-    return _View(coverage, med, main)
-
-
-def _valid_positions(scene: Scene, xy: np.ndarray, margin_m: float = 1.5) -> np.ndarray:
-    return scene._clear_of_buildings(xy, margin_m)
-
-
-def _pitch_roll(rng: np.random.Generator, opts: WorldOptions) -> tuple[float, float]:
-    pitch = float(np.clip(rng.normal(0, opts.pitch_std_deg), -3 * opts.pitch_std_deg, 3 * opts.pitch_std_deg))
-    roll = float(np.clip(rng.normal(0, opts.roll_std_deg), -3 * opts.roll_std_deg, 3 * opts.roll_std_deg))
-    return round(pitch, 3), round(roll, 3)
-
-
-def sample_references(scene: Scene, opts: WorldOptions, rng: np.random.Generator, centre: np.ndarray) -> list[Pose]:
-    """Reference poses along streets facing buildings (see module docstring)."""
-    chosen: list[np.ndarray] = []
-    yaws: list[float] = []
-    spacing = opts.min_ref_spacing_m
-    for _attempt in range(6):
-        cand = _street_candidates(scene.map, rng, max(200, 40 * opts.n_references), centre, opts.radius_m)
-        ok = _valid_positions(scene, cand.xy)
-        view = _views(scene, cand.xy, cand.yaw_deg, opts.hfov_deg)
-        ok &= (view.coverage >= 0.6) & (view.median_dist_m >= 8.0) & (view.median_dist_m <= 45.0)
-        for i in np.flatnonzero(ok):
-            if len(chosen) >= opts.n_references:
-                break
-            if chosen and np.min(np.hypot(*(np.array(chosen) - cand.xy[i]).T)) < spacing:
-                continue
-            chosen.append(cand.xy[i])
-            yaws.append(float(cand.yaw_deg[i]))
-        if len(chosen) >= opts.n_references:
-            break
-        spacing *= 0.7  # a small area: allow denser references
-    poses = []
-    for xy, yaw in zip(chosen, yaws, strict=True):
-        pitch, roll = _pitch_roll(rng, opts)
-        poses.append(Pose(round(float(xy[0]), 3), round(float(xy[1]), 3), round(yaw % 360.0, 3), pitch, roll))
-    return poses
-
-
-def sample_queries(
-    scene: Scene,
-    opts: WorldOptions,
-    rng: np.random.Generator,
-    centre: np.ndarray,
-    refs: list[Pose],
-    ref_seen: dict[int, float],
-) -> list[tuple[str, Pose]]:
-    """Query poses: ``between`` / ``offset`` references and ``unseen`` buildings (module docstring).
-
-    ref_seen: building id -> largest pixel share it has in any reference.
-    """
-    n = opts.n_queries
-    quotas = {"between": int(round(n * 0.4)), "offset": int(round(n * 0.3))}
-    quotas["unseen"] = n - quotas["between"] - quotas["offset"]
-    ref_xy = np.array([[p.x_m, p.y_m] for p in refs]).reshape(-1, 2)
-    ref_yaw = np.array([p.yaw_deg for p in refs])
-    out: list[tuple[str, np.ndarray, float]] = []
-    m = max(100, 30 * n)
-    for kind in QUERY_KINDS:
-        want = quotas[kind]
-        got = 0
-        for _attempt in range(6):
-            if want == 0:
-                break
-            cand, far = _query_candidates(kind, scene, opts, rng, centre, ref_xy, ref_yaw, m)
-            ok = _valid_positions(scene, cand.xy) & ~far
-            view = _views(scene, cand.xy, cand.yaw_deg, opts.hfov_deg)
-            ok &= (view.coverage >= 0.45) & (view.median_dist_m >= 5.0) & (view.median_dist_m <= 60.0)
-            if kind == "unseen":
-                seen = np.array([ref_seen.get(int(b), 0.0) for b in view.main_building])
-                ok &= (seen < 0.02) & (view.main_building >= 0)
-            got += _accept_queries(out, kind, cand, ok, want - got)
-            if got >= want:
-                break
-        if got < want:  # not enough of this kind (e.g. every building is seen): top up with the next kind
-            nxt = QUERY_KINDS[(QUERY_KINDS.index(kind) + 1) % 3]
-            if nxt != "between":
-                quotas[nxt] += want - got
-    result = []
-    for kind, xy, yaw in out:
-        pitch, roll = _pitch_roll(rng, opts)
-        result.append((kind, Pose(round(float(xy[0]), 3), round(float(xy[1]), 3), round(yaw, 3), pitch, roll)))
-    return result
-
-
-def _query_candidates(
-    kind: str,
-    scene: Scene,
-    opts: WorldOptions,
-    rng: np.random.Generator,
-    centre: np.ndarray,
-    ref_xy: np.ndarray,
-    ref_yaw: np.ndarray,
-    m: int,
-) -> tuple[_Candidates, np.ndarray]:
-    """``m`` candidate query poses of one kind (local metres, yaw degrees) and (m,) bool: too far to use.
-
-    ``between``: on the segment between a reference and one of its 3 nearest (too far beyond 80 m apart);
-    ``offset``: 4-15 m from a reference, turned 20-70 deg; otherwise (``unseen``, or too few references)
-    anywhere along the streets.
-    """
-    if kind == "between" and len(ref_xy) >= 2:
-        i = rng.integers(len(ref_xy), size=m)
-        d = np.hypot(*(ref_xy[:, None] - ref_xy[None]).transpose(2, 0, 1))
-        np.fill_diagonal(d, np.inf)
-        nn = np.argsort(d, axis=1)[:, :3]
-        j = nn[i, rng.integers(0, min(3, len(ref_xy) - 1), m)]
-        t = rng.uniform(0.3, 0.7, (m, 1))
-        xy = ref_xy[i] * (1 - t) + ref_xy[j] * t + rng.normal(0, 2.0, (m, 2))
-        diff = ((ref_yaw[j] - ref_yaw[i] + 180.0) % 360.0) - 180.0
-        yaw = (ref_yaw[i] + diff * t[:, 0] + rng.normal(0, 25.0, m)) % 360.0
-        return _Candidates(xy, yaw), d[i, j] > 80.0
-    if kind == "offset" and len(ref_xy):
-        i = rng.integers(len(ref_xy), size=m)
-        ang = rng.uniform(0, 2 * np.pi, m)
-        r = rng.uniform(4.0, 15.0, m)
-        xy = ref_xy[i] + np.column_stack([np.cos(ang), np.sin(ang)]) * r[:, None]
-        turn = rng.uniform(20.0, 70.0, m) * rng.choice([-1.0, 1.0], m)
-        return _Candidates(xy, (ref_yaw[i] + turn) % 360.0), np.zeros(m, bool)
-    cand = _street_candidates(scene.map, rng, m, centre, opts.radius_m)
-    cand.yaw_deg = (cand.yaw_deg + rng.normal(0, 20.0, m)) % 360.0
-    return cand, np.zeros(m, bool)
-
-
-def _accept_queries(
-    out: list[tuple[str, np.ndarray, float]], kind: str, cand: _Candidates, ok: np.ndarray, n_wanted: int
-) -> int:
-    """Append up to ``n_wanted`` of the ``ok`` candidates to ``out``; returns how many were appended.
-
-    Candidates are taken in order, each at least 2 m from the queries already in ``out``.
-    """
-    taken = 0
-    for q in np.flatnonzero(ok):
-        if taken >= n_wanted:
-            break
-        if out and np.min(np.hypot(*(np.array([o[1] for o in out]) - cand.xy[q]).T)) < 2.0:
-            continue
-        out.append((kind, cand.xy[q], float(cand.yaw_deg[q])))
-        taken += 1
-    return taken
 
 
 # ----------------------------------------------------------------------------------------------
@@ -425,7 +147,7 @@ def generate_world(
         f"{len(scene.cars.xy)} cars ({time.perf_counter() - t0:.1f} s)"
     )
     rng = np.random.default_rng([opts.seed, 100])
-    centre = _world_centre(city_map)
+    centre = world_centre(city_map)
     intr, f35, fmm = camera_for(opts.width, opts.height, opts.hfov_deg)
     refs = sample_references(scene, opts, rng, centre)
     say(f"sampled {len(refs)} reference poses")
@@ -496,8 +218,6 @@ def _write(
     opts: WorldOptions,
     index: int,
 ) -> None:
-    from datetime import datetime, timedelta
-
     taken = datetime(2024, 6, 1, 10, 0, 0) + timedelta(seconds=37 * index)
     write_jpeg(
         out / folder / f"{name}.jpg",
@@ -511,91 +231,6 @@ def _write(
         taken=taken,
     )
     _save_gt(out / "gt" / f"{name}.npz", r)
-
-
-# ----------------------------------------------------------------------------------------------
-# Contact sheet
-
-
-def contact_sheet(out: Path, manifest: dict[str, Any], scene: Scene, thumb_w: int = 192, cols: int = 10) -> Path:
-    """Write ``contact_sheet.jpg``: thumbnails with names (blue: references, red: queries) and a pose map."""
-    images = manifest["images"]
-    th = int(round(thumb_w * 3 / 4))
-    rows = max(1, math.ceil(len(images) / cols))
-    label_h = 18
-    grid = np.full((rows * (th + label_h), cols * thumb_w, 3), 30, np.uint8)
-    for i, rec in enumerate(images):
-        img = cv2.imread(str(out / rec["file"]))
-        if img is None:
-            continue
-        thumb = cv2.resize(img, (thumb_w, th), interpolation=cv2.INTER_AREA)
-        y, x = (i // cols) * (th + label_h), (i % cols) * thumb_w
-        grid[y : y + th, x : x + thumb_w] = thumb
-        colour = (230, 140, 40) if rec["role"] == "reference" else (40, 40, 230)
-        grid[y + th : y + th + label_h, x : x + thumb_w] = colour
-        text = rec["name"] + ("" if rec["role"] == "reference" else f" {rec['kind']}")
-        cv2.putText(grid, text, (x + 4, y + th + 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (255, 255, 255), 1, cv2.LINE_AA)
-    side = grid.shape[0]
-    plan = _pose_map(manifest, scene, side)
-    sheet = np.hstack([grid, plan])
-    path = out / "contact_sheet.jpg"
-    cv2.imwrite(str(path), sheet, [cv2.IMWRITE_JPEG_QUALITY, 88])
-    return path
-
-
-def _pose_map(manifest: dict[str, Any], scene: Scene, side: int) -> np.ndarray:
-    """(side, side, 3) BGR plan view: footprints, streets, and each pose as a dot with its view wedge."""
-    img = np.full((side, side, 3), 245, np.uint8)
-    xy = np.array([[r["pose"]["x_m"], r["pose"]["y_m"]] for r in manifest["images"]]).reshape(-1, 2)
-    if len(xy) == 0:
-        return img
-    lo, hi = xy.min(axis=0) - 40.0, xy.max(axis=0) + 40.0
-    span = float(max(hi - lo))
-    scale = (side - 20) / span
-
-    def to_px(p: np.ndarray) -> np.ndarray:
-        q = (np.asarray(p) - lo) * scale + 10
-        return np.column_stack([q[:, 0], side - q[:, 1]]).round().astype(np.int32)
-
-    for line in scene.map.streets:
-        if len(line) >= 2:
-            cv2.polylines(img, [to_px(line)], False, (215, 215, 215), max(1, int(6 * scale)), cv2.LINE_AA)
-    for b in scene.map.buildings:
-        for poly in getattr(b.polygon, "geoms", [b.polygon]):
-            ring = np.asarray(poly.exterior.coords)
-            if np.all(ring.max(axis=0) >= lo) and np.all(ring.min(axis=0) <= hi):
-                cv2.fillPoly(img, [to_px(ring)], (170, 170, 170), cv2.LINE_AA)
-    for rec in manifest["images"]:
-        p = np.array([[rec["pose"]["x_m"], rec["pose"]["y_m"]]])
-        yaw = math.radians(rec["pose"]["yaw_deg"])
-        half = math.radians(rec["intrinsics"]["hfov_deg"] / 2)
-        colour = (200, 110, 20) if rec["role"] == "reference" else (30, 30, 220)
-        c = to_px(p)[0]
-        for a in (yaw - half, yaw + half):
-            tip = to_px(p + 15.0 * np.array([[math.sin(a), math.cos(a)]]))[0]
-            cv2.line(img, tuple(int(v) for v in c), tuple(int(v) for v in tip), colour, 1, cv2.LINE_AA)
-        cv2.circle(img, tuple(int(v) for v in c), 4, colour, -1, cv2.LINE_AA)
-        cv2.putText(
-            img,
-            rec["name"].split("_")[-1],
-            (int(c[0]) + 5, int(c[1]) - 4),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.35,
-            colour,
-            1,
-            cv2.LINE_AA,
-        )
-    cv2.putText(
-        img,
-        f"references (blue) and queries (red); 15 m view wedges; {span:.0f} m across",
-        (10, 20),
-        cv2.FONT_HERSHEY_SIMPLEX,
-        0.5,
-        (0, 0, 0),
-        1,
-        cv2.LINE_AA,
-    )
-    return img
 
 
 # ----------------------------------------------------------------------------------------------

@@ -15,13 +15,13 @@ import numpy as np
 
 from geoloc.core import labels as classes
 from geoloc.core.camera import Intrinsics
-from geoloc.core.parallel import run_beside
+from geoloc.core.context import MethodContext
 from geoloc.photos.photo import Photo
 from geoloc.vision.facades import ImageAnalysis, analyze_image
 from geoloc.vision.features import Features, extract_features
 from geoloc.vision.ground import facade_base_distances, facade_top_elevations
 from geoloc.vision.image_model import ImageModel, image_model_from_columns
-from geoloc.vision.segmentation import segment
+from geoloc.vision.segmentation import load_session, segment
 
 
 class ColumnIdentity(Protocol):
@@ -59,12 +59,16 @@ class PhotoEvidence:
         return mask
 
 
-def analyze_photo(photo: Photo, labels: np.ndarray | None = None) -> PhotoEvidence:
-    """Segmentation (unless ``labels`` are given, e.g. ground truth), facades and features of a photo."""
+def analyze_photo(photo: Photo, labels: np.ndarray | None = None, *, context: MethodContext) -> PhotoEvidence:
+    """Segmentation (unless ``labels`` are given, e.g. ground truth), facades and features of a photo.
+
+    context: the segmentation network's folder and threads, and the job threads (the features run beside the
+    facade analysis).
+    """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     if labels is None:
-        labels = segment(photo.image_rgb)
+        labels = segment(photo.image_rgb, session=load_session(context))
         timings["segmentation"] = 1e3 * (time.perf_counter() - t0)
     building_mask = labels == classes.BUILDING
 
@@ -74,7 +78,7 @@ def analyze_photo(photo: Photo, labels: np.ndarray | None = None) -> PhotoEviden
         timings["features"] = 1e3 * (time.perf_counter() - t0)
         return features
 
-    features_result = run_beside(features_timed)  # the features need only the mask: beside the facades
+    features_result = context.threads.beside(features_timed)  # the features need only the mask: beside the facades
     t0 = time.perf_counter()
     analysis = analyze_image(photo.image_rgb, labels, photo.intrinsics)
     rotation = analysis.vanishing_points.rotation_upright_from_cam

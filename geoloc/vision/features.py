@@ -9,8 +9,9 @@ pixels, unit-norm descriptors, strongest first, only on the building mask):
   ALIKED keypoints have no scale or orientation: ``sizes`` is the 5x5 detection window (in input
   pixels) and ``angles`` is 0 (the descriptors are not rotation invariant; photos are upright).
 
-:data:`DEFAULT_METHOD` is the one setting that chooses the feature type everywhere (extraction in the
-pipeline, the SBoW vocabulary: ``geoloc models build --features <type>`` builds a type's vocabulary).
+:data:`~geoloc.vision.feature_types.DEFAULT_METHOD` is the one setting that chooses the feature type
+everywhere (extraction in the pipeline, the SBoW vocabulary: ``geoloc models build --features <type>``
+builds a type's vocabulary).
 Descriptors of both types are unit vectors, so :func:`geoloc.localize.transfer.match_features` (dot products,
 Lowe's ratio 0.8, one-to-one) serves both; features of different types must never be matched or
 indexed together (``Features.method`` says which type a set is).
@@ -69,28 +70,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from geoloc.core.context import MethodContext
+from geoloc.vision.aliked import aliked_keypoints, load_runtime
+from geoloc.vision.feature_types import DESCRIPTOR_DIMS, canonical_method
+
 DEFAULT_MAX_SIDE = 1024
 DEFAULT_MAX_FEATURES = 1500
 DESCRIPTOR_DIM = 128  # RootSIFT and ALIKED-n16; ALIKED-t16 has 64
 
-FEATURE_METHODS = ("rootsift", "aliked-n16", "aliked-t16")
-DESCRIPTOR_DIMS = {"rootsift": 128, "aliked-n16": 128, "aliked-t16": 64}
-METHOD_ALIASES = {"aliked": "aliked-n16"}
-DEFAULT_METHOD = "rootsift"
-"""The feature type used wherever none is given (pipeline, vocabulary). See the module docstring."""
 ALIKED_WINDOW_PX = 5  # ALIKED's detection window (NMS and soft-argmax), reported as the keypoint size
 DEFAULT_ALIKED_SCALES: tuple[float, ...] = (1.0,)
-
-
-def canonical_method(method: str | None) -> str:
-    """The canonical feature type name ("rootsift", "aliked-n16", "aliked-t16"); None is :data:`DEFAULT_METHOD`.
-
-    Raises ValueError for an unknown name.
-    """
-    name = DEFAULT_METHOD if method is None else METHOD_ALIASES.get(method, method)
-    if name not in FEATURE_METHODS:
-        raise ValueError(f"unknown feature method {method!r}; known: {', '.join(FEATURE_METHODS)} (or 'aliked')")
-    return name
 
 
 @dataclass
@@ -104,7 +93,7 @@ class Features:
     responses: (N,) float32 detector responses (strongest first).
     image_shape: (H, W) of the input image. scale: working size / input size (<= 1); coordinates
     multiplied by ``scale`` are in working pixels, where pixel thresholds (RANSAC) are meant.
-    method: the feature type (:data:`FEATURE_METHODS`); descriptors of different types must not be matched.
+    method: the feature type (:mod:`geoloc.vision.feature_types`); descriptors of different types must not be matched.
     """
 
     xy: np.ndarray
@@ -259,19 +248,22 @@ def extract_features(
     contrast_threshold: float = 0.02,
     edge_threshold: float = 10.0,
     aliked_scales: tuple[float, ...] = DEFAULT_ALIKED_SCALES,
+    context: MethodContext | None = None,
 ) -> Features:
     """Local features on the building pixels of an image (module docstring).
 
     image_rgb: (H, W, 3) uint8 RGB (or (H, W) gray). building_mask: (H, W) bool/int, non-zero on building
     pixels (any size: it is resized to the image); None means the whole image.
     max_features: keep at most this many keypoints (the strongest).
-    method: "rootsift", "aliked-n16" (alias "aliked") or "aliked-t16"; None is :data:`DEFAULT_METHOD`.
+    method: "rootsift", "aliked-n16" (alias "aliked") or "aliked-t16"; None is the default.
     max_side: working resolution (longer side, pixels); dilate_px: mask dilation in working pixels.
     contrast_threshold, edge_threshold: OpenCV SIFT detector thresholds (RootSIFT only).
     aliked_scales: ALIKED's image pyramid, as factors of the working size (ALIKED only; see
     :func:`geoloc.vision.aliked.aliked_keypoints`).
+    context: where the built models are and the networks' threads (ALIKED only: RootSIFT needs no model).
     Returns :class:`Features` with positions in input-image pixels, strongest first.
-    Raises :class:`geoloc.vision.aliked.AlikedNotBuiltError` when ALIKED is asked for and not exported.
+    Raises :class:`geoloc.vision.aliked.AlikedNotBuiltError` when ALIKED is asked for and not exported, and
+    ValueError when it is asked for (on a non-empty mask) without a ``context``.
     """
     method = canonical_method(method)
     image = _to_gray_u8(image_rgb) if method == "rootsift" else _to_rgb_u8(image_rgb)
@@ -294,7 +286,7 @@ def extract_features(
     if method == "rootsift":
         found = _rootsift(image, mask, max_features, contrast_threshold, edge_threshold)
     else:
-        found = _aliked(image, mask, max_features, method, aliked_scales)
+        found = _aliked(image, mask, max_features, method, aliked_scales, context)
     if found is None:
         return Features.empty((h, w), scale, method, dim)
     pts, desc, sizes, angles, responses = found
@@ -329,12 +321,18 @@ def _rootsift(
 
 
 def _aliked(
-    rgb: np.ndarray, mask: np.ndarray, max_features: int, method: str, scales: tuple[float, ...]
+    rgb: np.ndarray,
+    mask: np.ndarray,
+    max_features: int,
+    method: str,
+    scales: tuple[float, ...],
+    context: MethodContext | None,
 ) -> _Found | None:
     """ALIKED on a working-size RGB image, keypoints on ``mask``: positions, descriptors, sizes, angles, scores."""
-    from geoloc.vision.aliked import aliked_keypoints, load_runtime
-
-    found = aliked_keypoints(rgb, int(max_features), mask > 0, runtime=load_runtime(method), scales=scales)
+    if context is None:
+        raise ValueError(f"{method} features need a MethodContext (the built models' folder)")
+    runtime = load_runtime(context, method)
+    found = aliked_keypoints(rgb, int(max_features), mask > 0, runtime=runtime, scales=scales)
     if len(found) == 0:
         return None
     sizes = np.float32(ALIKED_WINDOW_PX) / found.scales

@@ -1,7 +1,9 @@
 """Semantic segmentation of street photos into our classes (``geoloc.core.labels``), onnxruntime only.
 
 The network is ESPNetv2 (s=2.0) trained on Cityscapes (``geoloc.export.nets.espnetv2``), exported to
-ONNX by ``geoloc models build`` (``geoloc.export.models``). This module never imports torch.
+ONNX by ``geoloc models build`` (``geoloc.export.models``) into the models folder
+(:mod:`geoloc.vision.model_files`). This module never imports torch; :func:`load_session` opens the export
+with a :class:`~geoloc.core.context.MethodContext`.
 
 Pipeline: RGB image -> resize to the network size (default 768x384, W x H, whatever the image's
 aspect) -> logits at half that size -> softmax over the kept Cityscapes channels -> probabilities
@@ -51,16 +53,15 @@ calls vegetation while CamVid labels the sky between the branches.
 
 from __future__ import annotations
 
-from functools import lru_cache
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
-from contracts.settings import default_threads
 from geoloc.core import labels
-from geoloc.export.models import SEG_DEFAULT_SIZE, segmentation_files
+from geoloc.core.context import MethodContext
+from geoloc.vision.model_files import SEG_DEFAULT_SIZE, segmentation_files
+from geoloc.vision.onnx_session import cpu_session
 
 if TYPE_CHECKING:
     import onnxruntime as ort
@@ -100,43 +101,30 @@ class ModelNotBuiltError(FileNotFoundError):
     """The ONNX export is missing; the message says how to build it."""
 
 
-@lru_cache(maxsize=8)
-def _cached_session(path: str, threads: int) -> ort.InferenceSession:
-    import onnxruntime as ort
-
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
-    # Idle threads sleep instead of spinning: with the pool's processes on every core, spinning threads
-    # burn the CPU another job needs.
-    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    return ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
-
-
-def load_session(size: tuple[int, int] | None = None, threads: int | None = None) -> ort.InferenceSession:
+def load_session(context: MethodContext, size: tuple[int, int] | None = None) -> ort.InferenceSession:
     """The onnxruntime CPU session for network input ``size`` (W, H), cached per process.
 
     Parameters
     ----------
+    context
+        Where the built models are (``models_dir``) and the intra-op threads (``onnx_threads``).
     size
-        Network input (W, H); default ``geoloc.export.models.SEG_DEFAULT_SIZE``.
-    threads
-        Intra-op threads; default :func:`contracts.settings.default_threads`.
+        Network input (W, H); default ``geoloc.vision.model_files.SEG_DEFAULT_SIZE``.
 
     Raises
     ------
     ModelNotBuiltError
-        The ONNX file is not in the cache.
+        The ONNX file is not in the models folder.
     """
     size = size or SEG_DEFAULT_SIZE
-    path = segmentation_files(size).onnx
+    path = segmentation_files(context.models_dir, size).onnx
     if not path.exists():
         flag = "" if size == SEG_DEFAULT_SIZE else f" --size {size[0]}x{size[1]}"
         raise ModelNotBuiltError(
             f"segmentation model not found at {path}; build it once with `geoloc models build{flag}` "
             "(needs the export extra: pip install -e '.[export]')"
         )
-    return _cached_session(str(path), threads or default_threads())
+    return cpu_session(str(path), context.onnx_threads)
 
 
 def network_size(session: ort.InferenceSession) -> tuple[int, int]:
@@ -155,9 +143,11 @@ def _prepare(image_rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return np.ascontiguousarray(resized.astype(np.float32).transpose(2, 0, 1)[None])
 
 
-def cityscapes_logits(image_rgb: np.ndarray, *, session: Any = None) -> np.ndarray:
-    """Raw network output: (20, h, w) float32 Cityscapes logits at half the network input size."""
-    session = session or load_session()
+def cityscapes_logits(image_rgb: np.ndarray, *, session: Any) -> np.ndarray:
+    """Raw network output: (20, h, w) float32 Cityscapes logits at half the network input size.
+
+    session: from :func:`load_session`.
+    """
     x = _prepare(image_rgb, network_size(session))
     logits: np.ndarray = session.run(None, {session.get_inputs()[0].name: x})[0][0]
     return logits
@@ -181,7 +171,7 @@ def _group_probabilities(logits: np.ndarray, mapping: np.ndarray) -> np.ndarray:
 
 
 def class_probabilities(
-    image_rgb: np.ndarray, *, session: Any = None, mapping: np.ndarray = CITYSCAPES_TO_OURS
+    image_rgb: np.ndarray, *, session: Any, mapping: np.ndarray = CITYSCAPES_TO_OURS
 ) -> np.ndarray:
     """Per-pixel probabilities of our classes at the image's resolution.
 
@@ -190,7 +180,7 @@ def class_probabilities(
     image_rgb
         (H, W, 3) uint8 RGB photo, any size.
     session
-        An onnxruntime session from ``load_session`` (default: the cached default one).
+        An onnxruntime session from :func:`load_session`.
     mapping
         (20,) Cityscapes trainId -> our class code, or ``DROP`` to leave a class out.
 
@@ -204,7 +194,7 @@ def class_probabilities(
     return cv2.resize(probs, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def segment(image_rgb: np.ndarray, *, session: Any = None) -> np.ndarray:
+def segment(image_rgb: np.ndarray, *, session: Any) -> np.ndarray:
     """Label every pixel of an RGB photo with our classes.
 
     Parameters
@@ -212,7 +202,7 @@ def segment(image_rgb: np.ndarray, *, session: Any = None) -> np.ndarray:
     image_rgb
         (H, W, 3) uint8 RGB.
     session
-        Optional onnxruntime session (``load_session(size)``) to pick another net size.
+        The onnxruntime session from :func:`load_session` (its network size is the graph's).
 
     Returns
     -------
@@ -221,8 +211,3 @@ def segment(image_rgb: np.ndarray, *, session: Any = None) -> np.ndarray:
     """
     codes: np.ndarray = class_probabilities(image_rgb, session=session).argmax(axis=2).astype(np.uint8)
     return codes
-
-
-def model_path(size: tuple[int, int] | None = None) -> Path:
-    """Where the ONNX export for ``size`` lives (it may not exist yet)."""
-    return segmentation_files(size).onnx

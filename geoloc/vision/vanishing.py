@@ -41,7 +41,17 @@ from typing import Any
 import numpy as np
 
 from geoloc.core.camera import Intrinsics, orientation_from_direction, wrap_orientation_deg
-from geoloc.vision.lines import segment_lengths_px
+from geoloc.vision.vp_geometry import (
+    SegmentGeometry,
+    horizontal_direction_cam,
+    inlier_weight,
+    pitch_roll_deg,
+    rotation_upright_from_pitch_roll,
+    segment_geometry,
+    smallest_eigenvector,
+    upright_rotation,
+    vp_residuals,
+)
 
 
 @dataclass
@@ -125,108 +135,6 @@ class VanishingPoints:
         return out
 
 
-# ----------------------------------------------------------------------------------------------
-# Segment geometry
-
-
-@dataclass
-class _SegmentGeometry:
-    midpoints: np.ndarray  # (N, 2) px
-    unit_dirs: np.ndarray  # (N, 2) image direction, unit
-    lengths_px: np.ndarray  # (N,)
-    normals_cam: np.ndarray  # (N, 3) unit normals of the interpretation planes (camera frame)
-    tilt_from_vertical_deg: np.ndarray  # (N,) image angle between segment and the image y axis
-
-
-def _segment_geometry(segments: np.ndarray, intrinsics: Intrinsics) -> _SegmentGeometry:
-    s = np.asarray(segments, dtype=float).reshape(-1, 4)
-    p1, p2 = s[:, :2], s[:, 2:]
-    lengths = segment_lengths_px(s)
-    dirs = (p2 - p1) / np.maximum(lengths, 1e-9)[:, None]
-    k_inv = np.linalg.inv(intrinsics.matrix)
-    ones = np.ones((len(s), 1))
-    r1 = np.hstack([p1, ones]) @ k_inv.T
-    r2 = np.hstack([p2, ones]) @ k_inv.T
-    normals = np.cross(r1, r2)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1), 1e-12)[:, None]
-    tilt = np.degrees(np.arccos(np.clip(np.abs(dirs[:, 1]), 0.0, 1.0)))
-    return _SegmentGeometry((p1 + p2) / 2.0, dirs, lengths, normals, tilt)
-
-
-def _residuals(
-    directions_cam: np.ndarray,
-    geo: _SegmentGeometry,
-    intrinsics: Intrinsics,
-    tol_px: float,
-    max_angle_deg: float,
-) -> np.ndarray:
-    """(M, N) normalised consistency residuals of N segments with M VP directions (<= 1: inlier)."""
-    v = np.atleast_2d(directions_cam) @ intrinsics.matrix.T  # (M, 3) homogeneous image points
-    u = v[:, None, :2] - geo.midpoints[None, :, :] * v[:, None, 2:3]  # (M, N, 2)
-    norm_u = np.linalg.norm(u, axis=2)
-    cross = np.abs(geo.unit_dirs[None, :, 0] * u[..., 1] - geo.unit_dirs[None, :, 1] * u[..., 0])
-    sin_err = np.divide(cross, norm_u, out=np.zeros_like(cross), where=norm_u > 1e-12)
-    sin_err = np.clip(sin_err, 0.0, 1.0)
-    dist_px = 0.5 * geo.lengths_px[None, :] * sin_err
-    angle_deg = np.degrees(np.arcsin(sin_err))
-    residuals: np.ndarray = np.maximum(dist_px / tol_px, angle_deg / max_angle_deg)
-    return residuals
-
-
-def _kernel(residual: np.ndarray) -> np.ndarray:
-    """Soft inlier weight in [0, 1] from a normalised residual (1 at 0, 0 beyond 1)."""
-    return np.clip(1.0 - residual**2, 0.0, None)
-
-
-def _smallest_eigvec(matrix: np.ndarray) -> np.ndarray:
-    w, v = np.linalg.eigh(matrix)
-    return v[:, np.argmin(w)]
-
-
-def upright_rotation(down_cam: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation from the camera frame to the upright frame given world-down in the camera frame.
-
-    Rows: x' = y' x z', y' = down, z' = optical axis projected on the horizontal plane.
-    """
-    g = np.asarray(down_cam, dtype=float)
-    g = g / np.linalg.norm(g)
-    z = np.array([0.0, 0.0, 1.0]) - g[2] * g
-    if np.linalg.norm(z) < 1e-9:  # looking straight up or down: any heading
-        z = np.array([1.0, 0.0, 0.0]) - g[0] * g
-    z /= np.linalg.norm(z)
-    x = np.cross(g, z)
-    return np.vstack([x, g, z])
-
-
-def pitch_roll_deg(down_cam: np.ndarray) -> tuple[float, float]:
-    """Pitch (+ = looking up) and roll (+ = right side down) in degrees from world-down in the camera frame."""
-    g = np.asarray(down_cam, dtype=float)
-    g = g / np.linalg.norm(g)
-    pitch = math.degrees(math.asin(float(np.clip(-g[2], -1.0, 1.0))))
-    roll = math.degrees(math.atan2(float(g[0]), float(g[1])))
-    return pitch, roll
-
-
-def horizontal_direction_cam(theta_deg: np.ndarray | float, rotation_upright_from_cam: np.ndarray) -> np.ndarray:
-    """(..., 3) camera-frame direction of the horizontal lines of facades with orientation ``theta_deg``."""
-    t = np.radians(np.asarray(theta_deg, dtype=float))
-    up = np.stack([np.cos(t), np.zeros_like(t), -np.sin(t)], axis=-1)
-    direction: np.ndarray = up @ rotation_upright_from_cam  # R^T applied to row vectors
-    return direction
-
-
-def rotation_upright_from_pitch_roll(pitch_deg: float, roll_deg: float) -> np.ndarray:
-    """(3, 3) rotation camera -> upright frame for a camera with this pitch and roll (zero relative yaw).
-
-    Inverse of :func:`pitch_roll_deg`: ``rotation[1]`` is world-down in the camera frame.
-    """
-    p, r = math.radians(pitch_deg), math.radians(roll_deg)
-    r_pitch = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(p), math.sin(p)], [0.0, -math.sin(p), math.cos(p)]])
-    r_roll = np.array([[math.cos(r), math.sin(r), 0.0], [-math.sin(r), math.cos(r), 0.0], [0.0, 0.0, 1.0]])
-    rotation: np.ndarray = (r_roll @ r_pitch).T
-    return rotation
-
-
 def _refine_jointly(
     normals_cam: np.ndarray,
     assignment: np.ndarray,
@@ -294,7 +202,7 @@ def _refine_jointly(
 
 
 def _estimate_vertical(
-    geo: _SegmentGeometry,
+    geo: SegmentGeometry,
     intrinsics: Intrinsics,
     tol_px: float,
     max_angle_deg: float,
@@ -325,73 +233,84 @@ def _estimate_vertical(
     cands = np.vstack([prior, cands])
     cos_tilt = cands[:, 1]
     cands = cands[cos_tilt >= math.cos(math.radians(max_tilt_deg))]
-    sub = _SegmentGeometry(
+    sub = SegmentGeometry(
         geo.midpoints[cand_idx], geo.unit_dirs[cand_idx], lengths, normals, geo.tilt_from_vertical_deg[cand_idx]
     )
     # Chunk to bound memory.
     best_score, best = -1.0, prior
     for start in range(0, len(cands), 512):
         chunk = cands[start : start + 512]
-        score = _kernel(_residuals(chunk, sub, intrinsics, tol_px, max_angle_deg)) @ lengths
+        score = inlier_weight(vp_residuals(chunk, sub, intrinsics, tol_px, max_angle_deg)) @ lengths
         j = int(np.argmax(score))
         if score[j] > best_score:
             best_score, best = float(score[j]), chunk[j]
     g = best
     for _ in range(3):
-        res = _residuals(g, sub, intrinsics, tol_px, max_angle_deg)[0]
+        res = vp_residuals(g, sub, intrinsics, tol_px, max_angle_deg)[0]
         inl = res <= 1.0
         if inl.sum() < 2:
             break
-        w = lengths[inl] * _kernel(res[inl])
+        w = lengths[inl] * inlier_weight(res[inl])
         a = (normals[inl] * w[:, None]).T @ normals[inl]
-        g = _smallest_eigvec(a)
+        g = smallest_eigenvector(a)
         g *= np.sign(g[1] + 1e-12)
-    res = _residuals(g, sub, intrinsics, tol_px, max_angle_deg)[0]
+    res = vp_residuals(g, sub, intrinsics, tol_px, max_angle_deg)[0]
     found = int(np.sum(res <= 1.0)) >= min_inliers
     return (g if found else prior), found
 
 
+@dataclass(frozen=True)
+class VanishingOptions:
+    """How :func:`estimate_vanishing_points` searches: tolerances, limits, the prior and the seed."""
+
+    tol_px: float | None = None
+    """Endpoint distance tolerance (px); None: ``max(1.5, 0.002 * image diagonal)``."""
+    max_angle_deg: float = 2.5
+    """Angular tolerance for short segments (deg)."""
+    max_tilt_deg: float = 30.0
+    """The vertical VP is searched within this angle of the camera's y axis (bounds |pitch| and |roll|), and
+    only segments within it of the image vertical vote for it (deg)."""
+    max_horizontal: int = 6
+    """At most this many horizontal VPs."""
+    min_inliers: int = 5
+    """A horizontal VP needs at least this many segments..."""
+    min_support_frac: float = 0.05
+    """...and this share of the (informativeness-weighted) horizontal evidence."""
+    min_separation_deg: float = 5.0
+    """Two horizontal VPs closer than this in theta are merged (deg)."""
+    theta_step_deg: float = 0.2
+    """Grid step of the exhaustive horizontal search (deg)."""
+    n_iterations: int = 3
+    """Rounds of re-assignment + joint refinement."""
+    pitch_roll_prior_deg: float = 3.0
+    """Gaussian prior (std, deg) on pitch and roll around a level camera, relative to ``line_noise_px``. On the
+    28 Lund photos with usable accelerometer data, 3 deg / 3 px gave the smallest spread of pitch errors."""
+    line_noise_px: float = 3.0
+    """The assumed endpoint noise of the segments (px)."""
+    seed: int = 0
+    """For the random segment pairs of the vertical search."""
+
+
 def estimate_vanishing_points(
-    segments: np.ndarray,
-    intrinsics: Intrinsics,
-    tol_px: float | None = None,
-    max_angle_deg: float = 2.5,
-    max_tilt_deg: float = 30.0,
-    max_horizontal: int = 6,
-    min_inliers: int = 5,
-    min_support_frac: float = 0.05,
-    min_separation_deg: float = 5.0,
-    theta_step_deg: float = 0.2,
-    n_iterations: int = 3,
-    pitch_roll_prior_deg: float = 3.0,
-    line_noise_px: float = 3.0,
-    seed: int = 0,
+    segments: np.ndarray, intrinsics: Intrinsics, options: VanishingOptions | None = None
 ) -> VanishingPoints:
     """Estimate the vertical and several horizontal vanishing points from line segments.
 
     segments: (N, 4) ``x1, y1, x2, y2`` in pixels of the image described by ``intrinsics``.
-    tol_px: endpoint distance tolerance (px); default ``max(1.5, 0.002 * image diagonal)``.
-    max_angle_deg: angular tolerance for short segments (deg).
-    max_tilt_deg: the vertical VP is searched within this angle of the camera's y axis
-        (bounds |pitch| and |roll|), and only segments within it of the image vertical vote for it.
-    max_horizontal: at most this many horizontal VPs.
-    min_inliers / min_support_frac: a horizontal VP needs at least this many segments and this
-        share of the (informativeness-weighted) horizontal evidence.
-    min_separation_deg: two horizontal VPs closer than this in theta are merged.
-    theta_step_deg: grid step of the exhaustive horizontal search (deg).
-    n_iterations: rounds of re-assignment + joint refinement.
-    pitch_roll_prior_deg, line_noise_px: Gaussian prior (std, deg) on pitch and roll around a level
-        camera, relative to the assumed endpoint noise of the segments (px). On the 28 Lund photos
-        with usable accelerometer data, 3 deg / 3 px gave the smallest spread of pitch errors.
-    seed: for the random segment pairs of the vertical search.
+    options: the search's tolerances and limits (default :class:`VanishingOptions`).
     Returns :class:`VanishingPoints` (see there for frames and units).
     """
+    o = options or VanishingOptions()
+    tol_px, max_angle_deg, max_tilt_deg, max_horizontal = o.tol_px, o.max_angle_deg, o.max_tilt_deg, o.max_horizontal
+    min_inliers, min_support_frac, min_separation_deg = o.min_inliers, o.min_support_frac, o.min_separation_deg
+    theta_step_deg, n_iterations, seed = o.theta_step_deg, o.n_iterations, o.seed
+    pitch_roll_prior_deg, line_noise_px = o.pitch_roll_prior_deg, o.line_noise_px
     seg = np.asarray(segments, dtype=float).reshape(-1, 4)
     n = len(seg)
     diag = float(np.hypot(intrinsics.width, intrinsics.height))
     tol = tol_px if tol_px is not None else max(1.5, 0.002 * diag)
     rng = np.random.default_rng(seed)
-    geo = _segment_geometry(seg, intrinsics)
+    geo = segment_geometry(seg, intrinsics)
     if n == 0:
         rot = upright_rotation(np.array([0.0, 1.0, 0.0]))
         return VanishingPoints(
@@ -404,11 +323,11 @@ def estimate_vanishing_points(
     def horizontal_search(g_cam: np.ndarray) -> np.ndarray:
         """Greedy horizontal VP picks (thetas) given the vertical."""
         rot = upright_rotation(g_cam)
-        res_v = _residuals(g_cam, geo, intrinsics, tol, max_angle_deg)[0]
+        res_v = vp_residuals(g_cam, geo, intrinsics, tol, max_angle_deg)[0]
         rest = np.flatnonzero(res_v > 1.0)
         if len(rest) < min_inliers:
             return np.zeros(0)
-        sub = _SegmentGeometry(
+        sub = SegmentGeometry(
             geo.midpoints[rest],
             geo.unit_dirs[rest],
             geo.lengths_px[rest],
@@ -416,11 +335,11 @@ def estimate_vanishing_points(
             geo.tilt_from_vertical_deg[rest],
         )
         dirs = horizontal_direction_cam(thetas, rot)
-        res_h = _residuals(dirs, sub, intrinsics, tol, max_angle_deg)  # (T, N)
-        kern = _kernel(res_h)
+        res_h = vp_residuals(dirs, sub, intrinsics, tol, max_angle_deg)  # (T, N)
+        kern = inlier_weight(res_h)
         # A picked VP also explains its near-inliers (residual < 2), so that their tails do not
         # seed spurious VPs next to it.
-        kern_wide = _kernel(res_h / 2.0)
+        kern_wide = inlier_weight(res_h / 2.0)
         consistent_share = np.mean(kern > 0.0, axis=0)
         informative = np.minimum(1.0, 0.05 / np.maximum(consistent_share, 1e-9))
         w = sub.lengths_px * informative
@@ -445,7 +364,7 @@ def estimate_vanishing_points(
     for _ in range(n_iterations):
         rot = rotation_upright_from_pitch_roll(pitch, roll)
         dirs = np.vstack([rot[1], horizontal_direction_cam(theta_h, rot)])
-        res = _residuals(dirs, geo, intrinsics, tol, max_angle_deg)
+        res = vp_residuals(dirs, geo, intrinsics, tol, max_angle_deg)
         assignment = np.where(res.min(axis=0) <= 1.0, np.argmin(res, axis=0), -1)
         counts = np.bincount(assignment[assignment >= 0], minlength=len(dirs))
         keep = np.flatnonzero(counts[1:] >= min_inliers)
@@ -457,7 +376,7 @@ def estimate_vanishing_points(
         vertical_found = bool(np.sum(assignment == 0) >= min_inliers)
         # Weights ~ L^2 (the direction of a segment is known to ~ noise / L), times the soft inlier kernel.
         weights = np.where(assignment >= 0, geo.lengths_px**2, 0.0)
-        weights[assignment >= 0] *= _kernel(res[np.maximum(assignment, 0), np.arange(n)][assignment >= 0])
+        weights[assignment >= 0] *= inlier_weight(res[np.maximum(assignment, 0), np.arange(n)][assignment >= 0])
         # Residual n.d of a segment has a standard deviation of about line_noise_px / L, so with
         # weights L^2 the data term is in units of line_noise_px^2 and a Gaussian prior of
         # pitch_roll_prior_deg on pitch and roll weighs (line_noise_px / sigma_rad)^2.
@@ -475,7 +394,7 @@ def estimate_vanishing_points(
     # Final assignment and ordering by support.
     rot = rotation_upright_from_pitch_roll(pitch, roll)
     dirs = np.vstack([rot[1], horizontal_direction_cam(theta_h, rot)])
-    res = _residuals(dirs, geo, intrinsics, tol, max_angle_deg)
+    res = vp_residuals(dirs, geo, intrinsics, tol, max_angle_deg)
     assignment = np.where(res.min(axis=0) <= 1.0, np.argmin(res, axis=0), -1)
     support = np.bincount(assignment[assignment >= 0], weights=geo.lengths_px[assignment >= 0], minlength=len(dirs))
     keep_h = [k for k in range(1, len(dirs)) if np.sum(assignment == k) >= min_inliers]

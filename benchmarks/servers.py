@@ -1,4 +1,4 @@
-"""Real PostgreSQL and Redis servers for the distributed profile's tests, started on loopback in temp folders.
+"""Real PostgreSQL and Redis servers for the distributed profile's tests and benchmarks, on loopback in temp folders.
 
 ``PostgresServer`` runs a private cluster (``initdb`` + ``pg_ctl``, Debian's ``postgresql`` package) owned
 by the ``postgres`` system user when the tests run as root (``initdb`` refuses root), with ``fsync`` off
@@ -8,6 +8,10 @@ every test service gets its own logical database number. Both stop when the test
 
 Neither is mocked: the tests talk to the real servers over TCP. Where a binary is missing the fixtures
 fail with the package to install (``.ci/run`` installs them).
+
+The module lives in ``benchmarks/`` because both the tests (``tests/conftest.py`` and the distributed-profile
+tests, as ``benchmarks.servers``) and a benchmark (``benchmarks/bench_ingest.py``, as its sibling ``servers``)
+start these servers, and benchmarks sit below tests: a benchmark must not import the tests.
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ import subprocess
 import tempfile
 import time
 from pathlib import Path
+
+from db import connect, connection, migrate
 
 POSTGRES_USER = "postgres"
 """System user that owns the test cluster when the tests run as root."""
@@ -83,8 +89,6 @@ class PostgresServer:
         self._run(postgres_bin("pg_ctl"), "-D", str(self.data), "-l", str(self.log), "-o", options, "-w", "start")
         _wait_port(self.port, 30, "PostgreSQL")
         self._admin(f"CREATE DATABASE {self.template}")
-        from db import connect, migrate
-
         db = connect(self.url(self.template))
         try:
             migrate(db)
@@ -105,8 +109,6 @@ class PostgresServer:
 
     def _drop_pool(self, database: str) -> None:
         """Close this process's pooled connections to ``database`` (a template must have none)."""
-        from db import connection
-
         pool = connection._pools.pop(self.url(database), None)
         if pool is not None:
             for conn in pool.idle:

@@ -1,0 +1,59 @@
+"""The method's context built from the settings: once per process in the workers, and for the command line.
+
+:func:`method_context` is the one place that turns the settings into a :class:`~geoloc.core.context.MethodContext`
+(the models folder ``DATA_DIR/cache/models``, ``GEOLOC_JOB_THREADS`` job threads, ``GEOLOC_SEG_THREADS``
+onnxruntime threads, else the job threads); :func:`worker_context` also limits numpy's BLAS and OpenCV to
+``GEOLOC_WORKER_THREADS`` threads in a worker process (the pool's processes are the parallelism; measured on
+the shared 2-core machine at load average 5: one descriptor product of matching, 1,400 x 1,200 RootSIFT,
+took 7.5 ms with one BLAS thread and 13.9 ms with two). :func:`model_problems` checks the built models
+against the settings' folders.
+"""
+
+from __future__ import annotations
+
+import os
+from functools import lru_cache
+from pathlib import Path
+
+from contracts.settings import default_threads, get_settings, models_dir, shared_dir
+from geoloc.core.context import MethodContext
+from geoloc.core.parallel import JobThreads
+from geoloc.vision import model_files
+
+_limited: dict[int, int] = {}
+"""The BLAS/OpenCV thread count set in each process (by process id)."""
+
+
+@lru_cache(maxsize=8)
+def _context(models: Path, job_threads: int, onnx_threads: int) -> MethodContext:
+    """One context (and so one job thread pool) per distinct setting."""
+    return MethodContext(models, JobThreads(job_threads), onnx_threads)
+
+
+def method_context() -> MethodContext:
+    """The method's context from the current settings (the same object while they stay the same)."""
+    return _context(models_dir(), get_settings().job_threads, default_threads())
+
+
+def limit_threads(threads: int | None = None) -> None:
+    """Run numpy's BLAS and OpenCV with ``threads`` threads (default ``GEOLOC_WORKER_THREADS``) in this process."""
+    # OpenCV and threadpoolctl only where the method runs: the API imports this module for model_problems.
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    count = threads or get_settings().worker_threads
+    threadpool_limits(limits=count, user_api="blas")
+    cv2.setNumThreads(count)
+    _limited[os.getpid()] = count
+
+
+def worker_context() -> MethodContext:
+    """:func:`method_context` in a worker process: the first call there limits its BLAS and OpenCV threads."""
+    if os.getpid() not in _limited:
+        limit_threads()
+    return method_context()
+
+
+def model_problems(size: tuple[int, int] | None = None) -> list[str]:
+    """:func:`geoloc.vision.model_files.model_problems` for the settings' models folder and shared weights."""
+    return model_files.model_problems(models_dir(), shared_dir() / "models", size)
