@@ -24,7 +24,7 @@ def info(
     crs: str | None = typer.Option(None, help="CRS of a GIS file's coordinates (e.g. EPSG:3857), overriding it."),
 ) -> None:
     """Load a map and print its buildings, facades, named buildings, bounding box and repair counts."""
-    from geoloc.maps import MapLoadError, MapReadOptions, load_map, map_summary
+    from geoloc.maps import MapLoadError, MapReadOptions, load_map, map_summary  # lazy: keeps `geoloc --help` fast
 
     options = MapReadOptions(layer, name_attribute, height_attribute, levels_attribute, crs)
     try:

@@ -26,8 +26,8 @@ def serve(
     log_level: str = typer.Option("info", help="Log level (debug, info, warning, error)."),
 ) -> None:
     """Start the REST API and N worker processes; restart any that die; stop all on Ctrl-C/SIGTERM."""
-    from service.settings import is_loopback_host
-    from workers.supervisor import Supervisor, api_spec
+    from service.auth import is_loopback_host  # lazy: keeps `geoloc --help` fast (FastAPI)
+    from workers.supervisor import Supervisor, api_spec  # lazy: keeps `geoloc --help` fast
 
     settings = _start(log_level)
     if not settings.auth_enabled and not is_loopback_host(host):
@@ -58,7 +58,7 @@ def worker(
     A Celery worker on GEOLOC_BROKER_URL and GEOLOC_DATABASE_URL in the distributed profile, else the
     built-in pool on the SQLite file in GEOLOC_DATA_DIR.
     """
-    from workers.supervisor import Supervisor
+    from workers.supervisor import Supervisor  # lazy: keeps `geoloc --help` fast
 
     settings = _start(log_level)
     _require_models()
@@ -77,7 +77,7 @@ def _profile(settings: Settings) -> str:
 
 def _worker_specs(settings: Settings, count: int, log_level: str) -> list[Any]:
     """``count`` built-in worker processes, or one Celery worker with ``count`` processes (distributed)."""
-    from workers.supervisor import celery_worker_spec, worker_spec
+    from workers.supervisor import celery_worker_spec, worker_spec  # lazy: keeps `geoloc --help` fast
 
     if count <= 0:
         return []
@@ -88,7 +88,7 @@ def _worker_specs(settings: Settings, count: int, log_level: str) -> list[Any]:
 
 def _start(log_level: str) -> Settings:
     """Logging and settings (exit 2 with the reason when a setting is invalid)."""
-    from service.settings import SettingsError, get_settings
+    from contracts.settings import SettingsError, get_settings  # lazy: keeps `geoloc --help` fast (pydantic)
 
     _setup_logging(log_level)
     try:
@@ -122,7 +122,7 @@ def _prepare_database(target: Path | str) -> None:
 
     Exits with code 2 when the database cannot be reached.
     """
-    from db import connect, migrate
+    from db import connect, migrate  # lazy: keeps `geoloc --help` fast
 
     try:
         db = connect(target)

@@ -1,9 +1,9 @@
 """The durable job table: enqueue, atomic claim with a lease, heartbeat, finish, retry.
 
-Lifecycle: ``queued`` -> ``running`` (claimed, leased) -> ``done`` | ``failed`` (attempts used up)
-| back to ``queued`` (a failed attempt with attempts left, or a worker that released it on
-shutdown). A ``running`` job whose lease expired (its worker died) is claimable again. Jobs of a
-deleted reference or map that are still ``queued`` become ``cancelled``.
+Kinds, statuses and payload models are in :mod:`contracts.jobs`. Lifecycle: ``queued`` -> ``running``
+(claimed, leased) -> ``done`` | ``failed`` (attempts used up) | back to ``queued`` (a failed attempt with
+attempts left, or a worker that released it on shutdown). A ``running`` job whose lease expired (its worker
+died) is claimable again. Jobs of a deleted reference or map that are still ``queued`` become ``cancelled``.
 
 All writes check ``lease_owner`` so that a worker whose lease was taken over cannot overwrite
 the new owner's outcome.
@@ -14,16 +14,12 @@ from __future__ import annotations
 import json
 import math
 import time
-from typing import Any, overload
+from typing import Any, cast, overload
 
+from contracts.jobs import JobPayload
 from db.connection import Database, transaction
+from db.rows import JobRow, WorkerRow
 
-JOB_STATUSES = ("queued", "running", "done", "failed", "cancelled")
-FINAL_STATUSES = ("done", "failed", "cancelled")
-"""A job in one of these states will not change any more."""
-LABEL_REFERENCE = "label_reference"
-LOCALIZE_QUERY = "localize_query"
-"""Job kind enqueued for each new reference; payload ``{"reference_id": int, "map_id": int}``."""
 DEFAULT_MAX_ATTEMPTS = 3
 RETRY_AFTER_BOUNDS_S = (1, 120)
 """Smallest and largest ``Retry-After`` suggested when the queue is full."""
@@ -51,22 +47,22 @@ class QueueFullError(Exception):
 
 
 @overload
-def _decode(row: dict[str, Any]) -> dict[str, Any]: ...
+def _decode(row: dict[str, Any]) -> JobRow: ...
 @overload
 def _decode(row: None) -> None: ...
-def _decode(row: dict[str, Any] | None) -> dict[str, Any] | None:
+def _decode(row: dict[str, Any] | None) -> JobRow | None:
     if row is None:
         return None
     row = dict(row)
     row["payload"] = json.loads(row["payload"]) if row.get("payload") else {}
     row["result"] = json.loads(row["result"]) if row.get("result") else None
-    return row
+    return cast(JobRow, row)
 
 
 def enqueue_job(
     db: Database,
     kind: str,
-    payload: dict[str, Any],
+    payload: JobPayload,
     *,
     max_attempts: int = DEFAULT_MAX_ATTEMPTS,
     priority: int = 0,
@@ -75,6 +71,8 @@ def enqueue_job(
     max_queued: int | None = None,
 ) -> int:
     """Add a queued job; returns its id. Joins the caller's transaction if one is open.
+
+    The payload is stored as the JSON of its model (:meth:`contracts.jobs.JobPayload.to_json`).
 
     With ``max_queued``, raise :class:`QueueFullError` instead when that many jobs already wait
     (inside the caller's transaction, under :data:`ENQUEUE_LOCK`, the count cannot change before the
@@ -87,7 +85,7 @@ def enqueue_job(
     return db.insert_returning_id(
         "INSERT INTO jobs (kind, payload, status, priority, max_attempts, map_id, reference_id,"
         " created_at, updated_at) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?)",
-        (kind, json.dumps(payload), priority, max_attempts, map_id, reference_id, now, now),
+        (kind, json.dumps(payload.to_json()), priority, max_attempts, map_id, reference_id, now, now),
     )
 
 
@@ -135,13 +133,13 @@ def job_statuses(db: Database, job_ids: list[int]) -> dict[int, str]:
     return {int(job_id): str(status) for job_id, status in rows}
 
 
-def get_job(db: Database, job_id: int) -> dict[str, Any] | None:
+def get_job(db: Database, job_id: int) -> JobRow | None:
     """One job as a dict (payload and result decoded), or None."""
     rows = list(db.query("SELECT * FROM jobs WHERE id = ?", (job_id,)))
     return _decode(rows[0]) if rows else None
 
 
-def list_jobs(db: Database, *, status: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
+def list_jobs(db: Database, *, status: str | None = None, limit: int = 100) -> list[JobRow]:
     """Most recent jobs first, optionally of one status."""
     if status is None:
         rows = db.query("SELECT * FROM jobs ORDER BY id DESC LIMIT ?", (limit,))
@@ -166,7 +164,7 @@ def fail_exhausted_jobs(db: Database, now: float) -> int:
     return int(cursor.rowcount)
 
 
-def _claim(db: Database, where: str, params: list[Any], worker_id: str, lease_s: float) -> dict[str, Any] | None:
+def _claim(db: Database, where: str, params: list[Any], worker_id: str, lease_s: float) -> JobRow | None:
     """Take the first claimable job matching ``where`` (under the claim's transaction)."""
     now = time.time()
     with transaction(db):
@@ -184,7 +182,7 @@ def _claim(db: Database, where: str, params: list[Any], worker_id: str, lease_s:
     return _decode(dict(zip(columns, fetched, strict=True))) if fetched else None
 
 
-def claim_job(db: Database, worker_id: str, lease_s: float, kinds: list[str] | None = None) -> dict[str, Any] | None:
+def claim_job(db: Database, worker_id: str, lease_s: float, kinds: list[str] | None = None) -> JobRow | None:
     """Atomically take the next runnable job (queued and due, or running with an expired lease).
 
     One ``UPDATE ... WHERE id = (SELECT ...) RETURNING *`` in a transaction: under SQLite's write lock,
@@ -203,7 +201,7 @@ def claim_job(db: Database, worker_id: str, lease_s: float, kinds: list[str] | N
     return _claim(db, kind_filter, params, worker_id, lease_s)
 
 
-def claim_job_by_id(db: Database, job_id: int, worker_id: str, lease_s: float) -> dict[str, Any] | None:
+def claim_job_by_id(db: Database, job_id: int, worker_id: str, lease_s: float) -> JobRow | None:
     """Take job ``job_id`` if it is claimable now (the broker delivered its id); else None.
 
     None means another worker runs it (a duplicate delivery), it is finished, cancelled or gone, or it
@@ -224,7 +222,7 @@ def heartbeat_job(db: Database, job_id: int, worker_id: str, lease_s: float) -> 
 
 
 def complete_job(db: Database, job_id: int, worker_id: str, result: dict[str, Any]) -> bool:
-    """Mark done with its result; False when the lease was lost (the result is then dropped)."""
+    """Mark done with its result (JSON-ready); False when the lease was lost (the result is then dropped)."""
     now = time.time()
     cursor = db.execute(
         "UPDATE jobs SET status = 'done', result = ?, finished_at = ?, updated_at = ?,"
@@ -260,13 +258,13 @@ def fail_job(
     return rows[0][0] if rows else None
 
 
-def deleted_subject(db: Database, job: dict[str, Any]) -> str | None:
+def deleted_subject(db: Database, job: JobRow) -> str | None:
     """What of the job's subject was deleted (its map, its reference), or None while both exist.
 
     A job whose map or reference is gone cannot succeed on a retry, whatever error its attempt hit.
     """
     for column, table, what in (("reference_id", "reference_images", "reference"), ("map_id", "maps", "map")):
-        subject_id = job.get(column)
+        subject_id = job["reference_id"] if column == "reference_id" else job["map_id"]
         if subject_id is None:
             continue
         if db.execute(f"SELECT 1 FROM {table} WHERE id = ?", (subject_id,)).fetchone() is None:
@@ -383,11 +381,10 @@ def stop_worker(db: Database, worker_id: str) -> None:
     )
 
 
-def live_workers(db: Database, within_s: float) -> list[dict[str, Any]]:
+def live_workers(db: Database, within_s: float) -> list[WorkerRow]:
     """Workers not stopped whose heartbeat is at most ``within_s`` old."""
-    return list(
-        db.query(
-            "SELECT * FROM workers WHERE stopped_at IS NULL AND heartbeat_at >= ? ORDER BY started_at",
-            (time.time() - within_s,),
-        )
+    rows = db.query(
+        "SELECT * FROM workers WHERE stopped_at IS NULL AND heartbeat_at >= ? ORDER BY started_at",
+        (time.time() - within_s,),
     )
+    return [cast(WorkerRow, row) for row in rows]

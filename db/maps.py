@@ -14,13 +14,14 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from db.blobs import pack_arrays, unpack_arrays
 from db.connection import Database
 from db.jobs import cancel_queued_jobs
+from db.rows import DeletedMap, MapRow
 
 
 @dataclass
@@ -90,12 +91,12 @@ def map_content_from_city_map(city_map: Any) -> MapContent:
     )
 
 
-def _decode_map(row: dict[str, Any]) -> dict[str, Any]:
+def _decode_map(row: dict[str, Any]) -> MapRow:
     row = dict(row)
     row["repair_report"] = json.loads(row["repair_report"] or "{}")
     row["read_options"] = json.loads(row.get("read_options") or "{}")
     row["bbox_wgs84"] = (row["min_lat"], row["min_lon"], row["max_lat"], row["max_lon"])
-    return row
+    return cast(MapRow, row)
 
 
 def insert_map(
@@ -163,7 +164,7 @@ def insert_map(
     return map_id
 
 
-def get_map(db: Database, map_id: int) -> dict[str, Any] | None:
+def get_map(db: Database, map_id: int) -> MapRow | None:
     """One map row (decoded), or None."""
     rows = list(db.query("SELECT * FROM maps WHERE id = ?", (map_id,)))
     return _decode_map(rows[0]) if rows else None
@@ -173,7 +174,7 @@ def _options_json(read_options: dict[str, Any] | None) -> str:
     return json.dumps(read_options or {}, sort_keys=True)
 
 
-def find_map_by_sha256(db: Database, sha256: str, read_options: dict[str, Any] | None = None) -> dict[str, Any] | None:
+def find_map_by_sha256(db: Database, sha256: str, read_options: dict[str, Any] | None = None) -> MapRow | None:
     """The oldest map uploaded from a file with this checksum and read with these options, or None."""
     rows = list(
         db.query(
@@ -184,7 +185,7 @@ def find_map_by_sha256(db: Database, sha256: str, read_options: dict[str, Any] |
     return _decode_map(rows[0]) if rows else None
 
 
-def list_maps(db: Database) -> list[dict[str, Any]]:
+def list_maps(db: Database) -> list[MapRow]:
     """All maps, oldest first."""
     return [_decode_map(row) for row in db.query("SELECT * FROM maps ORDER BY id")]
 
@@ -220,7 +221,7 @@ def get_facade_arrays(db: Database, map_id: int) -> dict[str, np.ndarray] | None
     return unpack_arrays(row[0]) if row else None
 
 
-def delete_map(db: Database, map_id: int) -> dict[str, Any] | None:
+def delete_map(db: Database, map_id: int) -> DeletedMap | None:
     """Delete a map and everything under it; call inside a transaction.
 
     Buildings, facades, references, labels, index and queries cascade; queued jobs are cancelled.
@@ -240,8 +241,7 @@ def delete_map(db: Database, map_id: int) -> dict[str, Any] | None:
     ]
     cancel_queued_jobs(db, map_id=map_id)
     db.execute("DELETE FROM maps WHERE id = ?", (map_id,))
-    map_row["image_paths"] = image_paths
-    map_row["source_shared"] = (
+    source_shared = (
         db.execute("SELECT 1 FROM maps WHERE source_path = ? LIMIT 1", (map_row["source_path"],)).fetchone() is not None
     )
-    return map_row
+    return DeletedMap(**map_row, image_paths=image_paths, source_shared=source_shared)

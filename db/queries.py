@@ -1,29 +1,35 @@
-"""Query records: parameters, status and the JSON answer (the method fills ``result``)."""
+"""Query records: parameters, status and the JSON answer.
+
+``params`` is a :class:`contracts.queries.QueryParams`'s JSON; the method fills ``result`` with a
+:class:`contracts.answers.QueryResult`'s JSON form.
+"""
 
 from __future__ import annotations
 
 import json
 import time
-from typing import Any
+from typing import Any, cast
 
+from contracts.queries import QueryParams
 from db.connection import Database
+from db.rows import QueryRow
 
 QUERY_PHOTOS_LOCK = "geoloc:query-photos"
 """Held by a transaction that stores a query photo or checks which photos no query uses any more."""
 
 
-def _decode(row: dict[str, Any]) -> dict[str, Any]:
+def _decode(row: dict[str, Any]) -> QueryRow:
     row = dict(row)
-    row["params"] = json.loads(row["params"] or "{}")
+    row["params"] = QueryParams.from_json(json.loads(row["params"] or "{}"))
     row["result"] = json.loads(row["result"]) if row.get("result") else None
-    return row
+    return cast(QueryRow, row)
 
 
 def insert_query(
     db: Database,
     *,
     map_id: int,
-    params: dict[str, Any],
+    params: QueryParams,
     image_path: str | None = None,
     sha256: str | None = None,
 ) -> int:
@@ -37,7 +43,7 @@ def insert_query(
     return db.insert_returning_id(
         "INSERT INTO queries (map_id, image_path, sha256, params, status, created_at, updated_at)"
         " VALUES (?, ?, ?, ?, 'queued', ?, ?)",
-        (map_id, image_path, sha256, json.dumps(params), now, now),
+        (map_id, image_path, sha256, json.dumps(params.to_json()), now, now),
     )
 
 
@@ -46,7 +52,7 @@ def set_query_job(db: Database, query_id: int, job_id: int) -> None:
     db.execute("UPDATE queries SET job_id = ?, updated_at = ? WHERE id = ?", (job_id, time.time(), query_id))
 
 
-def get_query(db: Database, query_id: int) -> dict[str, Any] | None:
+def get_query(db: Database, query_id: int) -> QueryRow | None:
     """One query (params and result decoded), or None."""
     rows = list(db.query("SELECT * FROM queries WHERE id = ?", (query_id,)))
     return _decode(rows[0]) if rows else None
@@ -68,7 +74,7 @@ def update_query_result(
     return cursor.rowcount == 1
 
 
-def delete_query(db: Database, query_id: int) -> dict[str, Any] | None:
+def delete_query(db: Database, query_id: int) -> QueryRow | None:
     """Delete a query; returns its row (``image_path`` to remove after commit), or None."""
     row = get_query(db, query_id)
     if row is not None:

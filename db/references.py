@@ -3,31 +3,36 @@
 The image file lives at ``GEOLOC_DATA_DIR/<image_path>`` (``images/<map_id>/<sha256>.<ext>``);
 ``(map_id, sha256)`` is unique. ``status`` is written by the method's handler (``done``) or the
 worker machinery; the API reports the job's state while the reference is not finished
-(:func:`effective_status`). Labels and keypoints are npz blobs, replaced as a whole so that a
-re-run of a job (after a crash) overwrites rather than duplicates.
+(:func:`contracts.jobs.reported_status`). Labels and keypoints are npz blobs in the format of
+:mod:`contracts.references`, replaced as a whole so that a re-run of a job (after a crash) overwrites
+rather than duplicates.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import time
-from typing import Any, Literal
+from typing import Any, cast
 
 import numpy as np
 
+from contracts.jobs import WORK_STATUSES, reported_status
+from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from db.blobs import pack_arrays, unpack_arrays
 from db.connection import Database
 from db.jobs import cancel_queued_jobs
+from db.rows import ReferenceRow
 from db.sbow import log_change
 
 _JSON_COLUMNS = ("buildings_seen", "timings")
 
 
-def _decode(row: dict[str, Any]) -> dict[str, Any]:
+def _decode(row: dict[str, Any]) -> ReferenceRow:
     row = dict(row)
     for column in _JSON_COLUMNS:
         row[column] = json.loads(row[column]) if row.get(column) else None
-    return row
+    return cast(ReferenceRow, row)
 
 
 def insert_reference(
@@ -82,19 +87,19 @@ def set_reference_job(db: Database, reference_id: int, job_id: int) -> None:
     )
 
 
-def get_reference(db: Database, reference_id: int) -> dict[str, Any] | None:
+def get_reference(db: Database, reference_id: int) -> ReferenceRow | None:
     """One reference (JSON columns decoded), or None."""
     rows = list(db.query("SELECT * FROM reference_images WHERE id = ?", (reference_id,)))
     return _decode(rows[0]) if rows else None
 
 
-def find_reference_by_sha256(db: Database, map_id: int, sha256: str) -> dict[str, Any] | None:
+def find_reference_by_sha256(db: Database, map_id: int, sha256: str) -> ReferenceRow | None:
     """The reference of this map with this image checksum, or None."""
     rows = list(db.query("SELECT * FROM reference_images WHERE map_id = ? AND sha256 = ?", (map_id, sha256)))
     return _decode(rows[0]) if rows else None
 
 
-def list_references(db: Database, map_id: int, *, status: str | None = None) -> list[dict[str, Any]]:
+def list_references(db: Database, map_id: int, *, status: str | None = None) -> list[ReferenceRow]:
     """References of a map, oldest first, optionally of one status."""
     if status is None:
         rows = db.query("SELECT * FROM reference_images WHERE map_id = ? ORDER BY id", (map_id,))
@@ -103,7 +108,7 @@ def list_references(db: Database, map_id: int, *, status: str | None = None) -> 
     return [_decode(row) for row in rows]
 
 
-def list_references_after(db: Database, map_id: int, *, after_id: int = 0, limit: int = 100) -> list[dict[str, Any]]:
+def list_references_after(db: Database, map_id: int, *, after_id: int = 0, limit: int = 100) -> list[ReferenceRow]:
     """One page of a map's references: up to ``limit`` with ids above ``after_id``, by id (keyset paging)."""
     rows = db.query(
         "SELECT * FROM reference_images WHERE map_id = ? AND id > ? ORDER BY id LIMIT ?", (map_id, after_id, limit)
@@ -112,19 +117,16 @@ def list_references_after(db: Database, map_id: int, *, after_id: int = 0, limit
 
 
 def effective_status_counts(db: Database, map_id: int) -> dict[str, int]:
-    """Number of a map's references per reported status (:func:`effective_status`, from row and job)."""
+    """Number of a map's references per reported status (:func:`contracts.jobs.reported_status`)."""
     rows = db.query(
         "SELECT r.status AS status, r.error AS error, j.status AS job_status, j.attempts AS attempts,"
         " j.error AS job_error FROM reference_images r LEFT JOIN jobs j ON j.id = r.job_id WHERE r.map_id = ?",
         (map_id,),
     )
-    counts = {"queued": 0, "processing": 0, "done": 0, "failed": 0}
+    counts: dict[str, int] = dict.fromkeys(WORK_STATUSES, 0)
     for row in rows:
-        job = None
-        if row["job_status"] is not None:
-            job = {"status": row["job_status"], "attempts": row["attempts"], "error": row["job_error"]}
-        state, _ = effective_status(row, job)
-        counts[state] = counts.get(state, 0) + 1
+        state, _ = reported_status(row["status"], row["error"], row["job_status"], row["attempts"], row["job_error"])
+        counts[state] += 1
     return counts
 
 
@@ -160,24 +162,7 @@ def update_reference_result(
     return cursor.rowcount == 1
 
 
-ReferenceStatus = Literal["queued", "processing", "done", "failed"]
-"""The status the API reports for a reference."""
-
-
-def effective_status(reference: dict[str, Any], job: dict[str, Any] | None) -> tuple[ReferenceStatus, str | None]:
-    """The status to report for a reference, from its row and its job: (status, error)."""
-    if reference["status"] in ("done", "failed") or job is None:
-        return reference["status"], reference.get("error")
-    if job["status"] == "running":
-        return "processing", None
-    if job["status"] in ("failed", "cancelled"):
-        return "failed", job.get("error") or f"job {job['status']}"
-    if job["status"] == "queued" and job.get("attempts", 0) > 0:
-        return "queued", job.get("error")  # waiting for a retry: show the last error
-    return reference["status"], reference.get("error")
-
-
-def delete_reference(db: Database, reference_id: int) -> dict[str, Any] | None:
+def delete_reference(db: Database, reference_id: int) -> ReferenceRow | None:
     """Delete a reference and cancel its queued jobs; call inside a transaction.
 
     Its labels, keypoints and index postings cascade. Returns the deleted row (its ``image_path`` is
@@ -193,36 +178,35 @@ def delete_reference(db: Database, reference_id: int) -> dict[str, Any] | None:
     return row
 
 
-def save_labels(db: Database, reference_id: int, arrays: dict[str, np.ndarray]) -> None:
+def save_labels(db: Database, reference_id: int, labels: ReferenceLabelArrays) -> None:
     """Store (replace) a reference's identity map arrays."""
     db.execute(
         "INSERT INTO labels (reference_id, identity_npz, created_at) VALUES (?, ?, ?) ON CONFLICT (reference_id)"
         " DO UPDATE SET identity_npz = excluded.identity_npz, created_at = excluded.created_at",
-        (reference_id, pack_arrays(arrays), time.time()),
+        (reference_id, pack_arrays(labels.to_arrays()), time.time()),
     )
 
 
-def load_labels(db: Database, reference_id: int) -> dict[str, np.ndarray] | None:
+def load_labels(db: Database, reference_id: int) -> ReferenceLabelArrays | None:
     """A reference's identity map arrays, or None."""
     row = db.execute("SELECT identity_npz FROM labels WHERE reference_id = ?", (reference_id,)).fetchone()
-    return unpack_arrays(row[0]) if row else None
+    return ReferenceLabelArrays.from_arrays(unpack_arrays(row[0])) if row else None
 
 
-def save_keypoints(db: Database, reference_id: int, arrays: dict[str, np.ndarray]) -> None:
-    """Store (replace) a reference's keypoints: positions, descriptors, identity probabilities."""
-    count = len(next(iter(arrays.values()))) if arrays else 0
+def save_keypoints(db: Database, reference_id: int, keypoints: ReferenceKeypoints) -> None:
+    """Store (replace) a reference's keypoints: positions, descriptors, identity probabilities, anchors."""
     db.execute(
         "INSERT INTO keypoints (reference_id, keypoint_count, arrays_npz, created_at) VALUES (?, ?, ?, ?)"
         " ON CONFLICT (reference_id) DO UPDATE SET keypoint_count = excluded.keypoint_count,"
         " arrays_npz = excluded.arrays_npz, created_at = excluded.created_at",
-        (reference_id, count, pack_arrays(arrays), time.time()),
+        (reference_id, len(keypoints), pack_arrays(keypoints.to_arrays()), time.time()),
     )
 
 
-def load_keypoints(db: Database, reference_id: int) -> dict[str, np.ndarray] | None:
-    """A reference's keypoint arrays, or None."""
+def load_keypoints(db: Database, reference_id: int) -> ReferenceKeypoints | None:
+    """A reference's keypoints, or None."""
     row = db.execute("SELECT arrays_npz FROM keypoints WHERE reference_id = ?", (reference_id,)).fetchone()
-    return unpack_arrays(row[0]) if row else None
+    return ReferenceKeypoints.from_arrays(unpack_arrays(row[0])) if row else None
 
 
 def _keypoint_column(db: Database, column: str, reference_ids: list[int]) -> list[tuple[Any, Any]]:
@@ -244,9 +228,14 @@ def keypoint_stamps(db: Database, reference_ids: list[int]) -> dict[int, float]:
     return {int(ref): float(stamp) for ref, stamp in _keypoint_column(db, "created_at", reference_ids)}
 
 
-def keypoint_blobs(db: Database, reference_ids: list[int]) -> dict[int, bytes]:
-    """{reference id: its keypoints' ``.npz`` blob} for those of these references that have keypoints.
+def keypoint_positions(db: Database, reference_ids: list[int]) -> dict[int, np.ndarray]:
+    """{reference id: its stored (2,) position} for those of these references that have keypoints.
 
-    For reading a few arrays without decoding the rest.
+    Only the position member of each blob is decompressed (:meth:`ReferenceKeypoints.position_from_arrays`;
+    NaN for references stored before positions were).
     """
-    return {int(ref): bytes(blob) for ref, blob in _keypoint_column(db, "arrays_npz", reference_ids)}
+    positions = {}
+    for ref, blob in _keypoint_column(db, "arrays_npz", reference_ids):
+        with np.load(io.BytesIO(bytes(blob)), allow_pickle=False) as npz:
+            positions[int(ref)] = ReferenceKeypoints.position_from_arrays(npz)
+    return positions

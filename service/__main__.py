@@ -9,7 +9,8 @@ import sys
 import threading
 import time
 
-from service.settings import SettingsError, get_settings, is_loopback_host
+from contracts.settings import SettingsError, get_settings
+from service.auth import is_loopback_host
 
 
 def _watch_parent(parent_pid: int) -> None:
@@ -41,9 +42,10 @@ def main(argv: list[str] | None = None) -> int:
     parent = os.environ.get("GEOLOC_SUPERVISOR_PID")
     if parent:
         threading.Thread(target=_watch_parent, args=(int(parent),), daemon=True).start()
+    # lazy: the host and settings checks answer before uvicorn and the app are loaded
     import uvicorn
 
-    from service.app import create_app
+    from service.app import create_app  # lazy: see above
 
     uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
     return 0

@@ -15,13 +15,15 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
+from contracts.settings import Settings, get_settings
 from db import connect, migrate
 from db.files import open_store
 from db.jobs import QueueFullError
 from db.stats import stored_file_paths
+from service import routes_maps, routes_queries, routes_references, routes_system
 from service.errors import error_body, error_response, install_error_handlers
 from service.limits import queue_full, rate_limiter_for
-from service.settings import Settings, get_settings
+from service.routes_viewer import install_viewer
 from service.spec import install_openapi
 from service.uploads import clean_orphan_files, clean_stale_temp_files
 from service.waiting import JobWaiter
@@ -196,9 +198,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return max(settings.max_map_bytes, settings.max_image_bytes) + FORM_OVERHEAD_BYTES
 
     app.add_middleware(BodySizeLimit, limit_for_path=limit_for_path)
-
-    from service import routes_maps, routes_queries, routes_references, routes_system
-    from service.routes_viewer import install_viewer
 
     app.include_router(routes_system.router)
     app.include_router(routes_maps.router)

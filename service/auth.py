@@ -9,9 +9,10 @@ import anyio.to_thread
 from fastapi import Request, Security
 from fastapi.security import APIKeyHeader
 
+from contracts.settings import Settings
+from service.deps import app_settings
 from service.errors import ApiError
 from service.limits import RateLimiter, RedisRateLimiter, rate_limited
-from service.settings import Settings
 
 api_key_header = APIKeyHeader(
     name="X-API-Key",
@@ -43,7 +44,7 @@ def require_scope(scope: str) -> Callable[..., Awaitable[None]]:
     """
 
     async def dependency(request: Request, api_key: str | None = Security(api_key_header, scopes=[scope])) -> None:
-        settings: Settings = request.app.state.settings
+        settings = app_settings(request)
         if not settings.auth_enabled:
             return
         if not api_key:
@@ -67,3 +68,12 @@ def require_scope(scope: str) -> Callable[..., Awaitable[None]]:
 
 require_read = require_scope("read")
 require_write = require_scope("write")
+
+
+LOOPBACK_HOSTS = ("127.0.0.1", "::1", "localhost")
+"""Hosts that only accept local connections: the API binds only to these while no API keys are configured."""
+
+
+def is_loopback_host(host: str) -> bool:
+    """Whether binding to ``host`` only accepts local connections (the rule for running without keys)."""
+    return host in LOOPBACK_HOSTS or host.startswith("127.")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any
 
-from fastapi import Path
+from fastapi import Form, Path
 
 from service.errors import ApiError
 
@@ -47,6 +47,11 @@ def documented(name: str) -> dict[str, Any]:
     """``json_schema_extra`` for a form field: its bounds as OpenAPI ``minimum`` and ``maximum``."""
     low, high = BOUNDS[name]
     return {"minimum": low, "maximum": high}
+
+
+def bounded_form(name: str, description: str) -> Any:
+    """A form field ``name`` with ``description`` and its bounds documented (:func:`documented`)."""
+    return Form(description=description, json_schema_extra=documented(name))
 
 
 def check_bounds(name: str, value: float | None) -> None:

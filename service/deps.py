@@ -1,4 +1,4 @@
-"""Shared request dependencies: settings, a database connection, the file store, the job publisher."""
+"""Shared request dependencies: the app's settings, a database connection, the file store, the job publisher."""
 
 from __future__ import annotations
 
@@ -6,22 +6,26 @@ from collections.abc import Iterator
 
 from fastapi import Request
 
+from contracts.settings import Settings
 from db import Database, connect
 from db.files import FileStore
-from service.settings import Settings
 from workers.broker import JobPublisher
 
 
-def get_settings(request: Request) -> Settings:
-    """The app's settings."""
+def app_settings(request: Request) -> Settings:
+    """The app's settings: the one way the API reads them (a route dependency, or called with the request).
+
+    They are the :class:`contracts.settings.Settings` given to :func:`service.app.create_app`, which a process
+    entry point reads once with :func:`contracts.settings.get_settings` (tests pass their own); nothing in the
+    API calls ``get_settings`` itself.
+    """
     settings: Settings = request.app.state.settings
     return settings
 
 
 def get_db(request: Request) -> Iterator[Database]:
     """A database connection for one request (closed, or given back to the pool, afterwards)."""
-    settings: Settings = request.app.state.settings
-    db = connect(settings.database)
+    db = connect(app_settings(request).database)
     try:
         yield db
     finally:

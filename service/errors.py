@@ -16,6 +16,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from service.deps import app_settings
+
 log = logging.getLogger("geoloc.api")
 
 _CODES_BY_STATUS = {
@@ -178,7 +180,7 @@ def install_error_handlers(app: FastAPI) -> None:
         return error_response(422, "invalid_request", message, {"problems": problems})
 
     async def _storage_error(request: Request, exc: Exception) -> JSONResponse:
-        if is_disk_full(exc, request.app.state.settings.data_dir):
+        if is_disk_full(exc, app_settings(request).data_dir):
             log.error("disk full on %s %s: %s", request.method, request.url.path, exc)
             return error_response(507, "insufficient_storage", DISK_FULL_MESSAGE)
         return await _unexpected(request, exc)

@@ -27,10 +27,12 @@ from typing import Any
 
 from fastapi import Request
 
+from contracts.settings import Settings
 from db import connect
 from db import jobs as job_store
+from service.deps import app_settings
 from service.errors import ApiError
-from service.settings import Settings
+from workers.broker import redis_client
 
 SECONDS_PER_MINUTE = 60.0
 log = logging.getLogger("geoloc.api")
@@ -93,8 +95,6 @@ class RedisRateLimiter:
     """:meth:`acquire` talks to Redis: the API calls it from a worker thread."""
 
     def __init__(self, per_minute: int, redis_url: str) -> None:
-        from workers.broker import redis_client
-
         self.per_minute = per_minute
         self.refill_per_s = per_minute / SECONDS_PER_MINUTE
         self._script: Any = redis_client(redis_url).register_script(_TOKEN_BUCKET_LUA)
@@ -146,7 +146,7 @@ def queue_full(exc: job_store.QueueFullError) -> ApiError:
 
 def require_queue_capacity(request: Request) -> None:
     """Dependency of the routes that enqueue jobs: ``429 queue_full`` while the queue is at its limit."""
-    settings: Settings = request.app.state.settings
+    settings = app_settings(request)
     db = connect(settings.database)
     try:
         job_store.check_queue_capacity(db, settings.max_queued_jobs)

@@ -1,6 +1,6 @@
 """Request/response models of the API (pydantic), with examples for the OpenAPI docs.
 
-The parts that workers compute (query answers, reference labels) are in :mod:`service.answers`.
+The parts that workers compute (query answers, reference labels) are in :mod:`contracts.answers`.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from typing import Any, Literal, overload
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from service.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon, QueryResult
+from contracts.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon, QueryResult
 from service.errors import ERROR_CODES
 
 

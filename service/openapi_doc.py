@@ -22,6 +22,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from contracts.settings import Settings
+from service.app import create_app
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_JSON = REPO_ROOT / "openapi.json"
 DEFAULT_MARKDOWN = REPO_ROOT / "openapi.md"
@@ -41,9 +44,6 @@ Schema = dict[str, Any]
 
 def openapi_spec() -> Schema:
     """The app's OpenAPI document with default settings and API keys configured (no database is touched)."""
-    from contracts.settings import Settings
-    from service.app import create_app
-
     settings = Settings.from_values(data_dir=Path("/nonexistent-geoloc-data"), api_keys="documented-key:read+write")
     return create_app(settings).openapi()
 

@@ -8,6 +8,8 @@ import cv2
 import numpy as np
 from PIL import Image, ImageOps
 
+from contracts.references import ReferenceLabelArrays
+
 
 def building_colors(building_ids: np.ndarray) -> np.ndarray:
     """A stable, distinct RGB colour per building id (golden-ratio hues), (M, 3) uint8."""
@@ -17,22 +19,22 @@ def building_colors(building_ids: np.ndarray) -> np.ndarray:
     return rgb
 
 
-def identity_overlay_png(photo_path: Path, arrays: dict[str, np.ndarray]) -> bytes:
+def identity_overlay_png(photo_path: Path, labels: ReferenceLabelArrays) -> bytes:
     """PNG of the photo (at the labels' working size) with building pixels tinted by their building.
 
     Each pixel takes its most probable building's colour; the tint's strength is that building's
     probability in the column.
     """
-    width = int(arrays["mask_width"][0])
-    mask = np.unpackbits(arrays["building_mask"], axis=1, count=width).astype(bool)
+    width = labels.width
+    mask = labels.mask()
     image = ImageOps.exif_transpose(Image.open(photo_path)).convert("RGB").resize((width, mask.shape[0]))
     rgb = np.asarray(image).astype(float)
-    prob = arrays["column_prob"]
+    prob = labels.column_prob
     out = rgb * 0.55  # darken what is not identified
     if prob.shape[1]:
         best = prob.argmax(axis=1)
         strength = prob[np.arange(width), best][None, :, None]
-        tint = building_colors(arrays["building_ids"])[best][None, :, :].astype(float)
+        tint = building_colors(labels.building_ids)[best][None, :, :].astype(float)
         blended = rgb * (1 - 0.6 * strength) + tint * 0.6 * strength
         out = np.where(mask[:, :, None], blended, out)
     ok, png = cv2.imencode(".png", cv2.cvtColor(out.clip(0, 255).astype(np.uint8), cv2.COLOR_RGB2BGR))

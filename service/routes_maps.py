@@ -9,21 +9,33 @@ from __future__ import annotations
 
 import json
 import logging
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
 from fastapi.responses import JSONResponse
 
+from contracts.answers import BoundingBox, LatLon
+from contracts.settings import Settings
 from db import Database, transaction
 from db import maps as map_store
 from db.files import FileStore
-from service.answers import BoundingBox, LatLon
+from db.rows import MapRow
+from geoloc.maps import (
+    MapLoadError,
+    MapReadOptions,
+    load_map,
+    map_cache_dir,
+    map_cache_path,
+    remove_cached_map,
+    save_city_map,
+)
+from geoloc.maps.crs import parse_crs
 from service.auth import require_read, require_write
 from service.bounds import MapId
-from service.deps import get_db, get_settings, get_store
+from service.deps import app_settings, get_db, get_store
 from service.errors import ApiError
+from service.intake import require_map
 from service.models import MapList, MapOut, error_responses, timestamp
-from service.settings import Settings
 from service.uploads import received_upload
 
 log = logging.getLogger("geoloc.api")
@@ -47,7 +59,7 @@ FILE_DESCRIPTION = (
 )
 
 
-def map_out(row: dict[str, Any], *, reference_count: int = 0, duplicate: bool = False) -> MapOut:
+def map_out(row: MapRow, *, reference_count: int = 0, duplicate: bool = False) -> MapOut:
     """A map row as its API model."""
     return MapOut(
         id=row["id"],
@@ -67,14 +79,6 @@ def map_out(row: dict[str, Any], *, reference_count: int = 0, duplicate: bool = 
         created_at=timestamp(row["created_at"]),
         duplicate=duplicate,
     )
-
-
-def require_map(db: Database, map_id: int) -> dict[str, Any]:
-    """The map row, or 404."""
-    row = map_store.get_map(db, map_id)
-    if row is None:
-        raise ApiError(404, "not_found", f"map {map_id} not found")
-    return row
 
 
 @router.post(
@@ -119,7 +123,7 @@ def upload_map(
         ),
     ] = None,
     db: Database = Depends(get_db),
-    settings: Settings = Depends(get_settings),
+    settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
 ) -> MapOut | JSONResponse:
     """Upload a map: buildings and facades are extracted and stored.
@@ -130,9 +134,6 @@ def upload_map(
     buildings, names a layer or attribute it does not have, or has coordinates that cannot be placed
     (the message says which CRS they look like and how to fix it).
     """
-    from geoloc.maps import MapLoadError, load_map, map_cache_dir, map_cache_path, save_city_map
-    from geoloc.maps.crs import parse_crs
-
     options = _read_options(layer, name_attribute, height_attribute, levels_attribute, crs)
     if options.crs is not None:
         try:
@@ -193,10 +194,8 @@ def _read_options(
     height_attribute: str | None,
     levels_attribute: str | None,
     crs: str | None,
-) -> Any:
+) -> MapReadOptions:
     """The form fields as ``MapReadOptions`` (blank fields mean the default)."""
-    from geoloc.maps import MapReadOptions
-
     given = {
         "layer": layer,
         "name_attribute": name_attribute,
@@ -258,7 +257,7 @@ def get_buildings(map_id: MapId, db: Database = Depends(get_db)) -> Response:
 def delete_map(
     map_id: MapId,
     db: Database = Depends(get_db),
-    settings: Settings = Depends(get_settings),
+    settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
 ) -> Response:
     """Delete a map with its buildings, references, labels, index entries and queries."""
@@ -266,8 +265,6 @@ def delete_map(
         deleted = map_store.delete_map(db, map_id)
     if deleted is None:
         raise ApiError(404, "not_found", f"map {map_id} not found")
-    from geoloc.maps import MapReadOptions, map_cache_dir, remove_cached_map
-
     store.delete(*deleted["image_paths"])
     if not deleted["source_shared"]:  # the same file read with other options is another map
         store.delete(deleted["source_path"])

@@ -16,27 +16,31 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated, Any
 
+import cv2
 import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
+from contracts.answers import QueryResult
+from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload
+from contracts.queries import PriorPosition, QueryParams
+from contracts.settings import Settings
 from db import Database, connect, transaction
 from db import jobs as job_store
 from db import queries as query_store
 from db.files import FileStore
+from db.rows import JobRow, MapRow, QueryRow
 from service.auth import require_read, require_write
-from service.bounds import MapId, QueryId, check_bounds, documented
-from service.deps import get_db, get_settings, get_store
+from service.bounds import MapId, QueryId, bounded_form, check_bounds
+from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
-from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
+from service.images import STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
+from service.intake import READ_ERRORS, PhotoIntake, work_status
 from service.limits import require_queue_capacity
 from service.models import QueryOut, error_responses, timestamp
-from service.routes_maps import require_map
-from service.routes_references import READ_ERRORS
-from service.settings import Settings
 from service.spec import QUEUE_FULL_RESPONSE
-from service.uploads import received_upload
+from service.uploads import ReceivedFile
 from service.waiting import JobWaiter
 from workers.broker import JobPublisher
 
@@ -44,38 +48,33 @@ router = APIRouter(tags=["queries"])
 DEFAULT_PRIOR_RADIUS_M = 50.0
 
 
-def query_out(row: dict[str, Any], job: dict[str, Any] | None) -> QueryOut:
+def query_out(row: QueryRow, job: JobRow | None) -> QueryOut:
     """A query row (and its job) as its API model."""
-    state, error = row["status"], row.get("error")
-    if state not in ("done", "failed") and job is not None:
-        if job["status"] == "running":
-            state = "processing"
-        elif job["status"] in ("failed", "cancelled"):
-            state, error = "failed", job.get("error") or f"job {job['status']}"
+    state, error = work_status(row["status"], row["error"], job)
     return QueryOut(
         id=row["id"],
         map_id=row["map_id"],
         status=state,
         error=error,
-        job_id=row.get("job_id"),
-        params=row["params"],
-        result=row["result"],
+        job_id=row["job_id"],
+        params=row["params"].to_json(),
+        result=None if row["result"] is None else QueryResult.model_validate(row["result"]),
         created_at=timestamp(row["created_at"]),
         updated_at=timestamp(row["updated_at"]),
     )
 
 
-def _load(db: Database, query_id: int) -> tuple[dict[str, Any], dict[str, Any] | None]:
+def _load(db: Database, query_id: int) -> tuple[QueryRow, JobRow | None]:
     row = query_store.get_query(db, query_id)
     if row is None:
         raise ApiError(404, "not_found", f"query {query_id} not found")
-    job = job_store.get_job(db, row["job_id"]) if row.get("job_id") else None
+    job = job_store.get_job(db, row["job_id"]) if row["job_id"] else None
     return row, job
 
 
-@dataclass
+@dataclass(frozen=True)
 class QueryForm:
-    """The form fields of a query (checked by :func:`_store_query`)."""
+    """The form fields of a query (checked by :class:`QueryIntake`)."""
 
     lat: float | None
     lon: float | None
@@ -88,72 +87,67 @@ class QueryForm:
     wait_s: float
 
 
-def _store_query(
-    settings: Settings, store: FileStore, publisher: JobPublisher, map_id: int, image: UploadFile, form: QueryForm
-) -> tuple[int, int]:
-    """Store a query and hand its job to the workers; returns their ids.
+class QueryIntake(PhotoIntake):
+    """A query upload: its prior position (request, else EXIF GPS unless turned off) inside the map."""
 
-    Checks the request, stores the photo, the query and its job in one transaction, then publishes the job.
+    folder = "queries"
+    kind = LOCALIZE_QUERY
 
-    Blocking (file and database work): run it in a worker thread.
-    """
-    db = connect(settings.database)
-    try:
-        map_row = require_map(db, map_id)
+    def __init__(self, settings: Settings, store: FileStore, publisher: JobPublisher, form: QueryForm) -> None:
+        super().__init__(settings, store, publisher)
+        self.form = form
+        self.prior: PriorPosition | None = None
+
+    def check_form(self) -> None:
+        """Check every number's bounds and that lat and lon come together."""
+        form = self.form
         for name in ("lat", "lon", "radius_m", "heading_deg", "focal_length_35mm", "top_n", "k", "wait_s"):
             check_bounds(name, getattr(form, name))
         if (form.lat is None) != (form.lon is None):
             raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
-        with received_upload(image, store, settings.max_image_bytes, "the image") as received:
-            info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
-            prior: dict[str, Any] | None = None
-            if form.lat is not None and form.lon is not None:
-                prior = {
-                    "lat": form.lat,
-                    "lon": form.lon,
-                    "radius_m": form.radius_m or DEFAULT_PRIOR_RADIUS_M,
-                    "source": "request",
-                }
-            elif form.use_exif_gps and info.gps_lat is not None and info.gps_lon is not None:
-                prior = {"lat": info.gps_lat, "lon": info.gps_lon, "radius_m": form.radius_m or DEFAULT_PRIOR_RADIUS_M}
-                prior["source"] = "exif"
-            if prior is not None:
-                distance = distance_outside_bbox_m(prior["lat"], prior["lon"], map_row["bbox_wgs84"])
-                if distance > settings.position_margin_m:
-                    raise ApiError(
-                        422,
-                        "outside_map",
-                        f"the prior position ({prior['lat']:.6f}, {prior['lon']:.6f}, from {prior['source']}) is "
-                        f"{distance:.0f} m outside map {map_id}'s bounding box; send use_exif_gps=false to ignore it",
-                        {"distance_m": round(distance, 1), "margin_m": settings.position_margin_m},
-                    )
-            params = {
-                "top_n": form.top_n,
-                "k": form.k,
-                "prior": prior,
-                "prior_heading_deg": form.heading_deg if form.heading_deg is not None else info.heading_deg,
-                "focal_length_35mm": form.focal_length_35mm,
-                "original_filename": received.filename,
-            }
-            relative = f"queries/{map_id}/{received.sha256}.{info.extension}"
-            with transaction(db):
-                query_id = query_store.insert_query(
-                    db, map_id=map_id, params=params, image_path=relative, sha256=received.sha256
+
+    def check_photo(self, map_row: MapRow, info: ImageInfo) -> None:
+        """The prior position, which must lie within the map's margin."""
+        form, prior = self.form, None
+        radius_m = form.radius_m or DEFAULT_PRIOR_RADIUS_M
+        if form.lat is not None and form.lon is not None:
+            prior = PriorPosition(lat=form.lat, lon=form.lon, radius_m=radius_m, source="request")
+        elif form.use_exif_gps and info.gps_lat is not None and info.gps_lon is not None:
+            prior = PriorPosition(lat=info.gps_lat, lon=info.gps_lon, radius_m=radius_m, source="exif")
+        if prior is not None:
+            distance = distance_outside_bbox_m(prior.lat, prior.lon, map_row["bbox_wgs84"])
+            margin_m = self.settings.position_margin_m
+            if distance > margin_m:
+                raise ApiError(
+                    422,
+                    "outside_map",
+                    f"the prior position ({prior.lat:.6f}, {prior.lon:.6f}, from {prior.source}) is "
+                    f"{distance:.0f} m outside map {map_row['id']}'s bounding box; send use_exif_gps=false to "
+                    "ignore it",
+                    {"distance_m": round(distance, 1), "margin_m": margin_m},
                 )
-                received.move_to(relative)  # after insert_query took the query-photo lock
-                job_id = job_store.enqueue_job(
-                    db,
-                    job_store.LOCALIZE_QUERY,
-                    {"query_id": query_id, "map_id": map_id},
-                    max_attempts=settings.job_max_attempts,
-                    map_id=map_id,
-                    max_queued=settings.max_queued_jobs,
-                )
-                query_store.set_query_job(db, query_id, job_id)
-        publisher.publish(db, [job_id])
-        return query_id, job_id
-    finally:
-        db.close()
+        self.prior = prior
+
+    def insert(self, db: Database, map_id: int, key: str, received: ReceivedFile, info: ImageInfo) -> int:
+        """Insert the queued query with its parameters (:class:`contracts.queries.QueryParams`)."""
+        form = self.form
+        params = QueryParams(
+            top_n=form.top_n,
+            k=form.k,
+            prior=self.prior,
+            prior_heading_deg=form.heading_deg if form.heading_deg is not None else info.heading_deg,
+            focal_length_35mm=form.focal_length_35mm,
+            original_filename=received.filename,
+        )
+        return query_store.insert_query(db, map_id=map_id, params=params, image_path=key, sha256=received.sha256)
+
+    def payload(self, subject_id: int, map_id: int) -> LocalizeQueryPayload:
+        """Answer this query."""
+        return LocalizeQueryPayload(query_id=subject_id, map_id=map_id)
+
+    def link(self, db: Database, subject_id: int, job_id: int) -> None:
+        """Link the query to its job."""
+        query_store.set_query_job(db, subject_id, job_id)
 
 
 def _load_query(settings: Settings, query_id: int) -> QueryOut:
@@ -178,35 +172,20 @@ async def create_query(
     request: Request,
     map_id: MapId,
     image: Annotated[UploadFile, File(description="The photo to geolocate (JPEG, PNG, WEBP or TIFF)")],
-    lat: Annotated[
-        float | None, Form(description="Prior position latitude (WGS84)", json_schema_extra=documented("lat"))
-    ] = None,
-    lon: Annotated[
-        float | None, Form(description="Prior position longitude (WGS84)", json_schema_extra=documented("lon"))
-    ] = None,
-    radius_m: Annotated[
-        float | None,
-        Form(description="Prior position radius (m, about 2 sigma)", json_schema_extra=documented("radius_m")),
-    ] = None,
-    heading_deg: Annotated[
-        float | None,
-        Form(description="Prior heading, deg clockwise from north", json_schema_extra=documented("heading_deg")),
-    ] = None,
+    lat: Annotated[float | None, bounded_form("lat", "Prior position latitude (WGS84)")] = None,
+    lon: Annotated[float | None, bounded_form("lon", "Prior position longitude (WGS84)")] = None,
+    radius_m: Annotated[float | None, bounded_form("radius_m", "Prior position radius (m, about 2 sigma)")] = None,
+    heading_deg: Annotated[float | None, bounded_form("heading_deg", "Prior heading, deg clockwise from north")] = None,
     use_exif_gps: Annotated[bool, Form(description="Use the photo's EXIF GPS as the prior position")] = True,
     focal_length_35mm: Annotated[
-        float | None,
-        Form(description="35 mm-equivalent focal length", json_schema_extra=documented("focal_length_35mm")),
+        float | None, bounded_form("focal_length_35mm", "35 mm-equivalent focal length")
     ] = None,
-    top_n: Annotated[
-        int, Form(description="How many distinct locations to return", json_schema_extra=documented("top_n"))
-    ] = 10,
-    k: Annotated[
-        int, Form(description="How many references to retrieve for identities", json_schema_extra=documented("k"))
-    ] = 4,
-    wait_s: Annotated[
-        float, Form(description="How long to wait for the answer before 202", json_schema_extra=documented("wait_s"))
-    ] = 60.0,
-    settings: Settings = Depends(get_settings),
+    top_n: Annotated[int, bounded_form("top_n", "How many distinct locations to return")] = 10,
+    k: Annotated[int, bounded_form("k", "How many references to retrieve for identities")] = 4,
+    wait_s: Annotated[float, bounded_form("wait_s", "How long to wait for the answer before 202")] = 60.0,
+    settings: Settings = Depends(app_settings),
+    store: FileStore = Depends(get_store),
+    publisher: JobPublisher = Depends(get_publisher),
 ) -> QueryOut | JSONResponse:
     """Geolocate a photo on a map: ranked locations with headings, the heatmap, the buildings in the photo.
 
@@ -216,13 +195,11 @@ async def create_query(
     429 while the job queue is full (retry after ``Retry-After`` seconds).
     """
     form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, focal_length_35mm, top_n, k, wait_s)
-    state = request.app.state
-    query_id, job_id = await run_in_threadpool(
-        _store_query, settings, state.file_store, state.job_publisher, map_id, image, form
-    )
+    accepted = await run_in_threadpool(QueryIntake(settings, store, publisher, form).accept, map_id, image)
+    assert accepted.job_id is not None  # a query is never a duplicate
     waiter: JobWaiter = request.app.state.job_waiter
-    await waiter.wait(job_id, wait_s)
-    out = await run_in_threadpool(_load_query, settings, query_id)
+    await waiter.wait(accepted.job_id, wait_s)
+    out = await run_in_threadpool(_load_query, settings, accepted.subject_id)
     if out.status in ("done", "failed"):
         return out
     return JSONResponse(out.model_dump(mode="json"), status_code=status.HTTP_202_ACCEPTED)
@@ -241,7 +218,7 @@ async def get_query(
         float,
         Query(ge=0, le=300, description="Wait up to this long for the answer if it is not ready (a long poll)"),
     ] = 0.0,
-    settings: Settings = Depends(get_settings),
+    settings: Settings = Depends(app_settings),
 ) -> QueryOut:
     """A query: status (queued, processing, done, failed) and, when done, its answer.
 
@@ -271,8 +248,6 @@ def _done_result(db: Database, query_id: int) -> dict[str, Any]:
 )
 def get_heatmap_png(query_id: QueryId, db: Database = Depends(get_db)) -> Response:
     """The probability map as a PNG (north up, one pixel block per grid cell, the best location marked)."""
-    import cv2
-
     heat = np.asarray(_done_result(db, query_id)["heatmap"]["values"], dtype=float)
     scaled = np.flipud(heat / heat.max() if heat.max() > 0 else heat)  # row 0 is the southern edge
     colored = cv2.applyColorMap((255 * np.sqrt(scaled)).astype(np.uint8), cv2.COLORMAP_INFERNO)
@@ -330,6 +305,6 @@ def get_query_image(
 ) -> FileResponse:
     """The query photo as uploaded (its stored bytes, with the media type of its format)."""
     row, _ = _load(db, query_id)
-    if not row.get("image_path"):
+    if not row["image_path"]:
         raise ApiError(404, "not_found", f"query {query_id} has no stored photo")
     return stored_photo_response(store.local_path(row["image_path"]))

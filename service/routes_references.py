@@ -1,23 +1,32 @@
-"""References: geo-tagged photos of a map, labelled by the ``label_reference`` job."""
+"""References: geo-tagged photos of a map, labelled by the ``label_reference`` job.
+
+An upload goes through the photo-upload use-case shared with queries (:class:`service.intake.PhotoIntake`).
+"""
 
 from __future__ import annotations
 
 import logging
-from typing import Annotated, Any
+from dataclasses import dataclass
+from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Form, Query, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Query, Response, UploadFile, status
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
+from contracts.answers import BuildingInPhoto, EstimatedPose
+from contracts.jobs import LABEL_REFERENCE, LabelReferencePayload
+from contracts.settings import Settings
 from db import Database, transaction
 from db import jobs as job_store
 from db import references as reference_store
 from db.files import FileStore
-from service.answers import EstimatedPose
+from db.rows import JobRow, MapRow, ReferenceRow
 from service.auth import require_read, require_write
-from service.bounds import MapId, ReferenceId, check_bounds, documented
-from service.deps import get_db, get_publisher, get_settings, get_store
+from service.bounds import MapId, ReferenceId, bounded_form, check_bounds
+from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
-from service.images import STORED_MEDIA_TYPES, distance_outside_bbox_m, stored_photo_response, validate_image
+from service.images import STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
+from service.intake import READ_ERRORS, PhotoIntake, require_map, work_status
 from service.limits import require_queue_capacity
 from service.models import (
     Position,
@@ -27,16 +36,13 @@ from service.models import (
     error_responses,
     timestamp,
 )
-from service.routes_maps import require_map
-from service.settings import Settings
+from service.rendering import identity_overlay_png
 from service.spec import QUEUE_FULL_RESPONSE
-from service.uploads import received_upload
+from service.uploads import ReceivedFile
 from workers.broker import JobPublisher
 
 log = logging.getLogger("geoloc.api")
 router = APIRouter(tags=["references"])
-READ_ERRORS = error_responses(404)
-"""Errors a read answers itself (the specification adds auth, rate-limit and validation statuses)."""
 
 
 def resolve_position(
@@ -58,6 +64,94 @@ def resolve_position(
     return exif_lat, exif_lon, "exif"
 
 
+class ReferenceIntake(PhotoIntake):
+    """A reference upload: its position (request, else EXIF GPS) inside the map, one reference per photo."""
+
+    folder = "images"
+    kind = LABEL_REFERENCE
+
+    def __init__(
+        self,
+        settings: Settings,
+        store: FileStore,
+        publisher: JobPublisher,
+        form: ReferenceForm,
+    ) -> None:
+        super().__init__(settings, store, publisher)
+        self.form = form
+        self.position: tuple[float, float, str] = (0.0, 0.0, "request")
+        self.duplicate: ReferenceRow | None = None
+
+    def check_form(self) -> None:
+        """Check the heading and focal length's bounds."""
+        check_bounds("heading_deg", self.form.heading_deg)
+        check_bounds("focal_length_35mm", self.form.focal_length_35mm)
+
+    def check_photo(self, map_row: MapRow, info: ImageInfo) -> None:
+        """The reference's position, which must lie within the map's margin."""
+        ref_lat, ref_lon, source = resolve_position(self.form.lat, self.form.lon, info.gps_lat, info.gps_lon)
+        distance = distance_outside_bbox_m(ref_lat, ref_lon, map_row["bbox_wgs84"])
+        margin_m = self.settings.position_margin_m
+        if distance > margin_m:
+            raise ApiError(
+                422,
+                "outside_map",
+                f"the photo's position ({ref_lat:.6f}, {ref_lon:.6f}, from {source}) is {distance:.0f} m outside "
+                f"map {map_row['id']}'s bounding box (allowed margin {margin_m:.0f} m)",
+                {"distance_m": round(distance, 1), "margin_m": margin_m, "lat": ref_lat, "lon": ref_lon},
+            )
+        self.position = (ref_lat, ref_lon, source)
+
+    def existing(self, db: Database, map_id: int, sha256: str) -> int | None:
+        """The map's reference with this photo, if any (under a lock: the same photo sent twice at once)."""
+        db.lock(f"geoloc:reference:{map_id}:{sha256}")
+        self.duplicate = reference_store.find_reference_by_sha256(db, map_id, sha256)
+        return None if self.duplicate is None else self.duplicate["id"]
+
+    def insert(self, db: Database, map_id: int, key: str, received: ReceivedFile, info: ImageInfo) -> int:
+        """Insert the queued reference."""
+        ref_lat, ref_lon, source = self.position
+        form = self.form
+        return reference_store.insert_reference(
+            db,
+            map_id=map_id,
+            image_path=key,
+            original_filename=received.filename,
+            sha256=received.sha256,
+            size_bytes=received.size_bytes,
+            image_format=info.format,
+            width=info.width,
+            height=info.height,
+            gps_lat=ref_lat,
+            gps_lon=ref_lon,
+            position_source=source,
+            prior_heading_deg=form.heading_deg if form.heading_deg is not None else info.heading_deg,
+            focal_length_35mm=form.focal_length_35mm if form.focal_length_35mm is not None else info.focal_length_35mm,
+        )
+
+    def payload(self, subject_id: int, map_id: int) -> LabelReferencePayload:
+        """Label this reference."""
+        return LabelReferencePayload(reference_id=subject_id, map_id=map_id)
+
+    def link(self, db: Database, subject_id: int, job_id: int) -> None:
+        """Link the reference to its job."""
+        reference_store.set_reference_job(db, subject_id, job_id)
+
+    def job_reference_id(self, subject_id: int) -> int:
+        """The job is the reference's (deleting the reference cancels it)."""
+        return subject_id
+
+
+@dataclass(frozen=True)
+class ReferenceForm:
+    """The form fields of a reference upload (checked by :class:`ReferenceIntake`)."""
+
+    lat: float | None
+    lon: float | None
+    heading_deg: float | None
+    focal_length_35mm: float | None
+
+
 @router.post(
     "/v1/maps/{map_id}/references",
     response_model=ReferenceAccepted,
@@ -69,28 +163,18 @@ def resolve_position(
     },
     dependencies=[Depends(require_write), Depends(require_queue_capacity)],
 )
-def upload_reference(
+async def upload_reference(
     map_id: MapId,
     image: Annotated[UploadFile, File(description="The photo (JPEG, PNG, WEBP or TIFF; checked by content)")],
-    lat: Annotated[
-        float | None, Form(description="Latitude (WGS84); overrides EXIF GPS", json_schema_extra=documented("lat"))
-    ] = None,
-    lon: Annotated[
-        float | None, Form(description="Longitude (WGS84); overrides EXIF GPS", json_schema_extra=documented("lon"))
-    ] = None,
+    lat: Annotated[float | None, bounded_form("lat", "Latitude (WGS84); overrides EXIF GPS")] = None,
+    lon: Annotated[float | None, bounded_form("lon", "Longitude (WGS84); overrides EXIF GPS")] = None,
     heading_deg: Annotated[
-        float | None,
-        Form(description="Prior heading, degrees clockwise from north", json_schema_extra=documented("heading_deg")),
+        float | None, bounded_form("heading_deg", "Prior heading, degrees clockwise from north")
     ] = None,
     focal_length_35mm: Annotated[
-        float | None,
-        Form(
-            description="35 mm-equivalent focal length; overrides EXIF",
-            json_schema_extra=documented("focal_length_35mm"),
-        ),
+        float | None, bounded_form("focal_length_35mm", "35 mm-equivalent focal length; overrides EXIF")
     ] = None,
-    db: Database = Depends(get_db),
-    settings: Settings = Depends(get_settings),
+    settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
 ) -> ReferenceAccepted | JSONResponse:
@@ -102,59 +186,10 @@ def upload_reference(
     truncated image, no position, or a position outside the map (with the distance), 429 while the
     job queue is full (retry after ``Retry-After`` seconds).
     """
-    map_row = require_map(db, map_id)
-    check_bounds("heading_deg", heading_deg)
-    check_bounds("focal_length_35mm", focal_length_35mm)
-    with received_upload(image, store, settings.max_image_bytes, "the image") as received:
-        info = validate_image(received.path, max_pixels=settings.max_image_pixels, min_side=settings.min_image_side)
-        ref_lat, ref_lon, source = resolve_position(lat, lon, info.gps_lat, info.gps_lon)
-        distance = distance_outside_bbox_m(ref_lat, ref_lon, map_row["bbox_wgs84"])
-        if distance > settings.position_margin_m:
-            raise ApiError(
-                422,
-                "outside_map",
-                f"the photo's position ({ref_lat:.6f}, {ref_lon:.6f}, from {source}) is {distance:.0f} m outside "
-                f"map {map_id}'s bounding box (allowed margin {settings.position_margin_m:.0f} m)",
-                {
-                    "distance_m": round(distance, 1),
-                    "margin_m": settings.position_margin_m,
-                    "lat": ref_lat,
-                    "lon": ref_lon,
-                },
-            )
-        relative = f"images/{map_id}/{received.sha256}.{info.extension}"
-        with transaction(db):  # duplicate check, rows and job are one unit
-            db.lock(f"geoloc:reference:{map_id}:{received.sha256}")  # the same photo sent twice at once
-            existing = reference_store.find_reference_by_sha256(db, map_id, received.sha256)
-            if existing is None:
-                received.move_to(relative)
-                reference_id = reference_store.insert_reference(
-                    db,
-                    map_id=map_id,
-                    image_path=relative,
-                    original_filename=received.filename,
-                    sha256=received.sha256,
-                    size_bytes=received.size_bytes,
-                    image_format=info.format,
-                    width=info.width,
-                    height=info.height,
-                    gps_lat=ref_lat,
-                    gps_lon=ref_lon,
-                    position_source=source,
-                    prior_heading_deg=heading_deg if heading_deg is not None else info.heading_deg,
-                    focal_length_35mm=focal_length_35mm if focal_length_35mm is not None else info.focal_length_35mm,
-                )
-                job_id = job_store.enqueue_job(
-                    db,
-                    job_store.LABEL_REFERENCE,
-                    {"reference_id": reference_id, "map_id": map_id},
-                    max_attempts=settings.job_max_attempts,
-                    map_id=map_id,
-                    reference_id=reference_id,
-                    max_queued=settings.max_queued_jobs,
-                )
-                reference_store.set_reference_job(db, reference_id, job_id)
-    if existing is not None:
+    intake = ReferenceIntake(settings, store, publisher, ReferenceForm(lat, lon, heading_deg, focal_length_35mm))
+    accepted = await run_in_threadpool(intake.accept, map_id, image)
+    if intake.duplicate is not None:
+        existing = intake.duplicate
         out = ReferenceAccepted(
             id=existing["id"],
             map_id=map_id,
@@ -164,15 +199,16 @@ def upload_reference(
             duplicate=True,
         )
         return JSONResponse(out.model_dump(mode="json"), status_code=200)
-    publisher.publish(db, [job_id])
-    log.info("reference %d stored for map %d, job %d", reference_id, map_id, job_id)
-    return ReferenceAccepted(id=reference_id, map_id=map_id, job_id=job_id, status="queued", sha256=received.sha256)
+    log.info("reference %d stored for map %d, job %d", accepted.subject_id, map_id, accepted.job_id)
+    return ReferenceAccepted(
+        id=accepted.subject_id, map_id=map_id, job_id=accepted.job_id, status="queued", sha256=accepted.sha256
+    )
 
 
-def reference_out(row: dict[str, Any], job: dict[str, Any] | None) -> ReferenceOut:
+def reference_out(row: ReferenceRow, job: JobRow | None) -> ReferenceOut:
     """A reference row (and its job) as its API model."""
-    status_now, error = reference_store.effective_status(row, job)
-    estimated = None
+    status_now, error = work_status(row["status"], row["error"], job)
+    estimated, buildings = None, row["buildings_seen"]
     if row["estimated_lat"] is not None or row["estimated_heading_deg"] is not None:
         estimated = EstimatedPose(
             lat=row["estimated_lat"], lon=row["estimated_lon"], heading_deg=row["estimated_heading_deg"]
@@ -191,7 +227,7 @@ def reference_out(row: dict[str, Any], job: dict[str, Any] | None) -> ReferenceO
         prior_heading_deg=row["prior_heading_deg"],
         focal_length_35mm=row["focal_length_35mm"],
         estimated=estimated,
-        buildings_seen=row["buildings_seen"],
+        buildings_seen=None if buildings is None else [BuildingInPhoto.model_validate(b) for b in buildings],
         timings=row["timings"],
         created_at=timestamp(row["created_at"]),
         updated_at=timestamp(row["updated_at"]),
@@ -247,15 +283,13 @@ def get_labels_png(
 
     One colour per building, as in the paper's Fig. 5; uncertain columns are drawn paler.
     """
-    from service.rendering import identity_overlay_png
-
     row = reference_store.get_reference(db, reference_id)
     if row is None:
         raise ApiError(404, "not_found", f"reference {reference_id} not found")
-    arrays = reference_store.load_labels(db, reference_id)
-    if arrays is None:
+    labels = reference_store.load_labels(db, reference_id)
+    if labels is None:
         raise ApiError(409, "not_ready", f"reference {reference_id} is not labelled yet (status {row['status']})")
-    png = identity_overlay_png(store.local_path(row["image_path"]), arrays)
+    png = identity_overlay_png(store.local_path(row["image_path"]), labels)
     return Response(png, media_type="image/png")
 
 

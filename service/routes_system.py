@@ -4,19 +4,20 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any, Literal
+from typing import Literal
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 
+from contracts.settings import Settings
 from db import LATEST_VERSION, Database, connect, schema_version
 from db import jobs as job_store
+from db.rows import JobRow
 from service.auth import require_read
 from service.bounds import JobId
-from service.deps import get_db
+from service.deps import app_settings, get_db
 from service.errors import ApiError, error_body
 from service.models import ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
-from service.settings import Settings
 from workers.broker import broker_problem
 from workers.context import model_problems
 
@@ -51,7 +52,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
     Ready when the database answers at the current schema version, the broker answers (distributed
     profile), the models the workers need are built and current, and a worker heartbeat is recent.
     """
-    settings: Settings = request.app.state.settings
+    settings = app_settings(request)
     problems: list[str] = []
     version, workers, database_ok = -1, 0, False
     try:
@@ -91,7 +92,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
     return readiness
 
 
-def job_out(job: dict[str, Any]) -> JobOut:
+def job_out(job: JobRow) -> JobOut:
     """A job row as its API model."""
     return JobOut(
         id=job["id"],

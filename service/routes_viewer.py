@@ -15,7 +15,7 @@ from fastapi import APIRouter, FastAPI, Request
 from fastapi.responses import FileResponse, JSONResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
-from service.settings import Settings
+from service.deps import app_settings
 
 VIEWER_DIR = Path(__file__).resolve().parent / "viewer"
 """``index.html`` and ``static/`` (CSS, JavaScript modules)."""
@@ -48,7 +48,7 @@ def viewer_page() -> FileResponse:
 @router.get("/viewer/config.json")
 def viewer_config(request: Request) -> JSONResponse:
     """What the page must know before its first API call: whether it needs an API key."""
-    settings: Settings = request.app.state.settings
+    settings = app_settings(request)
     return JSONResponse({"auth_required": settings.auth_enabled}, headers={"Cache-Control": "no-store"})
 
 

@@ -21,7 +21,7 @@ from typing import Any
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
 
-from service.settings import Settings
+from contracts.settings import Settings
 
 Schema = dict[str, Any]
 ERROR_REF = {"$ref": "#/components/schemas/ErrorResponse"}

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import anyio.to_thread
 
+from contracts.jobs import FINAL_STATUSES
 from db import Database, connect
 from db import jobs as job_store
 
@@ -101,7 +102,7 @@ class JobWaiter:
                 continue
             for job_id in job_ids:
                 status = statuses.get(job_id)
-                if status is None or status in job_store.FINAL_STATUSES:
+                if status is None or status in FINAL_STATUSES:
                     for future in self._waiting.get(job_id, []):
                         if not future.done():
                             future.set_result(None)

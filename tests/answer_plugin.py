@@ -1,9 +1,9 @@
 """A worker plugin for ``tests/test_answers.py``: a query handler whose answer is chosen by ``top_n``.
 
 It stands in for a query handler with a bug: it builds an answer (well-formed for ``top_n`` 1, with
-one defect per other value) and then does what the real handler does with it: checks it with
-:func:`workers.answers.checked_query_answer` and stores it. Loaded with
-``GEOLOC_WORKER_PLUGINS=<this file>``, it replaces the method's ``localize_query`` handler.
+one defect per other value) as the API's model inside :func:`workers.handlers.answer_checked`, as the real
+handler does, and stores its JSON form. Loaded with ``GEOLOC_WORKER_PLUGINS=<this file>``, it replaces the
+method's ``localize_query`` handler.
 """
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import copy
 import math
 from typing import Any
 
+from contracts.answers import QueryResult
+from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload, LocalizeQueryResult
 from db import Database, transaction
 from db import queries as query_store
-from db.jobs import LOCALIZE_QUERY
-from workers.answers import checked_query_answer
-from workers.handlers import PermanentJobError, register
+from workers.handlers import PermanentJobError, answer_checked, register
 
 WELL_FORMED: dict[str, Any] = {
     "locations": [
@@ -70,14 +70,20 @@ def _answer(top_n: int) -> dict[str, Any]:
     return answer
 
 
-@register(LOCALIZE_QUERY)
-def answer_by_top_n(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
+def stored_answer(answer: dict[str, Any]) -> dict[str, Any]:
+    """``answer`` built as :class:`contracts.answers.QueryResult` (inside ``answer_checked``) in its stored form."""
+    with answer_checked("query answer"):
+        return QueryResult.model_validate(answer).model_dump(mode="json")
+
+
+@register(LOCALIZE_QUERY, LocalizeQueryPayload)
+def answer_by_top_n(db: Database, payload: LocalizeQueryPayload) -> LocalizeQueryResult:
     """Build the answer chosen by the query's ``top_n``, check it and store it like the real handler."""
-    query_id = int(payload["query_id"])
+    query_id = payload.query_id
     query = query_store.get_query(db, query_id)
     if query is None:
         raise PermanentJobError(f"query {query_id} no longer exists")
-    result = checked_query_answer(_answer(int(query["params"]["top_n"])))
+    result = stored_answer(_answer(query["params"].top_n))
     with transaction(db):
         query_store.update_query_result(db, query_id, status="done", result=result)
-    return {"query_id": query_id, "locations": len(result["locations"])}
+    return LocalizeQueryResult(query_id=query_id, locations=len(result["locations"]))

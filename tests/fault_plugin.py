@@ -11,18 +11,23 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Any
 
+from contracts.jobs import LABEL_REFERENCE, JobResult, LabelReferencePayload
 from db import Database, transaction
 from db import references as reference_store
-from db.jobs import LABEL_REFERENCE
 from workers.handlers import PermanentJobError, register
 
 
-@register(LABEL_REFERENCE)
-def label_slowly(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
+class SlowLabelResult(JobResult):
+    """The stand-in's result: which reference it labelled."""
+
+    reference_id: int
+
+
+@register(LABEL_REFERENCE, LabelReferencePayload)
+def label_slowly(db: Database, payload: LabelReferencePayload) -> SlowLabelResult:
     """Log the start, sleep, store the reference as labelled."""
-    reference_id = int(payload["reference_id"])
+    reference_id = payload.reference_id
     fd = os.open(os.environ["GEOLOC_TEST_LABEL_LOG"], os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
         os.write(fd, f"{reference_id} {os.getpid()}\n".encode())
@@ -35,4 +40,4 @@ def label_slowly(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
             db, reference_id, status="done", estimated_heading_deg=0.0, timings={"total": 1e3 * seconds}
         ):
             raise PermanentJobError(f"reference {reference_id} no longer exists")
-    return {"reference_id": reference_id}
+    return SlowLabelResult(reference_id=reference_id)

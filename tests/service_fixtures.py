@@ -27,6 +27,7 @@ from typing import Any
 
 import httpx
 
+from contracts.jobs import JobPayload, JobResult
 from workers.handlers import register
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -46,27 +47,61 @@ def _append_line(path: str, text: str) -> None:
         os.close(fd)
 
 
-@register("test_record")
-def record_handler(_db: Any, payload: dict[str, Any]) -> dict[str, Any]:
-    """Append ``token pid`` to ``payload['log']`` (detects a job run twice)."""
-    time.sleep(float(payload.get("seconds", 0.0)))
-    _append_line(payload["log"], f"{payload['token']} {os.getpid()}")
-    return {"token": payload["token"], "pid": os.getpid()}
+class RecordPayload(JobPayload):
+    """``test_record``: append ``token pid`` to the file ``log`` after ``seconds``."""
+
+    token: int
+    log: str
+    seconds: float = 0.0
 
 
-@register("test_sleep")
-def sleep_handler(_db: Any, payload: dict[str, Any]) -> dict[str, Any]:
-    """Log ``start pid``, sleep ``payload['seconds']``, log ``end pid`` (for crash tests)."""
-    _append_line(payload["log"], f"start {os.getpid()}")
-    time.sleep(float(payload["seconds"]))
-    _append_line(payload["log"], f"end {os.getpid()}")
-    return {"slept_s": payload["seconds"]}
+class RecordResult(JobResult):
+    """``test_record``'s result: the token and the process that ran it."""
+
+    token: int
+    pid: int
 
 
-@register("test_fail")
-def fail_handler(_db: Any, payload: dict[str, Any]) -> dict[str, Any]:
+class SleepPayload(JobPayload):
+    """``test_sleep``: sleep ``seconds``, logging start and end to the file ``log``."""
+
+    seconds: float
+    log: str
+
+
+class SleepResult(JobResult):
+    """``test_sleep``'s result."""
+
+    slept_s: float
+
+
+class FailPayload(JobPayload):
+    """``test_fail``: fail with ``reason``."""
+
+    reason: str = "test"
+
+
+@register("test_record", RecordPayload)
+def record_handler(_db: Any, payload: RecordPayload) -> RecordResult:
+    """Append ``token pid`` to ``payload.log`` (detects a job run twice)."""
+    time.sleep(payload.seconds)
+    _append_line(payload.log, f"{payload.token} {os.getpid()}")
+    return RecordResult(token=payload.token, pid=os.getpid())
+
+
+@register("test_sleep", SleepPayload)
+def sleep_handler(_db: Any, payload: SleepPayload) -> SleepResult:
+    """Log ``start pid``, sleep ``payload.seconds``, log ``end pid`` (for crash tests)."""
+    _append_line(payload.log, f"start {os.getpid()}")
+    time.sleep(payload.seconds)
+    _append_line(payload.log, f"end {os.getpid()}")
+    return SleepResult(slept_s=payload.seconds)
+
+
+@register("test_fail", FailPayload)
+def fail_handler(_db: Any, payload: FailPayload) -> JobResult:
     """Always fail (retry tests)."""
-    raise RuntimeError(f"deliberate failure: {payload.get('reason', 'test')}")
+    raise RuntimeError(f"deliberate failure: {payload.reason}")
 
 
 # --- processes ----------------------------------------------------------------------------------

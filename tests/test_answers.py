@@ -1,4 +1,4 @@
-"""The answer contract: workers check answers with the API's own models before storing them.
+"""The answer contract: workers build answers as the API's own models before storing them.
 
 A malformed answer fails its job at once with a reason, and a stored answer is always servable.
 """
@@ -15,11 +15,10 @@ from typing import Any
 import httpx
 import pytest
 
-from service.answers import QueryResult
-from workers.answers import checked_query_answer, checked_reference_labels
-from workers.handlers import PermanentJobError
+from contracts.answers import QueryResult, RankedLocation, ReferenceLabels
+from workers.handlers import PermanentJobError, answer_checked
 
-from .answer_plugin import WELL_FORMED
+from .answer_plugin import WELL_FORMED, stored_answer
 from .conftest import Profile
 from .service_fixtures import WRITE_KEY, RunningProcess, get_job_row, jpeg_bytes, running_service
 
@@ -43,7 +42,7 @@ ONE_BUILDING = {
 
 
 def test_a_well_formed_answer_is_stored_in_the_served_json_form() -> None:
-    stored = checked_query_answer(copy.deepcopy(WELL_FORMED))
+    stored = stored_answer(copy.deepcopy(WELL_FORMED))
     assert stored == json.loads(QueryResult.model_validate(WELL_FORMED).model_dump_json())
     assert stored["heatmap"]["origin_local_m"] == [-10.0, -10.0]
 
@@ -61,7 +60,7 @@ def test_a_malformed_answer_is_a_permanent_error_naming_the_field(defect: Any, f
     answer = copy.deepcopy(WELL_FORMED)
     defect(answer)
     with pytest.raises(PermanentJobError) as error:
-        checked_query_answer(answer)
+        stored_answer(answer)
     message = str(error.value)
     assert message.startswith("malformed query answer, not stored") and f"{field}: " in message and reason in message
 
@@ -72,10 +71,14 @@ def test_reference_labels_are_checked_too() -> None:
         "buildings_seen": copy.deepcopy(WELL_FORMED["buildings"]),
         "timings": {"segmentation": 160.2, "total": 900.0},
     }
-    assert checked_reference_labels(labels) == labels
+    with answer_checked("reference labels"):
+        assert ReferenceLabels.model_validate(labels).model_dump(mode="json") == labels
     labels["buildings_seen"][0]["x_end"] = "right"
-    with pytest.raises(PermanentJobError, match=r"malformed reference labels.*buildings_seen\.0\.x_end"):
-        checked_reference_labels(labels)
+    with (
+        pytest.raises(PermanentJobError, match=r"malformed reference labels.*buildings_seen\.0\.x_end"),
+        answer_checked("reference labels"),
+    ):
+        ReferenceLabels.model_validate(labels)
 
 
 @pytest.fixture(scope="module")
@@ -113,7 +116,7 @@ def _ask(client: httpx.Client, map_id: int, top_n: int) -> dict[str, Any]:
 def test_a_worker_stores_a_well_formed_answer_and_the_api_serves_it(client: httpx.Client, map_id: int) -> None:
     query = _ask(client, map_id, top_n=1)
     assert query["status"] == "done" and query["error"] is None
-    assert query["result"] == checked_query_answer(copy.deepcopy(WELL_FORMED))
+    assert query["result"] == stored_answer(copy.deepcopy(WELL_FORMED))
     assert client.get(f"/v1/queries/{query['id']}").json()["result"] == query["result"]
 
 
@@ -135,3 +138,14 @@ def test_a_malformed_answer_fails_the_job_at_once_with_the_reason(
     assert job["status"] == "failed" and job["attempts"] == 1, "a malformed answer is not retried"
     served = client.get(f"/v1/queries/{query['id']}")
     assert served.status_code == 200 and served.json()["status"] == "failed"
+
+
+def test_an_answer_built_directly_fails_for_good_naming_the_field() -> None:
+    """The handlers build the models field by field: a bad value fails at once, named, before anything is stored."""
+    location = copy.deepcopy(WELL_FORMED["locations"][0])
+    location["probability"] = math.nan
+    with pytest.raises(PermanentJobError) as error, answer_checked("query answer"):
+        RankedLocation(**location)
+    message = str(error.value)
+    assert message.startswith("malformed query answer, not stored") and "against RankedLocation" in message
+    assert "probability: Input should be a finite number" in message

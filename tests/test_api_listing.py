@@ -15,6 +15,8 @@ from typing import Any
 import httpx
 import pytest
 
+from contracts.jobs import LABEL_REFERENCE
+
 from .conftest import Profile
 from .service_fixtures import READ_KEY, WRITE_KEY, RunningProcess, jpeg_bytes, running_service
 
@@ -116,7 +118,7 @@ def test_counts_follow_the_jobs(tmp_path: Path, profile: Profile) -> None:
         db = connect(service.database)
         try:  # the job store moves the jobs as a worker would: one running, one failed, one done
             claimed = [
-                job_store.claim_job(db, worker, lease_s=600, kinds=[job_store.LABEL_REFERENCE]) for _ in range(3)
+                job_store.claim_job(db, worker, lease_s=600, kinds=[LABEL_REFERENCE]) for _ in range(3)
             ]
             assert [j["id"] if j else None for j in claimed] == [a["job_id"] for a in accepted[:3]]
             _running, failing, finishing = (j for j in claimed if j is not None)

@@ -13,7 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pydantic import ConfigDict
 
+from contracts.jobs import LABEL_REFERENCE, JobPayload, LabelReferencePayload
+from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from db import LATEST_VERSION, Database, connect, migrate, sbow, schema_version, transaction
 from db import jobs as job_store
 from db import maps as map_store
@@ -21,6 +24,29 @@ from db import references as reference_store
 from db.stats import table_counts
 
 from .conftest import Profile
+
+
+class AnyPayload(JobPayload):
+    """A test job's payload: any fields."""
+
+    model_config = ConfigDict(extra="allow")
+
+
+def tiny_keypoints(n: int, dim: int = 8) -> ReferenceKeypoints:
+    """``n`` keypoints of zeros (``dim``-dimensional descriptors), no identities, anchors or position."""
+    return ReferenceKeypoints.from_arrays(
+        {
+            "xy": np.zeros((n, 2)),
+            "descriptors": np.zeros((n, dim)),
+            "sizes": np.zeros(n),
+            "angles": np.zeros(n),
+            "responses": np.zeros(n),
+            "image_shape": np.array([4, 4]),
+            "scale": np.array(1.0),
+            "identity": np.zeros((n, 0)),
+            "building_ids": np.zeros(0, np.int64),
+        }
+    )
 
 
 @pytest.fixture
@@ -138,11 +164,14 @@ def test_map_round_trip_and_cascading_delete(db) -> None:
     assert facades is not None and facades["building_id"].tolist() == [0, 0, 0, 1, 1]
     ref = add_reference(db, map_id, "a" * 64)
     with transaction(db):
-        reference_store.save_labels(db, ref, {"identity": np.ones((4, 4), dtype=np.int16)})
-        reference_store.save_keypoints(db, ref, {"xy": np.zeros((3, 2)), "descriptors": np.zeros((3, 8))})
+        labels = ReferenceLabelArrays.from_mask(np.arange(2), np.ones((4, 2)), np.ones((4, 4), bool), np.ones((2, 2)))
+        reference_store.save_labels(db, ref, labels)
+        reference_store.save_keypoints(db, ref, tiny_keypoints(3))
         sbow.save_vocabulary(db, map_id, {"centers": np.zeros((10, 8))})
         sbow.index_reference(db, map_id, ref, np.array([1, 2, 2]), np.ones(3))
-        job_store.enqueue_job(db, "label_reference", {"reference_id": ref}, map_id=map_id, reference_id=ref)
+        job_store.enqueue_job(
+            db, LABEL_REFERENCE, LabelReferencePayload(reference_id=ref, map_id=map_id), map_id=map_id, reference_id=ref
+        )
     with transaction(db):
         deleted = map_store.delete_map(db, map_id)
     assert deleted is not None and deleted["image_paths"] == [f"images/{map_id}/{'a' * 64}.jpg"]
@@ -198,7 +227,7 @@ def test_duplicate_reference_checksum_is_rejected_by_the_schema(db) -> None:
 
 
 def test_job_retry_limit_keeps_the_error(db) -> None:
-    job_id = job_store.enqueue_job(db, "k", {"x": 1}, max_attempts=2)
+    job_id = job_store.enqueue_job(db, "k", AnyPayload(x=1), max_attempts=2)
     claimed = job_store.claim_job(db, "w1", lease_s=30)
     assert claimed is not None and claimed["id"] == job_id and claimed["attempts"] == 1
     assert job_store.claim_job(db, "w2", lease_s=30) is None  # leased
@@ -212,7 +241,7 @@ def test_job_retry_limit_keeps_the_error(db) -> None:
 
 
 def test_expired_lease_is_reclaimed_and_the_old_owner_cannot_finish(db) -> None:
-    job_id = job_store.enqueue_job(db, "k", {}, max_attempts=3)
+    job_id = job_store.enqueue_job(db, "k", AnyPayload(), max_attempts=3)
     assert job_store.claim_job(db, "dead-worker", lease_s=0.05) is not None
     time.sleep(0.1)
     taken = job_store.claim_job(db, "new-worker", lease_s=30)
@@ -225,7 +254,7 @@ def test_expired_lease_is_reclaimed_and_the_old_owner_cannot_finish(db) -> None:
 
 
 def test_expired_lease_on_the_last_attempt_fails_the_job(db) -> None:
-    job_id = job_store.enqueue_job(db, "k", {}, max_attempts=1)
+    job_id = job_store.enqueue_job(db, "k", AnyPayload(), max_attempts=1)
     assert job_store.claim_job(db, "dead-worker", lease_s=0.05) is not None
     time.sleep(0.1)
     assert job_store.claim_job(db, "other", lease_s=30) is None
@@ -234,7 +263,7 @@ def test_expired_lease_on_the_last_attempt_fails_the_job(db) -> None:
 
 
 def test_release_does_not_count_the_attempt(db) -> None:
-    job_id = job_store.enqueue_job(db, "k", {})
+    job_id = job_store.enqueue_job(db, "k", AnyPayload())
     assert job_store.claim_job(db, "w1", lease_s=30) is not None
     assert job_store.release_job(db, job_id, "w1")
     job = job_store.get_job(db, job_id)
@@ -244,7 +273,7 @@ def test_release_does_not_count_the_attempt(db) -> None:
 def test_concurrent_claims_take_each_job_once(db_path: Path | str) -> None:
     """Workers claiming at once (own connections) never take the same job (SKIP LOCKED / the write lock)."""
     db = connect(db_path)
-    job_ids = [job_store.enqueue_job(db, "k", {"n": n}) for n in range(40)]
+    job_ids = [job_store.enqueue_job(db, "k", AnyPayload(n=n)) for n in range(40)]
     db.close()
     claimed: list[int] = []
     errors: list[BaseException] = []

@@ -23,6 +23,9 @@ from .conftest import Profile
 from .model_fixtures import link_models
 from .service_fixtures import (
     REPO_ROOT,
+    FailPayload,
+    RecordPayload,
+    SleepPayload,
     get_job_row,
     read_rows,
     running_workers,
@@ -50,7 +53,7 @@ def test_two_competing_workers_never_run_a_job_twice(tmp_path: Path, built_model
     log = tmp_path / "runs.log"
     n_jobs = 60
     for token in range(n_jobs):
-        job_store.enqueue_job(db, "test_record", {"token": token, "log": str(log), "seconds": 0.01})
+        job_store.enqueue_job(db, "test_record", RecordPayload(token=token, log=str(log), seconds=0.01))
     db.close()
     with running_workers(data_dir, concurrency=2, models=built_models, **env) as workers:
         wait_for(
@@ -71,7 +74,7 @@ def test_sigkilled_worker_loses_nothing(tmp_path: Path, built_models: Path, prof
     data_dir = tmp_path / "data"
     db, env = new_database(profile, data_dir)
     log = tmp_path / "sleep.log"
-    job_id = job_store.enqueue_job(db, "test_sleep", {"seconds": 3, "log": str(log)}, max_attempts=3)
+    job_id = job_store.enqueue_job(db, "test_sleep", SleepPayload(seconds=3, log=str(log)), max_attempts=3)
     db.close()
     with running_workers(data_dir, concurrency=1, models=built_models, GEOLOC_JOB_LEASE_S="1.5", **env) as workers:
         wait_for(lambda: log.exists() and "start" in log.read_text(), timeout=60, what="the job to start")
@@ -94,8 +97,8 @@ def test_sigkilled_worker_loses_nothing(tmp_path: Path, built_models: Path, prof
 def test_retries_stop_at_the_limit_and_keep_the_error(tmp_path: Path, built_models: Path, profile: Profile) -> None:
     data_dir = tmp_path / "data"
     db, env = new_database(profile, data_dir)
-    failing = job_store.enqueue_job(db, "test_fail", {"reason": "disk on fire"}, max_attempts=3)
-    unknown = job_store.enqueue_job(db, "no_such_kind", {}, max_attempts=3)
+    failing = job_store.enqueue_job(db, "test_fail", FailPayload(reason="disk on fire"), max_attempts=3)
+    unknown = job_store.enqueue_job(db, "no_such_kind", FailPayload(), max_attempts=3)
     db.close()
     with running_workers(data_dir, concurrency=1, models=built_models, **env) as workers:
         wait_for(
@@ -122,7 +125,7 @@ def test_sigterm_releases_a_long_job_back_to_the_queue(tmp_path: Path, built_mod
     data_dir = tmp_path / "data"
     db, _ = new_database(Profile("embedded"), data_dir)
     log = tmp_path / "sleep.log"
-    job_id = job_store.enqueue_job(db, "test_sleep", {"seconds": 60, "log": str(log)})
+    job_id = job_store.enqueue_job(db, "test_sleep", SleepPayload(seconds=60, log=str(log)))
     db.close()
     link_models(data_dir, built_models)
     env = service_env(data_dir, GEOLOC_WORKER_GRACE_S="0.5")

@@ -5,14 +5,17 @@ SBoW retrieval ranks alike on SQLite and PostgreSQL.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from benchmarks.servers import PostgresServer
+from contracts.references import UNKNOWN_POSITION_SIGMA_M, ReferenceKeypoints
 from db import Database, connect, migrate, sbow, transaction
 from db import references as reference_store
+from db.blobs import pack_arrays, unpack_arrays
 from geoloc.evaluation.store import InMemoryReferenceStore
 from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.retrieval import Vocabulary
@@ -49,18 +52,7 @@ def _store_references(db: Database, seed: int = 0, count: int = 25) -> tuple[int
         ref = _reference(rng, reference_id, n=int(rng.integers(20, 80)))
         words = vocabulary.words(ref.features.descriptors)
         with transaction(db):
-            reference_store.save_keypoints(
-                db,
-                reference_id,
-                {
-                    **ref.features.to_arrays(),
-                    "identity": ref.keypoint_prob,
-                    "building_ids": ref.building_ids,
-                    **ref.anchors.to_arrays(),
-                    "position_covariance": ref.position_covariance,
-                    "position_xy": ref.position_xy,
-                },
-            )
+            reference_store.save_keypoints(db, reference_id, ref.keypoints())
             sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
         memory.add(ref)
     return map_id, vocabulary, memory
@@ -121,10 +113,10 @@ def test_positions_and_vocabulary_follow_the_database(tmp_path: Path) -> None:
     assert list(first) == ids  # an unknown id is left out
     assert all(np.array_equal(first[i], memory.references[i].position_xy) for i in ids)
     moved = np.array([-12.5, 40.0])
-    arrays = reference_store.load_keypoints(db, ids[2])
-    assert arrays is not None
+    keypoints = reference_store.load_keypoints(db, ids[2])
+    assert keypoints is not None
     with transaction(db):
-        reference_store.save_keypoints(db, ids[2], {**arrays, "position_xy": moved})
+        reference_store.save_keypoints(db, ids[2], dataclasses.replace(keypoints, position_xy=moved))
     second = store.positions(ids)
     assert np.array_equal(second[ids[2]], moved)
     assert np.array_equal(second[ids[0]], first[ids[0]])
@@ -137,3 +129,40 @@ def test_positions_and_vocabulary_follow_the_database(tmp_path: Path) -> None:
         sbow.save_vocabulary(db, map_id, {"centers": replacement})
     assert np.array_equal(vocabulary_for(db, map_id).centroids, replacement)
     db.close()
+
+
+def test_the_stored_format_keeps_its_dtypes_and_reads_old_references() -> None:
+    """Descriptors float16 and anchors float32/int32 on disk, float32 and float64/int64 read back; old defaults."""
+    rng = np.random.default_rng(3)
+    ref = _reference(rng, 1, n=12)
+    alternative = MapAnchors(rng.random((12, 3)), rng.integers(-1, 9, 12), rng.integers(-1, 3, 12), rng.random(12))
+    keypoints = dataclasses.replace(
+        ref.keypoints(),
+        alt_anchor_xyz=alternative.xyz,
+        alt_anchor_facade_id=alternative.facade_id,
+        alt_anchor_building_id=alternative.building_id,
+        alt_anchor_distance_m=alternative.distance_m,
+    )
+    arrays = unpack_arrays(pack_arrays(keypoints.to_arrays()))
+    assert list(arrays)[:3] == ["xy", "descriptors", "sizes"] and "alt_anchor_distance_m" in arrays
+    assert arrays["descriptors"].dtype == np.float16 and arrays["anchor_xyz"].dtype == np.float32
+    assert arrays["anchor_facade_id"].dtype == np.int32 and arrays["alt_anchor_building_id"].dtype == np.int32
+    assert arrays["image_shape"].dtype == np.int64 and arrays["method"].item() == "rootsift"
+    stored = StoredReference.from_keypoints(1, ReferenceKeypoints.from_arrays(arrays))
+    assert stored.features.descriptors.dtype == np.float32
+    assert np.array_equal(stored.features.descriptors, ref.features.descriptors.astype(np.float16).astype(np.float32))
+    assert stored.anchors.xyz.dtype == np.float64 and stored.anchors.facade_id.dtype == np.int64
+    assert np.array_equal(stored.anchors.xyz, ref.anchors.xyz.astype(np.float32).astype(np.float64))
+    assert stored.alternative_anchors is not None
+    assert np.array_equal(stored.alternative_anchors.facade_id, alternative.facade_id)
+    assert stored.features.image_shape == (480, 640) and stored.features.scale == 1.0
+
+    old = {name: arrays[name] for name in ("xy", "descriptors", "sizes", "angles", "responses", "image_shape")}
+    old.update(scale=arrays["scale"], identity=arrays["identity"], building_ids=arrays["building_ids"])
+    before = StoredReference.from_keypoints(2, ReferenceKeypoints.from_arrays(old))
+    assert before.features.method == "rootsift" and before.alternative_anchors is None
+    assert not before.anchors.valid.any() and np.isnan(before.anchors.xyz).all()
+    assert before.anchors.facade_id.dtype == np.int64 and (before.anchors.building_id == -1).all()
+    assert np.array_equal(before.position_covariance, np.eye(2) * UNKNOWN_POSITION_SIGMA_M**2)
+    assert np.isnan(before.position_xy).all()
+    assert np.isnan(ReferenceKeypoints.position_from_arrays(old)).all()

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload
+from contracts.queries import QueryParams
 from db import Database, connect, migrate, transaction
 from db import jobs as job_store
 from db import queries as query_store
@@ -38,8 +40,10 @@ def _query(
     (data_dir / photo).parent.mkdir(parents=True, exist_ok=True)
     (data_dir / photo).write_bytes(b"photo")
     with transaction(db):
-        query_id = query_store.insert_query(db, map_id=map_id, params={}, image_path=photo, sha256="x")
-        job_id = job_store.enqueue_job(db, job_store.LOCALIZE_QUERY, {"query_id": query_id}, map_id=map_id)
+        params = QueryParams(top_n=10, k=4)
+        query_id = query_store.insert_query(db, map_id=map_id, params=params, image_path=photo, sha256="x")
+        payload = LocalizeQueryPayload(query_id=query_id, map_id=map_id)
+        job_id = job_store.enqueue_job(db, LOCALIZE_QUERY, payload, map_id=map_id)
         query_store.set_query_job(db, query_id, job_id)
         created = time.time() - age_s
         db.execute("UPDATE queries SET created_at = ? WHERE id = ?", (created, query_id))
@@ -73,8 +77,8 @@ def test_purge_deletes_only_old_finished_queries_and_photos_no_one_uses(tmp_path
     assert not (tmp_path / "queries/1/a.jpg").exists(), "the photo of a deleted query is gone"
     assert (tmp_path / "queries/1/c.jpg").exists(), "a photo another query still uses stays"
     assert {row["payload"] for row in db.query("SELECT payload FROM jobs")} == {
-        json.dumps({"query_id": old_waiting}),
-        json.dumps({"query_id": new_shared}),
+        json.dumps({"query_id": old_waiting, "map_id": 1}),
+        json.dumps({"query_id": new_shared, "map_id": 1}),
     }, "the jobs of deleted queries go with them"
     assert reference_store.get_reference(db, reference_id) is not None, "references are never purged"
     assert old_done not in remaining and old_shared not in remaining

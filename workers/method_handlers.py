@@ -1,12 +1,14 @@
 """The method's job handlers: label a reference, answer a query. Thin: all of the method is in ``geoloc``.
 
-Both compute first and then write everything in one transaction with replace semantics, so a job that
-runs again after a crash leaves the same state. Loaded maps and the segmentation session are cached
-per worker process.
+Both compute first, build their answer as the API's models (:mod:`contracts.answers`, inside
+:func:`workers.handlers.answer_checked`: a malformed answer fails the job at once and nothing is stored), and
+then write everything in one transaction with replace semantics, so a job that runs again after a crash
+leaves the same state. A reference's arrays are stored in the format of :mod:`contracts.references`. Loaded
+maps and the segmentation session are cached per worker process.
 
 The method runs with the process's context (:func:`workers.context.worker_context`: the models folder and
 the job and network threads from the settings; its first call in a process also limits numpy's BLAS and
-OpenCV to ``GEOLOC_WORKER_THREADS`` threads).
+OpenCV to ``GEOLOC_WORKER_THREADS`` threads). Importing this module only registers the handlers.
 """
 
 from __future__ import annotations
@@ -19,13 +21,31 @@ from typing import Any
 
 import numpy as np
 
+from contracts.answers import (
+    BoundingBox,
+    BuildingInPhoto,
+    EstimatedPose,
+    Heatmap,
+    LatLon,
+    QueryResult,
+    RankedLocation,
+    ReferenceLabels,
+    ReferenceUsed,
+)
+from contracts.jobs import (
+    LABEL_REFERENCE,
+    LOCALIZE_QUERY,
+    LabelReferencePayload,
+    LabelReferenceResult,
+    LocalizeQueryPayload,
+    LocalizeQueryResult,
+)
 from contracts.settings import data_dir, get_settings
 from db import Database, sbow, transaction
 from db import maps as map_store
 from db import queries as query_store
 from db import references as reference_store
 from db.files import open_store
-from db.jobs import LOCALIZE_QUERY
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.query import QueryAnswer, QueryConfig, geolocate
 from geoloc.localize.reference import label_reference_photo
@@ -35,9 +55,8 @@ from geoloc.photos.photo import Photo, load_photo
 from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.model_files import vocabulary_path
 from geoloc.vision.segmentation import ModelNotBuiltError
-from workers.answers import checked_query_answer, checked_reference_labels
 from workers.context import worker_context
-from workers.handlers import LABEL_REFERENCE, PermanentJobError, register, treat_as_permanent
+from workers.handlers import PermanentJobError, answer_checked, register, treat_as_permanent
 from workers.reference_store import DatabaseReferenceStore, database_key
 
 treat_as_permanent(ModelNotBuiltError)  # a missing model stays missing until `geoloc models build` runs
@@ -108,11 +127,11 @@ def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
     return vocabulary
 
 
-@register(LABEL_REFERENCE)
-def label_reference(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
+@register(LABEL_REFERENCE, LabelReferencePayload)
+def label_reference(db: Database, payload: LabelReferencePayload) -> LabelReferenceResult:
     """Label a reference with the map, extract and index its features, store its pose and identities."""
     context = worker_context()
-    reference_id, map_id = int(payload["reference_id"]), int(payload["map_id"])
+    reference_id, map_id = payload.reference_id, payload.map_id
     ref = reference_store.get_reference(db, reference_id)
     if ref is None:
         raise PermanentJobError(f"reference {reference_id} no longer exists")
@@ -131,47 +150,22 @@ def label_reference(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
 
     lat, lon = (float(v) for v in frame.to_wgs84(label.x_m, label.y_m))
     heading = float(frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m))
-    buildings = _describe_buildings(city, identity.building_extents(), photo.original_size[0] / photo.intrinsics.width)
     timings = {k: round(v, 1) for k, v in labelled.timings_ms.items()}
     timings["total"] = round(1e3 * (time.perf_counter() - t0), 1)
-    labels = checked_reference_labels(
-        {
-            "estimated": {"lat": lat, "lon": lon, "heading_deg": round(heading, 2)},
-            "buildings_seen": buildings,
-            "timings": timings,
-        }
-    )
+    with answer_checked("reference labels"):
+        labels = ReferenceLabels(
+            estimated=EstimatedPose(lat=lat, lon=lon, heading_deg=round(heading, 2)),
+            buildings_seen=_describe_buildings(
+                city, identity.building_extents(), photo.original_size[0] / photo.intrinsics.width
+            ),
+            timings=timings,
+        )
+    stored = labels.model_dump(mode="json")
     with transaction(db):
         if reference_store.get_reference(db, reference_id) is None:
             raise PermanentJobError(f"reference {reference_id} was deleted while it was labelled")
-        reference_store.save_labels(
-            db,
-            reference_id,
-            {
-                "building_ids": identity.building_ids,
-                "column_prob": identity.column_prob.astype(np.float32),
-                "building_mask": np.packbits(identity.building_mask, axis=1),
-                "mask_width": np.array([identity.building_mask.shape[1]]),
-                "likelihood": label.likelihood.astype(np.float32),
-            },
-        )
-        reference_store.save_keypoints(
-            db,
-            reference_id,
-            {
-                **features.to_arrays(),
-                "identity": labelled.keypoint_identity,
-                "building_ids": identity.building_ids,
-                **labelled.anchors.to_arrays(),
-                "position_covariance": label.position_covariance,
-                "position_xy": np.array([label.x_m, label.y_m]),
-                **(
-                    labelled.alternative_anchors.to_arrays("alt_anchor")
-                    if labelled.alternative_anchors is not None
-                    else {}
-                ),
-            },
-        )
+        reference_store.save_labels(db, reference_id, labelled.label_arrays())
+        reference_store.save_keypoints(db, reference_id, labelled.keypoints())
         sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
         reference_store.update_reference_result(
             db,
@@ -180,38 +174,40 @@ def label_reference(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
             estimated_lat=lat,
             estimated_lon=lon,
             estimated_heading_deg=round(heading, 2),
-            buildings_seen=labels["buildings_seen"],
-            timings=labels["timings"],
+            buildings_seen=stored["buildings_seen"],
+            timings=stored["timings"],
         )
-    return {"reference_id": reference_id, "heading_deg": round(heading, 2), "buildings": len(buildings)}
+    return LabelReferenceResult(
+        reference_id=reference_id, heading_deg=round(heading, 2), buildings=len(labels.buildings_seen)
+    )
 
 
 def _describe_buildings(
     city: CityMap, extents: Sequence[Mapping[str, Any]], column_scale: float
-) -> list[dict[str, Any]]:
-    """Add OSM ids and names to building extents and express columns in the uploaded photo's pixels."""
+) -> list[BuildingInPhoto]:
+    """Building extents with their OSM ids and names, columns in the uploaded photo's pixels."""
     out = []
     for entry in extents:
         building = city.buildings[entry["building_id"]]
         out.append(
-            {
-                **entry,
-                "osm_id": building.osm_id,
-                "name": building.name,
-                "pixel_share": round(entry["pixel_share"], 4),
-                "probability": round(entry["probability"], 4),
-                "x_start": int(entry["x_start"] * column_scale),
-                "x_end": int(round((entry["x_end"] + 1) * column_scale)) - 1,
-            }
+            BuildingInPhoto(
+                building_id=entry["building_id"],
+                osm_id=building.osm_id,
+                name=building.name,
+                pixel_share=round(entry["pixel_share"], 4),
+                x_start=int(entry["x_start"] * column_scale),
+                x_end=int(round((entry["x_end"] + 1) * column_scale)) - 1,
+                probability=round(entry["probability"], 4),
+            )
         )
     return out
 
 
-@register(LOCALIZE_QUERY)
-def localize_query(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
+@register(LOCALIZE_QUERY, LocalizeQueryPayload)
+def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQueryResult:
     """Answer a query with the query stage (:func:`geoloc.localize.query.geolocate`); store the JSON answer."""
     context = worker_context()
-    query_id, map_id = int(payload["query_id"]), int(payload["map_id"])
+    query_id, map_id = payload.query_id, payload.map_id
     query = query_store.get_query(db, query_id)
     if query is None:
         raise PermanentJobError(f"query {query_id} no longer exists")
@@ -219,41 +215,42 @@ def localize_query(db: Database, payload: dict[str, Any]) -> dict[str, Any]:
     city = city_map_for(db, map_id)
     frame = city.frame
     t0 = time.perf_counter()
-    photo = _stored_photo(query["image_path"], params.get("focal_length_35mm"))
+    if query["image_path"] is None:
+        raise PermanentJobError(f"query {query_id} has no stored photo")
+    photo = _stored_photo(query["image_path"], params.focal_length_35mm)
     evidence = analyze_photo(photo, context=context)
     position_prior = prior_yaw = None
-    prior = params.get("prior")
-    if prior:
-        x, y = (float(v) for v in frame.to_local(prior["lat"], prior["lon"]))
-        position_prior = PositionPrior.from_radius(x, y, float(prior["radius_m"]))
-    if params.get("prior_heading_deg") is not None:
-        prior_yaw = float(frame.heading_to_bearing(params["prior_heading_deg"]))
+    if params.prior is not None:
+        x, y = (float(v) for v in frame.to_local(params.prior.lat, params.prior.lon))
+        position_prior = PositionPrior.from_radius(x, y, float(params.prior.radius_m))
+    if params.prior_heading_deg is not None:
+        prior_yaw = float(frame.heading_to_bearing(params.prior_heading_deg))
     answer = geolocate(
         city,
         photo,
         evidence,
         DatabaseReferenceStore(db, map_id),
         vocabulary_for(db, map_id),
-        QueryConfig(k=int(params["k"])),
+        QueryConfig(k=params.k),
         position_prior=position_prior,
         prior_yaw_deg=prior_yaw,
-        top_n=int(params["top_n"]),
+        top_n=params.top_n,
         context=context,
     )
-    result = _query_result(city, photo, answer)
-    result["timings_ms"] = {
+    timings_ms = {
         **{k: round(v, 1) for k, v in answer.timings_ms.items()},
         "total": round(1e3 * (time.perf_counter() - t0), 1),
     }
-    result = checked_query_answer(result)
+    with answer_checked("query answer"):
+        result = _query_result(city, photo, answer, timings_ms)
     with transaction(db):
-        if not query_store.update_query_result(db, query_id, status="done", result=result):
+        if not query_store.update_query_result(db, query_id, status="done", result=result.model_dump(mode="json")):
             raise PermanentJobError(f"query {query_id} was deleted while it was answered")
-    return {"query_id": query_id, "locations": len(result["locations"])}
+    return LocalizeQueryResult(query_id=query_id, locations=len(result.locations))
 
 
-def _query_result(city: CityMap, photo: Photo, answer: QueryAnswer) -> dict[str, Any]:
-    """The JSON answer (WGS84 and compass headings) of a :class:`geoloc.localize.query.QueryAnswer`."""
+def _query_result(city: CityMap, photo: Photo, answer: QueryAnswer, timings_ms: dict[str, float]) -> QueryResult:
+    """The answer (WGS84 and compass headings) of a :class:`geoloc.localize.query.QueryAnswer`."""
     frame = city.frame
     loc = answer.localization
     locations = []
@@ -261,45 +258,49 @@ def _query_result(city: CityMap, photo: Photo, answer: QueryAnswer) -> dict[str,
         lat, lon = (float(v) for v in frame.to_wgs84(pose.x_m, pose.y_m))
         heading = float(frame.bearing_to_heading(pose.yaw_deg, pose.x_m, pose.y_m)) % 360.0
         locations.append(
-            {
-                "rank": pose.rank,
-                "lat": round(lat, 7),
-                "lon": round(lon, 7),
-                "heading_deg": round(heading, 2),
-                "probability": round(pose.probability, 6),
-                "uncertainty_radius_m": round(min(pose.uncertainty_radius_m, MAX_REPORTED_RADIUS_M), 1),
-                "source": pose.source,
-                "inliers": int(pose.inliers),
-            }
+            RankedLocation(
+                rank=pose.rank,
+                lat=round(lat, 7),
+                lon=round(lon, 7),
+                heading_deg=round(heading, 2),
+                probability=round(pose.probability, 6),
+                uncertainty_radius_m=round(min(pose.uncertainty_radius_m, MAX_REPORTED_RADIUS_M), 1),
+                source=pose.source,
+                inliers=int(pose.inliers),
+            )
         )
     grid = loc.grid
     min_x, min_y, max_x, max_y = grid.bounds_m
     corner_lat, corner_lon = frame.to_wgs84(np.array([min_x, max_x]), np.array([min_y, max_y]))
     origin_lat, origin_lon = (float(v) for v in frame.to_wgs84(*grid.origin_m))
-    heatmap = {
-        "origin": {"lat": round(origin_lat, 7), "lon": round(origin_lon, 7)},
-        "origin_local_m": [round(grid.origin_m[0], 2), round(grid.origin_m[1], 2)],
-        "cell_m": grid.cell_m,
-        "shape": list(grid.shape),
-        "bounds": {
-            "min_lat": round(float(corner_lat.min()), 7),
-            "min_lon": round(float(corner_lon.min()), 7),
-            "max_lat": round(float(corner_lat.max()), 7),
-            "max_lon": round(float(corner_lon.max()), 7),
-        },
-        "values": np.round(loc.heatmap, 6).tolist(),
-    }
+    heatmap = Heatmap(
+        origin=LatLon(lat=round(origin_lat, 7), lon=round(origin_lon, 7)),
+        origin_local_m=(round(grid.origin_m[0], 2), round(grid.origin_m[1], 2)),
+        cell_m=grid.cell_m,
+        shape=(grid.shape[0], grid.shape[1]),
+        bounds=BoundingBox(
+            min_lat=round(float(corner_lat.min()), 7),
+            min_lon=round(float(corner_lon.min()), 7),
+            max_lat=round(float(corner_lat.max()), 7),
+            max_lon=round(float(corner_lon.max()), 7),
+        ),
+        values=np.round(loc.heatmap, 6).tolist(),
+    )
     scale = photo.original_size[0] / photo.intrinsics.width
-    return {
-        "locations": locations,
-        "heatmap": heatmap,
-        "buildings": _describe_buildings(city, answer.buildings, scale),
-        "references": [{k: r[k] for k in ("reference_id", "score", "matches", "inliers")} for r in answer.references],
-        "search": answer.search,
-        "camera": {
+    return QueryResult(
+        locations=locations,
+        heatmap=heatmap,
+        buildings=_describe_buildings(city, answer.buildings, scale),
+        references=[
+            ReferenceUsed(reference_id=r["reference_id"], score=r["score"], matches=r["matches"], inliers=r["inliers"])
+            for r in answer.references
+        ],
+        search=answer.search,
+        camera={
             "hfov_deg": round(photo.intrinsics.hfov_deg, 2),
             "focal_source": photo.intrinsics.source,
             "width": photo.original_size[0],
             "height": photo.original_size[1],
         },
-    }
+        timings_ms=timings_ms,
+    )

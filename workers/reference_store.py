@@ -20,7 +20,6 @@ the keypoints rows' times.
 
 from __future__ import annotations
 
-import io
 import threading
 from collections import OrderedDict
 from collections.abc import Hashable, Sequence
@@ -30,14 +29,10 @@ import numpy as np
 
 from db import Database, sbow
 from db import references as reference_store
-from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.sbow_index import SbowIndex
 from geoloc.localize.store import StoredReference
-from geoloc.vision.features import Features
 from geoloc.vision.model_files import DEFAULT_WORDS
 
-UNKNOWN_POSITION_SIGMA_M = 10.0
-"""Position uncertainty credited to a reference stored before labelling recorded one."""
 LOOKBACK_CHANGES = 256
 """Change-log rows re-read behind the high-water mark (see the module docstring)."""
 CACHED_MAP_INDEXES = 4
@@ -152,10 +147,10 @@ class DatabaseReferenceStore:
                     _DECODED.move_to_end(key)
                     out[original] = cached[1]
                     continue
-            arrays = reference_store.load_keypoints(self.db, reference_id)
-            if arrays is None:
+            keypoints = reference_store.load_keypoints(self.db, reference_id)
+            if keypoints is None:
                 continue
-            stored = stored_reference_from_arrays(original, arrays)
+            stored = StoredReference.from_keypoints(original, keypoints)
             with _LOCK:
                 _DECODED[key] = (stamps[reference_id], stored)
                 while len(_DECODED) > DECODED_CACHE_SIZE:
@@ -174,36 +169,11 @@ class DatabaseReferenceStore:
                 if cached is not None and cached[0] == stamp:
                     found[reference_id] = cached[1]
         missing = [reference_id for reference_id in stamps if reference_id not in found]
-        for reference_id, blob in reference_store.keypoint_blobs(self.db, missing).items():
-            with np.load(io.BytesIO(blob), allow_pickle=False) as npz:
-                position = npz["position_xy"] if "position_xy" in npz.files else None  # only this member is read
-            found[reference_id] = np.full(2, np.nan) if position is None else np.asarray(position, float)
+        for reference_id, position in reference_store.keypoint_positions(self.db, missing).items():
+            found[reference_id] = position
             with _LOCK:
                 _POSITIONS[(self._database, reference_id)] = (stamps[reference_id], found[reference_id])
                 while len(_POSITIONS) > POSITION_CACHE_SIZE:
                     _POSITIONS.popitem(last=False)
         return {original: found[i] for i, original in zip(ids, reference_ids, strict=True) if i in found}
 
-
-def stored_reference_from_arrays(reference_id: Hashable, arrays: dict[str, np.ndarray]) -> StoredReference:
-    """A :class:`StoredReference` from a reference's stored keypoint arrays."""
-    features = Features.from_arrays(arrays)
-    if "anchor_xyz" in arrays:
-        anchors = MapAnchors.from_arrays(arrays)
-    else:  # labelled before map anchors existed: no 3D points
-        n = len(features)
-        anchors = MapAnchors(np.full((n, 3), np.nan), np.full(n, -1), np.full(n, -1), np.full(n, np.nan))
-    covariance = arrays.get("position_covariance")
-    if covariance is None:
-        covariance = np.eye(2) * UNKNOWN_POSITION_SIGMA_M**2
-    position = arrays.get("position_xy")
-    return StoredReference(
-        reference_id,
-        features,
-        arrays["identity"],
-        arrays["building_ids"],
-        anchors,
-        np.asarray(covariance, float),
-        np.full(2, np.nan) if position is None else np.asarray(position, float),
-        MapAnchors.from_arrays(arrays, "alt_anchor") if "alt_anchor_xyz" in arrays else None,
-    )

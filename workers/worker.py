@@ -26,10 +26,11 @@ from pathlib import Path
 from typing import Any
 
 from contracts.settings import Settings
-from db import connect, migrate
+from db import Database, connect, migrate
 from db import jobs as job_store
 from db.files import open_store
-from workers.handlers import HANDLERS, JobHandler, PermanentJobError, is_permanent
+from db.rows import JobRow
+from workers.handlers import HANDLERS, PermanentJobError, Registration, is_permanent
 from workers.retention import purge_expired_queries, purge_interval_s
 
 log = logging.getLogger("geoloc.worker")
@@ -64,7 +65,7 @@ class Worker:
     profile's Celery task calls :meth:`run_job` for each job it claimed by id.
     """
 
-    def __init__(self, settings: Settings, handlers: dict[str, JobHandler] | None = None) -> None:
+    def __init__(self, settings: Settings, handlers: dict[str, Registration[Any]] | None = None) -> None:
         self.settings = settings
         self.handlers = HANDLERS if handlers is None else handlers
         self.worker_id = new_worker_id()
@@ -126,30 +127,29 @@ class Worker:
             log.info("worker %s stopped after %d jobs", self.worker_id, jobs_run)
         return jobs_run
 
-    def apply_retention(self, db: Any) -> None:
+    def apply_retention(self, db: Database) -> None:
         """Delete expired queries; a failure (a busy or full disk) is logged and tried again next time."""
         try:
             purge_expired_queries(db, open_store(self.settings.file_store_dir), self.settings.query_retention_s)
         except Exception:
             log.exception("retention: deleting expired queries failed; will try again")
 
-    def _execute(self, job: dict[str, Any], outcome: _Outcome) -> None:
-        handler = self.handlers.get(job["kind"])
-        if handler is None:
+    def _execute(self, job: JobRow, outcome: _Outcome) -> None:
+        registration = self.handlers.get(job["kind"])
+        if registration is None:
             outcome.error = PermanentJobError(
                 f"no handler registered for job kind {job['kind']!r} (known: {sorted(self.handlers)})"
             )
             return
         db = connect(self.database)
         try:
-            result = handler(db, job["payload"])
-            outcome.result = result if isinstance(result, dict) else {"value": result}
+            outcome.result = registration.run(db, job["payload"])
         except BaseException as exc:  # every failure is recorded on the job
             outcome.error = exc
         finally:
             db.close()
 
-    def run_job(self, db: Any, job: dict[str, Any]) -> bool:
+    def run_job(self, db: Database, job: JobRow) -> bool:
         """Run one claimed job to its outcome; False if it was released with the handler still running."""
         job_id, lease_s = int(job["id"]), self.settings.job_lease_s
         log.info("job %d (%s) attempt %d/%d", job_id, job["kind"], job["attempts"], job["max_attempts"])

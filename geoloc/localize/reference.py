@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from geoloc.core.context import MethodContext
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.localize.identity import IdentityMap
@@ -50,6 +51,17 @@ class LabelledReference:
     def camera_pose(self) -> CameraPose:
         """The labelled pose as a camera pose (pitch and roll from the photo's vertical vanishing point)."""
         return _camera_pose(self.label, self.evidence)
+
+    def keypoints(self) -> ReferenceKeypoints:
+        """What is stored of its keypoints (:class:`contracts.references.ReferenceKeypoints`; the store casts)."""
+        return stored_reference(None, self).keypoints()
+
+    def label_arrays(self) -> ReferenceLabelArrays:
+        """What is stored of its identity map (:class:`contracts.references.ReferenceLabelArrays`)."""
+        identity = self.identity
+        return ReferenceLabelArrays.from_mask(
+            identity.building_ids, identity.column_prob, identity.building_mask, self.label.likelihood
+        )
 
 
 def _camera_pose(label: ReferenceLabel, evidence: PhotoEvidence, alternative: bool = False) -> CameraPose:

@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from contracts.references import ReferenceKeypoints
 from geoloc.localize.anchors import MapAnchors
 from geoloc.vision.features import Features
 
@@ -35,6 +36,55 @@ class StoredReference:
     position_covariance: np.ndarray
     position_xy: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     alternative_anchors: MapAnchors | None = None
+
+    def keypoints(self) -> ReferenceKeypoints:
+        """What is stored of it (:class:`contracts.references.ReferenceKeypoints`; the format casts the dtypes)."""
+        features, anchors, alternative = self.features, self.anchors, self.alternative_anchors
+        return ReferenceKeypoints(
+            xy=features.xy,
+            descriptors=features.descriptors,
+            sizes=features.sizes,
+            angles=features.angles,
+            responses=features.responses,
+            image_shape=features.image_shape,
+            scale=features.scale,
+            method=features.method,
+            identity=self.keypoint_prob,
+            building_ids=self.building_ids,
+            anchor_xyz=anchors.xyz,
+            anchor_facade_id=anchors.facade_id,
+            anchor_building_id=anchors.building_id,
+            anchor_distance_m=anchors.distance_m,
+            position_covariance=self.position_covariance,
+            position_xy=self.position_xy,
+            alt_anchor_xyz=None if alternative is None else alternative.xyz,
+            alt_anchor_facade_id=None if alternative is None else alternative.facade_id,
+            alt_anchor_building_id=None if alternative is None else alternative.building_id,
+            alt_anchor_distance_m=None if alternative is None else alternative.distance_m,
+        )
+
+    @classmethod
+    def from_keypoints(cls, reference_id: Hashable, keypoints: ReferenceKeypoints) -> StoredReference:
+        """A reference read back from its stored keypoints (:class:`contracts.references.ReferenceKeypoints`)."""
+        k = keypoints
+        features = Features(k.xy, k.descriptors, k.sizes, k.angles, k.responses, k.image_shape, k.scale, k.method)
+        alternative = None
+        if k.alt_anchor_xyz is not None:
+            assert k.alt_anchor_facade_id is not None and k.alt_anchor_building_id is not None
+            assert k.alt_anchor_distance_m is not None
+            alternative = MapAnchors(
+                k.alt_anchor_xyz, k.alt_anchor_facade_id, k.alt_anchor_building_id, k.alt_anchor_distance_m
+            )
+        return cls(
+            reference_id,
+            features,
+            k.identity,
+            k.building_ids,
+            MapAnchors(k.anchor_xyz, k.anchor_facade_id, k.anchor_building_id, k.anchor_distance_m),
+            k.position_covariance,
+            k.position_xy,
+            alternative,
+        )
 
 
 class ReferenceStore(Protocol):

@@ -1,10 +1,11 @@
 """The answers that workers store and the API serves: one pydantic contract for both.
 
-A worker validates what it computed with these models before storing it (see
-:mod:`workers.answers`), so a malformed answer fails its job at once with the offending field named,
-instead of surfacing later as a 500 when the API serves it. The API's response models
-(:mod:`service.models`) embed the same classes. Only pydantic is imported here: workers import this
-module without the FastAPI app.
+The workers' handlers build these models directly (:mod:`workers.method_handlers`); a value that does not
+fit (a missing or unknown field, a wrong type, a NaN) raises pydantic's ``ValidationError`` while the answer
+is built, which :func:`workers.handlers.answer_checked` turns into a permanent job failure naming the field,
+so nothing malformed is stored. What is stored is the model's JSON form (``model_dump(mode="json")``),
+exactly what the API serves: the API's response models (:mod:`service.models`) embed the same classes.
+Only pydantic is imported here (contracts are the bottom layer).
 
 The models forbid unknown fields and non-finite numbers: a field added to an answer must be added
 here too (the OpenAPI reference then shows it), and a NaN never reaches a client.

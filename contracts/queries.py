@@ -1,0 +1,55 @@
+"""A query's parameters: what the API stores in ``queries.params`` and the worker reads back.
+
+The API builds one :class:`QueryParams` from the request's form and the photo's EXIF and stores its JSON
+(:meth:`QueryParams.to_json`); the query job reads it back (:meth:`QueryParams.from_json`) and the API serves
+it as the query's ``params``. The JSON is the one stored before this model existed (the same keys in the same
+order), and a row read back serves exactly the keys it was stored with (``exclude_unset``), so old rows are
+served as they were. Positions are WGS84 degrees, headings degrees clockwise from north.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict
+
+
+class PriorPosition(BaseModel):
+    """A prior on the photo's position: a disc of ``radius_m`` (about 2 sigma) around (lat, lon)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    lat: float
+    lon: float
+    radius_m: float
+    source: Literal["request", "exif"] | None = None
+    """Where it came from: the request's lat/lon, or the photo's EXIF GPS."""
+
+
+class QueryParams(BaseModel):
+    """How a query is answered.
+
+    top_n: how many distinct locations to return; k: how many references to retrieve for identities;
+    prior: the position prior (None: none); prior_heading_deg: the heading prior (request, else EXIF);
+    focal_length_35mm: the request's 35 mm-equivalent focal length (None: the photo's EXIF, else a default
+    field of view); original_filename: the uploaded file's name (kept for people, not used by the method).
+    """
+
+    model_config = ConfigDict(frozen=True)
+
+    top_n: int
+    k: int
+    prior: PriorPosition | None = None
+    prior_heading_deg: float | None = None
+    focal_length_35mm: float | None = None
+    original_filename: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The stored and served JSON form: the fields that were given (all of them when the API built it)."""
+        return self.model_dump(mode="json", exclude_unset=True)
+
+    @classmethod
+    def from_json(cls, stored: Mapping[str, Any]) -> QueryParams:
+        """The parameters read back from their stored JSON."""
+        return cls.model_validate(stored)
