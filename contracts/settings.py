@@ -2,7 +2,7 @@
 
 Every setting is an environment variable ``GEOLOC_<NAME>``; its default and meaning are written
 once, in :class:`Settings` below. The README's settings table is generated from this class
-(``python -m contracts.settings`` prints it; ``tests/test_settings.py`` fails when the README differs).
+(``python -m contracts.settings`` prints it; ``tests/unit/contracts/test_settings.py`` fails when the README differs).
 
 The environment is read once per process, on the first :func:`get_settings` call. Code that
 changes ``os.environ`` afterwards (tests that point ``GEOLOC_DATA_DIR`` at a temporary folder) calls

@@ -52,7 +52,7 @@ ERROR_CODES: tuple[tuple[int, str], ...] = (
     (503, "not_ready"),
 )
 """Every (status, code) the service answers with; the OpenAPI schema of ``ErrorDetail.code`` lists them
-(``tests/test_openapi_doc.py`` fails when a code is raised that is not here)."""
+(``tests/unit/service/test_openapi_doc.py`` fails when a code is raised that is not here)."""
 
 
 class ApiError(Exception):

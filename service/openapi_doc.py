@@ -1,7 +1,7 @@
 """Write the API reference from the app's own OpenAPI JSON: ``openapi.json`` and ``openapi.md``.
 
 ``python -m service.openapi_doc`` writes both files at the repository root; with ``--check`` it
-writes nothing and exits 1 with a diff when either is not current (``tests/test_openapi_doc.py``
+writes nothing and exits 1 with a diff when either is not current (``tests/unit/service/test_openapi_doc.py``
 runs the check in CI). The Markdown is rendered from the JSON alone (:func:`render_markdown`),
 so it shows exactly what the schema says: auth scopes from each operation's security
 requirement, error codes from ``ErrorDetail.code``'s ``x-error-codes``, and every field's
@@ -345,7 +345,7 @@ class Renderer:
             f"# {info.get('title', 'API')} REST API reference (version {info.get('version', '?')})",
             "",
             "<!-- Generated from the app's OpenAPI JSON (openapi.json) by `python -m service.openapi_doc`; "
-            "do not edit by hand. CI checks it is current (tests/test_openapi_doc.py). -->",
+            "do not edit by hand. CI checks it is current (tests/unit/service/test_openapi_doc.py). -->",
             "",
         ]
         if info.get("summary"):

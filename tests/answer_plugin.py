@@ -1,4 +1,4 @@
-"""A worker plugin for ``tests/test_answers.py``: a query handler whose answer is chosen by ``top_n``.
+"""A worker plugin for ``tests/e2e/test_answers.py``: a query handler whose answer is chosen by ``top_n``.
 
 It stands in for a query handler with a bug: it builds an answer (well-formed for ``top_n`` 1, with
 one defect per other value) as the API's model inside :func:`workers.handlers.answer_checked`, as the real

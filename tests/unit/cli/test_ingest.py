@@ -1,0 +1,231 @@
+"""``geoloc ingest`` against a real ``geoloc serve`` on loopback (API only, ``--workers 0``).
+
+The 29 real Lund photos rejected as outside the Helsinki map, a mixed folder (photos, non-images, a
+duplicate) and a second run that creates nothing; plus retries and unreachable services.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from PIL import Image
+from rich.console import Console
+
+from cli.ingest import IngestAbortError, ingest_folder
+from contracts.settings import shared_path
+from geoloc.photos.exif import write_jpeg
+from tests.conftest import Profile
+from tests.service_fixtures import (
+    READ_KEY,
+    REPO_ROOT,
+    WRITE_KEY,
+    RunningProcess,
+    free_port,
+    geoloc_command,
+    read_rows,
+    running_service,
+    table_counts,
+)
+
+INSIDE_HELSINKI = [(60.1716, 24.9443), (60.1700, 24.9450), (60.1690, 24.9420)]
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Iterator[RunningProcess]:
+    with running_service(tmp_path_factory.mktemp("ingest") / "data", workers=0, **profile.new_env()) as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
+def helsinki_id(service: RunningProcess) -> int:
+    with service.client(WRITE_KEY) as client, shared_path("data", "osm", "helsinki.osm.pbf").open("rb") as f:
+        response = client.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)}, data={"name": "helsinki"})
+    assert response.status_code == 201, response.text
+    return int(response.json()["id"])
+
+
+def run_ingest(service: RunningProcess, *args: str, api_key: str = WRITE_KEY) -> subprocess.CompletedProcess[str]:
+    """``geoloc ingest ARGS --url ... --api-key ...`` as a user would run it."""
+    return subprocess.run(
+        [*geoloc_command(), "ingest", *args, "--url", str(service.base_url), "--api-key", api_key],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "COLUMNS": "200"},
+        check=False,
+    )
+
+
+def outcomes(report: dict[str, Any]) -> dict[str, str]:
+    return {f["path"]: f["outcome"] for f in report["files"]}
+
+
+def test_lund_photos_are_all_rejected_as_outside_the_map(
+    service: RunningProcess, helsinki_id: int, tmp_path: Path
+) -> None:
+    lund = shared_path("data", "lund", "images")
+    before = table_counts(service.database)
+    out = tmp_path / "lund.json"
+    result = run_ingest(service, str(lund), "--map", str(helsinki_id), "--json", str(out))
+    assert result.returncode == 0, result.stdout + result.stderr  # rejections are not failures
+    report = json.loads(out.read_text())
+    assert report["summary"] == {"accepted": 0, "present": 0, "duplicate": 0, "rejected": 29, "skipped": 0, "failed": 0}
+    truth = {row["name"]: row for row in csv.DictReader(shared_path("data", "lund", "gps.csv").open())}
+    assert len(report["files"]) == len(truth) == 29
+    for f in report["files"]:
+        assert (f["http_status"], f["error_code"]) == (422, "outside_map"), f
+        assert "m outside map" in f["reason"] and "from exif" in f["reason"], f  # EXIF GPS read, distance given
+        assert abs(f["details"]["lat"] - float(truth[f["path"]]["lat"])) < 1e-5
+        assert abs(f["details"]["lon"] - float(truth[f["path"]]["lon"])) < 1e-5
+        assert 800_000 < f["details"]["distance_m"] < 840_000  # Lund is ~818 km from central Helsinki
+    assert "rejected by the service" in result.stdout and "422 outside_map" in result.stdout
+    assert "29 photo(s) were rejected" in result.stdout and "exit code 0" in result.stdout
+    assert table_counts(service.database) == before, "nothing stored"
+
+
+def _png(size: int = 120) -> bytes:
+    buffer = io.BytesIO()
+    Image.new("RGB", (size, size), (80, 120, 160)).save(buffer, "PNG")
+    return buffer.getvalue()
+
+
+def _photo(path: Path, position: tuple[float, float], seed: int) -> Path:
+    rgb = np.random.default_rng(seed).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
+    return write_jpeg(path, rgb, lat=position[0], lon=position[1], focal_35mm=28)
+
+
+def test_mixed_folder_then_a_second_run_creates_nothing(
+    service: RunningProcess, helsinki_id: int, tmp_path: Path
+) -> None:
+    folder = tmp_path / "photos"
+    (folder / "sub").mkdir(parents=True)
+    _photo(folder / "a.jpg", INSIDE_HELSINKI[0], seed=1)
+    _photo(folder / "b.jpg", INSIDE_HELSINKI[1], seed=2)
+    shutil.copy(folder / "a.jpg", folder / "copy-of-a.jpg")  # same content: uploaded once
+    _photo(folder / "sub" / "c.jpg", INSIDE_HELSINKI[2], seed=3)  # only with --recursive
+    (folder / "no-gps.png").write_bytes(_png())  # a photo the service refuses: no position
+    (folder / "notes.txt").write_text("not a photo")
+    (folder / "fake.jpg").write_bytes(b"a text file named like a photo")
+    (folder / "empty.jpg").write_bytes(b"")
+    refs_before = len(read_rows(service.database, "SELECT id FROM reference_images WHERE map_id = ?", (helsinki_id,)))
+
+    first = run_ingest(service, str(folder), "--map", str(helsinki_id), "--json", str(tmp_path / "1.json"))
+    assert first.returncode == 0, first.stdout + first.stderr
+    report = json.loads((tmp_path / "1.json").read_text())
+    assert outcomes(report) == {
+        "a.jpg": "accepted",
+        "copy-of-a.jpg": "duplicate",
+        "b.jpg": "accepted",
+        "no-gps.png": "rejected",
+        "notes.txt": "skipped",
+        "fake.jpg": "skipped",
+        "empty.jpg": "skipped",
+    }
+    by_path = {f["path"]: f for f in report["files"]}
+    assert by_path["copy-of-a.jpg"]["duplicate_of"] == "a.jpg"
+    assert by_path["no-gps.png"]["error_code"] == "no_position" and "422" in by_path["no-gps.png"]["reason"]
+    assert "not a photo" in by_path["fake.jpg"]["reason"] and by_path["empty.jpg"]["reason"] == "empty file"
+    assert all(by_path[p]["reference_id"] and by_path[p]["job_id"] for p in ("a.jpg", "b.jpg"))
+    refs = read_rows(service.database, "SELECT id, sha256 FROM reference_images WHERE map_id = ?", (helsinki_id,))
+    assert len(refs) == refs_before + 2
+    assert {by_path["a.jpg"]["sha256"], by_path["b.jpg"]["sha256"]} <= {r["sha256"] for r in refs}
+    counts = table_counts(service.database)
+
+    second = run_ingest(service, str(folder), "--map", str(helsinki_id), "--json", str(tmp_path / "2.json"))
+    assert second.returncode == 0, second.stdout + second.stderr
+    again = json.loads((tmp_path / "2.json").read_text())
+    assert again["summary"] == {"accepted": 0, "present": 2, "duplicate": 1, "rejected": 1, "skipped": 3, "failed": 0}
+    assert {f["path"]: f["reference_id"] for f in again["files"] if f["outcome"] == "present"} == {
+        "a.jpg": by_path["a.jpg"]["reference_id"],
+        "b.jpg": by_path["b.jpg"]["reference_id"],
+    }
+    assert "already present" in second.stdout
+    assert table_counts(service.database) == counts, "the second run created no rows"
+
+    third = run_ingest(
+        service, str(folder), "--map", str(helsinki_id), "--recursive", "--json", str(tmp_path / "3.json")
+    )
+    assert third.returncode == 0, third.stdout + third.stderr
+    recursive = outcomes(json.loads((tmp_path / "3.json").read_text()))
+    assert recursive["sub/c.jpg"] == "accepted" and recursive["a.jpg"] == recursive["b.jpg"] == "present"
+
+
+def test_cannot_start_exits_2_with_the_reason(service: RunningProcess, helsinki_id: int, tmp_path: Path) -> None:
+    _photo(tmp_path / "x.jpg", INSIDE_HELSINKI[0], seed=6)
+    counts = table_counts(service.database)
+    unknown_map = run_ingest(service, str(tmp_path), "--map", "424242")
+    assert unknown_map.returncode == 2 and "map 424242 not found" in unknown_map.stderr
+    bad_key = run_ingest(service, str(tmp_path), "--map", str(helsinki_id), api_key="not-a-key")
+    assert bad_key.returncode == 2 and "invalid API key" in bad_key.stderr
+    read_only = run_ingest(service, str(tmp_path), "--map", str(helsinki_id), api_key=READ_KEY)
+    assert read_only.returncode == 1, read_only.stderr  # a key without the write scope is a failure, not a rejection
+    assert "403 forbidden" in read_only.stdout and "failed after retries" in read_only.stdout
+    assert table_counts(service.database) == counts
+    nobody = subprocess.run(
+        [*geoloc_command(), "ingest", str(tmp_path), "--map", "1", "--url", f"http://127.0.0.1:{free_port()}"]
+        + ["--retries", "1"],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert nobody.returncode == 2 and "cannot reach the service" in nobody.stderr
+
+
+def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -> None:
+    """No server: a mock transport answers in turn.
+
+    503, then a connection error, then 202 for one photo; always 429 for the other.
+    """
+    _photo(tmp_path / "ok.jpg", INSIDE_HELSINKI[0], seed=4)
+    _photo(tmp_path / "busy.jpg", INSIDE_HELSINKI[1], seed=5)
+    calls: dict[str, int] = {}
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        if request.method == "GET":
+            return httpx.Response(200, json={"id": 1, "name": "mock"})
+        name = "busy" if b'filename="busy.jpg"' in request.content else "ok"
+        calls[name] = calls.get(name, 0) + 1
+        if name == "busy":
+            return httpx.Response(429, json={"error": {"code": "rate_limited", "message": "slow down"}})
+        if calls[name] == 1:
+            return httpx.Response(503, json={"error": {"code": "unavailable", "message": "busy"}})
+        if calls[name] == 2:
+            raise httpx.ConnectError("connection refused", request=request)
+        return httpx.Response(202, json={"id": 9, "job_id": 10, "status": "queued", "duplicate": False})
+
+    report = ingest_folder(
+        tmp_path,
+        1,
+        url="http://mock",
+        api_key=WRITE_KEY,
+        retries=3,
+        backoff_s=0.0,
+        transport=httpx.MockTransport(handler),
+        console=Console(file=io.StringIO()),
+    )
+    files = {f.path: f for f in report.files}
+    assert (files["ok.jpg"].outcome, files["ok.jpg"].attempts, files["ok.jpg"].reference_id) == ("accepted", 3, 9)
+    assert files["busy.jpg"].outcome == "failed" and files["busy.jpg"].attempts == 4 == calls["busy"]
+    assert "429 rate_limited" in (files["busy.jpg"].reason or "")
+    assert report.exit_code == 1
+
+    def down(request: httpx.Request) -> httpx.Response:
+        raise httpx.ConnectError("connection refused", request=request)
+
+    with pytest.raises(IngestAbortError, match="cannot reach the service"):
+        ingest_folder(tmp_path, 1, url="http://mock", api_key=None, retries=1, backoff_s=0.0,
+                      transport=httpx.MockTransport(down), console=Console(file=io.StringIO()))  # fmt: skip

@@ -1,0 +1,131 @@
+import dataclasses
+import inspect
+
+import numpy as np
+import pytest
+
+from geoloc.core.camera import Intrinsics
+from geoloc.localize.grid import GridOptions, PositionPrior, localize
+from geoloc.localize.labeling import LabelOptions, column_building_ids, label_reference
+from geoloc.localize.likelihood import LikelihoodOptions, image_model_from_map
+from geoloc.localize.map_likelihood import MapLikelihood
+from geoloc.localize.reference import LabelOptions as ReferenceLabelOptions
+from geoloc.localize.refinement import refine_pose, vanishing_point_yaw
+from geoloc.maps.raycast import cast_panoramas
+from geoloc.vision.image_model import ImageModel, bin_offsets_deg
+from tests.scenes import street_canyon, twin_buildings
+
+INTRINSICS = Intrinsics.from_hfov(640, 480, 60.0)
+OFFSETS = bin_offsets_deg(INTRINSICS)
+
+
+def _clean_model(city, xy, yaw, with_identity=False, with_distance=False) -> tuple[ImageModel, np.ndarray]:
+    pano = cast_panoramas(city, np.array([xy], dtype=float))
+    model = image_model_from_map(pano, 0, yaw, OFFSETS, with_identity=with_identity, with_distance=with_distance)
+    truth = column_building_ids(pano, np.array([yaw]), INTRINSICS, OFFSETS, 0.5)[0, 0]
+    return model, truth
+
+
+def test_reference_labelling_recovers_heading_position_and_identities() -> None:
+    city = street_canyon()
+    true_xy, true_yaw = (0.0, -10.0), 48.0
+    model, truth = _clean_model(city, true_xy, true_yaw)
+    mask = np.zeros((480, 640), dtype=bool)
+    mask[100:300, truth >= 0] = True
+    # GPS off by 7 m: the 3 x 3 grid around it contains the true position.
+    options = LabelOptions(cell_m=3.0, half_size_m=6.0)
+    label = label_reference(city, model, mask, INTRINSICS, (6.0, -6.0), options=options)
+    assert abs((label.yaw_deg - true_yaw + 180) % 360 - 180) <= 3.0
+    # The position is only as good as the view constrains it (no depth in the image model): it stays
+    # within the sampled grid and the likelihood there is near perfect.
+    assert label.best_likelihood > 0.95
+    for identity in (label.greedy, label.marginalized):
+        predicted = identity.pixel_ids()
+        truth_pixels = np.where(mask, truth[None, :], -1)
+        assert np.mean(predicted[mask] == truth_pixels[mask]) > 0.9
+    # Marginal probabilities are probabilities.
+    prob = label.marginalized.column_prob
+    assert prob.min() >= 0 and prob.sum(axis=1).max() <= 1 + 1e-5
+
+
+def test_heading_prior_picks_among_ambiguous_headings() -> None:
+    city = street_canyon()
+    model, _ = _clean_model(city, (0.0, -2.5), 90.0)  # looking at the east wall head-on
+    mask = np.ones((480, 640), dtype=bool)
+    # Without a prior looking east or west at the same distance is ambiguous in a symmetric canyon.
+    label = label_reference(
+        city,
+        model,
+        mask,
+        INTRINSICS,
+        (0.0, -2.5),
+        prior_yaw_deg=270.0,
+        options=LabelOptions(cell_m=5.0, half_size_m=0.0),
+    )
+    assert abs((label.yaw_deg - 270.0 + 180) % 360 - 180) <= 3.0
+
+
+def test_localize_with_identity_finds_the_right_twin() -> None:
+    city = twin_buildings()
+    # Looking into the West building's concave corner; the twin pose is 200 m east.
+    true_xy, true_yaw = (-70.0, 20.0), 240.0
+    model, _ = _clean_model(city, true_xy, true_yaw, with_identity=True)
+    found = localize(MapLikelihood(city, model), GridOptions(cell_m=10.0), top_n=3)
+    assert found.search["region"] == "identified_buildings" and found.search["buildings"] == [0]
+    best = found.poses[0]
+    assert (best.x_m, best.y_m) == true_xy and abs(best.yaw_deg - true_yaw) < 1e-6
+    assert all(p.x_m < 0 for p in found.poses)
+    assert found.heatmap.shape == found.grid.shape
+    assert found.heatmap.sum() == pytest.approx(1.0)
+    # Geometry only, searched around both buildings: the twin pose ranks next to the true one.
+    geometry = MapLikelihood(city, model, LikelihoodOptions(use_identity=False))
+    both = localize(geometry, GridOptions(min_separation_m=20.0), candidate_buildings=[0, 1], top_n=2)
+    assert sorted(p.x_m for p in both.poses) == [-70.0, 130.0]
+
+
+def test_localize_uses_position_prior_and_refinement_reaches_the_true_pose() -> None:
+    city = twin_buildings()
+    true_xy, true_yaw = (131.3, 21.7), 241.4  # off the 10 m grid and off the 3 deg yaws
+    model, _ = _clean_model(city, true_xy, true_yaw, with_distance=True)
+    prior = PositionPrior.from_radius(125.0, 15.0, 30.0)
+    geometry = MapLikelihood(city, model, LikelihoodOptions(use_identity=False))
+    found = localize(geometry, position_prior=prior)
+    assert found.search["region"] == "position_prior" and found.search["position_prior"]
+    best = found.poses[0]
+    assert np.hypot(best.x_m - true_xy[0], best.y_m - true_xy[1]) < 7.5 and abs(best.yaw_deg - true_yaw) <= 3.0
+    refined = refine_pose(geometry, best.x_m, best.y_m, best.yaw_deg, half_size_m=6.0, cell_m=0.5)
+    # The perfect model's facade orientations fix the yaw, its distances and extents the position.
+    assert abs((refined.yaw_deg - true_yaw + 180) % 360 - 180) < 0.3
+    assert np.hypot(refined.x_m - true_xy[0], refined.y_m - true_xy[1]) < 1.0
+    assert refined.vp_bins > 20 and refined.likelihood > 0.9
+
+
+def test_vanishing_point_yaw_is_exact_given_the_facade_seen() -> None:
+    city = street_canyon()
+    true_yaw = 77.3  # looking at the east wall 12.7 deg from head-on
+    model, _ = _clean_model(city, (0.0, -2.5), true_yaw)
+    for start in (70.0, 84.0):  # a grid yaw off by up to 7 deg
+        yaw, support = vanishing_point_yaw(city, model, 0.0, -2.5, start)
+        assert support > 20 and abs(yaw - true_yaw) < 0.3
+    # Nothing in view that agrees: the yaw is left alone and no support is reported.
+    empty = ImageModel(OFFSETS, np.zeros(len(OFFSETS)), np.zeros(len(OFFSETS)))
+    assert vanishing_point_yaw(city, empty, 0.0, -2.5, 70.0) == (70.0, 0)
+
+
+def test_position_prior_radius_is_two_sigma() -> None:
+    prior = PositionPrior.from_radius(0.0, 0.0, 50.0)
+    assert prior.sigma_m == 25.0 and prior.radius_m == 50.0
+    weights = prior.weights(np.array([[0.0, 0.0], [25.0, 0.0]]))
+    assert weights[0] == 1.0 and weights[1] == pytest.approx(np.exp(-0.5))
+
+
+def test_label_options_are_label_reference_defaults() -> None:
+    """``label_reference`` takes its tuning as one ``LabelOptions`` (the reference stage's), by default the defaults."""
+    keywords = {
+        name: parameter.default
+        for name, parameter in inspect.signature(label_reference).parameters.items()
+        if parameter.kind is inspect.Parameter.KEYWORD_ONLY
+    }
+    assert keywords == {"prior_yaw_deg": None, "options": LabelOptions()}
+    assert ReferenceLabelOptions is LabelOptions
+    assert dataclasses.asdict(LabelOptions())["gps_sigma_m"] == 8.0 and LabelOptions().n_modes == 3
