@@ -66,7 +66,7 @@ def read_photo(path: Path, hfov_deg: float | None = None) -> Photo:
     """
     # The method's modules load numpy: imported when a command reads a photo, for CLI start-up time.
     from geoloc.core.camera import Intrinsics
-    from geoloc.photos.photo import load_photo  # the same reason
+    from geoloc.photos.photo import load_photo
 
     photo = load_photo(path)
     if hfov_deg is not None:
@@ -373,7 +373,7 @@ def analyze(
     else:
         # Loads onnxruntime's session factory and the workers' settings: for CLI start-up time.
         from geoloc.vision.segmentation import load_session, segment
-        from workers.context import method_context  # the same reason
+        from workers.context import method_context
 
         try:
             lab = segment(rgb, session=load_session(method_context()))

@@ -63,10 +63,10 @@ def evaluate_camvid(
 
     # The method and the settings load numpy, OpenCV and pydantic: imported per command, for CLI start-up time.
     from contracts import settings as config  # lazy: CLI start-up
-    from geoloc.core.labels import CLASS_NAMES  # the same reason
-    from geoloc.vision.model_files import segmentation_files  # the same reason
-    from geoloc.vision.segmentation import load_session, network_size, segment  # the same reason
-    from workers.context import method_context  # the same reason
+    from geoloc.core.labels import CLASS_NAMES
+    from geoloc.vision.model_files import segmentation_files
+    from geoloc.vision.segmentation import load_session, network_size, segment
+    from workers.context import method_context
 
     root = config.shared_path("data", "camvid", split)
     images = sorted((root / "images").glob("*.png")) + sorted((root / "images").glob("*.jpg"))
@@ -125,7 +125,7 @@ def camvid(
     """Score our segmentation on CamVid: per-class accuracy (recall) and IoU, overall pixel accuracy."""
     # The method loads numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.vision.model_files import parse_size  # lazy: CLI start-up
-    from geoloc.vision.segmentation import ModelNotBuiltError  # the same reason
+    from geoloc.vision.segmentation import ModelNotBuiltError
 
     try:
         net_size = parse_size(size) if size else None
@@ -174,8 +174,8 @@ def world(
     """
     # The method loads numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.evaluation.world import default_runs, evaluate_world  # lazy: CLI start-up
-    from geoloc.localize.query import QueryConfig  # the same reason
-    from workers.context import method_context  # the same reason
+    from geoloc.localize.query import QueryConfig
+    from workers.context import method_context
 
     config = QueryConfig()
     chosen = default_runs(config)
@@ -261,7 +261,7 @@ def photos(
     """
     # The method loads numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.evaluation.world import evaluate_photos  # lazy: CLI start-up
-    from workers.context import method_context  # the same reason
+    from workers.context import method_context
 
     result = evaluate_photos(photos_dir, map_path, truth_csv, context=method_context())
     result["command"] = " ".join(["geoloc", *sys.argv[1:]])
@@ -292,15 +292,15 @@ def facades(
 
     # The method and the simulator load numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.evaluation.facades import column_orientation_errors  # lazy: CLI start-up
-    from geoloc.photos.photo import load_photo  # the same reason
-    from geoloc.sim.world import load_world  # the same reason
-    from geoloc.vision.facades import analyze_image  # the same reason
+    from geoloc.photos.photo import load_photo
+    from geoloc.sim.world import load_world
+    from geoloc.vision.facades import analyze_image
 
     if segmentation not in ("model", "gt"):
         raise typer.BadParameter("segmentation must be 'model' or 'gt'")
     # The segmentation loads onnxruntime's session factory: only for this command, for CLI start-up time.
     from geoloc.vision.segmentation import load_session, segment  # lazy: CLI start-up
-    from workers.context import method_context  # the same reason
+    from workers.context import method_context
 
     world_data = load_world(world_dir)
     session = load_session(method_context()) if segmentation == "model" else None

@@ -4,7 +4,8 @@ Layers run one way: ``contracts`` (typed contracts, at the bottom) <- ``geoloc``
 ``workers`` <- ``service`` <- ``cli``; ``benchmarks`` and ``tests`` sit on top. Inside ``geoloc`` the runtime
 stages (``core`` <- ``photos``, ``maps`` <- ``vision`` <- ``localize``) never import the simulator, the evaluation
 or the model export, and none of the method reads the settings. No import circle anywhere; no module over
-450 lines outside tests; a project module imported inside a function says why in a comment.
+450 lines outside tests; a project module imported inside a function says why in a comment (on its
+line, or above the run of imports it belongs to).
 """
 
 from __future__ import annotations
@@ -59,35 +60,61 @@ def _resolve(name: str) -> str | None:
 @cache
 def imports() -> tuple[Import, ...]:
     """Every import of a project module, from every project module (``TYPE_CHECKING`` blocks included)."""
+    return tuple(edge for module, path in modules().items() for edge in _module_imports(module, path))
+
+
+def _module_imports(module: str, path: Path) -> list[Import]:
+    """The imports of project modules in one module, each with where it stands and whether it says why."""
+    source = path.read_text()
+    lines = source.splitlines()
+    tree = ast.parse(source)
+    block_start = _import_block_starts(tree)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     found: list[Import] = []
-    for module, path in modules().items():
-        source = path.read_text()
-        lines = source.splitlines()
-        package = module if path.name == "__init__.py" else module.rpartition(".")[0]
 
-        def visit(
-            node: ast.AST, in_function: bool, module: str = module, package: str = package, lines: list[str] = lines
-        ) -> None:
-            for child in ast.iter_child_nodes(node):
-                inside = in_function or isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef)
-                names: list[str] = []
-                if isinstance(child, ast.Import):
-                    names = [alias.name for alias in child.names]
-                elif isinstance(child, ast.ImportFrom):
-                    base = child.module or ""
-                    if child.level:
-                        anchor = package.split(".")[: len(package.split(".")) - (child.level - 1)]
-                        base = ".".join([*anchor, *([child.module] if child.module else [])])
-                    names = [f"{base}.{alias.name}" for alias in child.names] + [base]
-                targets = {_resolve(name) for name in names} - {None, module}
-                line = getattr(child, "lineno", 0)
-                explained = "#" in lines[line - 1] or (line >= 2 and lines[line - 2].strip().startswith("#"))
-                for target in sorted(t for t in targets if t):
-                    found.append(Import(module, target, line, in_function, explained))
-                visit(child, inside)
+    def visit(node: ast.AST, in_function: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            inside = in_function or isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef)
+            names: list[str] = []
+            if isinstance(child, ast.Import):
+                names = [alias.name for alias in child.names]
+            elif isinstance(child, ast.ImportFrom):
+                base = child.module or ""
+                if child.level:
+                    anchor = package.split(".")[: len(package.split(".")) - (child.level - 1)]
+                    base = ".".join([*anchor, *([child.module] if child.module else [])])
+                names = [f"{base}.{alias.name}" for alias in child.names] + [base]
+            targets = {_resolve(name) for name in names} - {None, module}
+            line = getattr(child, "lineno", 0)
+            own_lines = lines[line - 1 : getattr(child, "end_lineno", line)]
+            run_above = lines[max(block_start.get(line, line) - 2, 0) : line - 1]  # from the line above its run
+            explained = any("#" in text for text in own_lines) or any(t.strip().startswith("#") for t in run_above)
+            found.extend(Import(module, t, line, in_function, explained) for t in sorted(filter(None, targets)))
+            visit(child, inside)
 
-        visit(ast.parse(source), False)
-    return tuple(found)
+    visit(tree, False)
+    return found
+
+
+def _import_block_starts(tree: ast.Module) -> dict[int, int]:
+    """For each import statement's line, the first line of the run of consecutive imports it belongs to.
+
+    A comment above such a run explains every import in it (``# lazy: ...`` once for a command's imports).
+    """
+    starts: dict[int, int] = {}
+    for node in ast.walk(tree):
+        for field in ("body", "orelse", "finalbody"):
+            statements = getattr(node, field, None)
+            if not isinstance(statements, list):
+                continue
+            first: int | None = None
+            for statement in statements:
+                if isinstance(statement, ast.Import | ast.ImportFrom):
+                    first = statement.lineno if first is None else first
+                    starts[statement.lineno] = first
+                else:
+                    first = None
+    return starts
 
 
 def _cycles() -> list[list[str]]:
