@@ -11,6 +11,7 @@ line, or above the run of imports it belongs to).
 from __future__ import annotations
 
 import ast
+import graphlib
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -85,6 +86,9 @@ def _module_imports(module: str, path: Path) -> list[Import]:
                     base = ".".join([*anchor, *([child.module] if child.module else [])])
                 names = [f"{base}.{alias.name}" for alias in child.names] + [base]
             targets = {_resolve(name) for name in names} - {None, module}
+            if not targets:
+                visit(child, inside)
+                continue
             line = getattr(child, "lineno", 0)
             own_lines = lines[line - 1 : getattr(child, "end_lineno", line)]
             run_above = lines[max(block_start.get(line, line) - 2, 0) : line - 1]  # from the line above its run
@@ -117,30 +121,20 @@ def _import_block_starts(tree: ast.Module) -> dict[int, int]:
     return starts
 
 
-def _cycles() -> list[list[str]]:
-    """Groups of more than one module that import each other, directly or through others."""
+def _cycle() -> list[str]:
+    """One import circle (modules, the first repeated at the end), or an empty list when there is none."""
     graph: dict[str, set[str]] = {module: set() for module in modules()}
     for edge in imports():
         graph[edge.importer].add(edge.imported)
-    reach = {module: _reachable(graph, module) for module in graph}
-    groups = {frozenset(m for m in reach[module] if module in reach[m]) | {module} for module in graph}
-    return sorted(sorted(group) for group in groups if len(group) > 1)
-
-
-def _reachable(graph: dict[str, set[str]], start: str) -> set[str]:
-    """Every module ``start`` imports, directly or through others."""
-    seen: set[str] = set()
-    todo = list(graph[start])
-    while todo:
-        module = todo.pop()
-        if module not in seen:
-            seen.add(module)
-            todo.extend(graph[module])
-    return seen
+    try:
+        graphlib.TopologicalSorter(graph).prepare()
+    except graphlib.CycleError as error:
+        return list(error.args[1])
+    return []
 
 
 def test_no_import_circle() -> None:
-    assert _cycles() == []
+    assert _cycle() == []
 
 
 def test_layers_run_one_way() -> None:
