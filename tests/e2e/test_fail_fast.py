@@ -28,6 +28,8 @@ from tests.service_fixtures import (
     wait_for,
 )
 
+pytestmark = pytest.mark.slow  # real server processes (tests/e2e/ is the slow suite)
+
 
 def _run(args: list[str], data_dir: Path) -> subprocess.CompletedProcess[str]:
     env = service_env(data_dir)
@@ -57,7 +59,6 @@ def test_stale_models_no_start(tmp_path: Path, built_models: Path) -> None:
     assert result.returncode == 2 and "is stale" in result.stderr and "--force" in result.stderr, result.stderr
 
 
-@pytest.mark.slow
 def test_api_alone_starts_and_readyz_says_why(tmp_path: Path, profile: Profile) -> None:
     env = profile.new_env()
     with running_service(tmp_path / "data", workers=0, **env) as service, service.client(None) as client:
@@ -71,7 +72,6 @@ def test_api_alone_starts_and_readyz_says_why(tmp_path: Path, profile: Profile) 
     assert any("no worker heartbeat" in p for p in problems), problems
 
 
-@pytest.mark.slow
 def test_a_model_gone_at_run_time_fails_the_job_at_once(tmp_path: Path, built_models: Path, profile: Profile) -> None:
     data_dir = tmp_path / "data"
     shutil.copytree(built_models, data_dir / "cache" / "models")  # a copy: this test deletes from it

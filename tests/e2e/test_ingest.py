@@ -1,7 +1,8 @@
 """``geoloc ingest`` against a real ``geoloc serve`` on loopback (API only, ``--workers 0``).
 
 The 29 real Lund photos rejected as outside the Helsinki map, a mixed folder (photos, non-images, a
-duplicate) and a second run that creates nothing; plus retries and unreachable services.
+duplicate) and a second run that creates nothing; an unknown map, bad keys and an unreachable service.
+Retries against a mock transport are in ``tests/unit/cli/test_ingest_retries.py``.
 """
 
 from __future__ import annotations
@@ -16,15 +17,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import httpx
-import numpy as np
 import pytest
 from PIL import Image
-from rich.console import Console
 
-from cli.ingest import IngestAbortError, ingest_folder
 from contracts.settings import shared_path
-from geoloc.photos.exif import write_jpeg
 from tests.conftest import Profile
 from tests.service_fixtures import (
     READ_KEY,
@@ -37,8 +33,9 @@ from tests.service_fixtures import (
     running_service,
     table_counts,
 )
+from tests.unit.cli.test_ingest_retries import INSIDE_HELSINKI, photo
 
-INSIDE_HELSINKI = [(60.1716, 24.9443), (60.1700, 24.9450), (60.1690, 24.9420)]
+pytestmark = pytest.mark.slow  # a real server (tests/e2e/ is the slow suite)
 
 
 @pytest.fixture(scope="module")
@@ -101,20 +98,15 @@ def _png(size: int = 120) -> bytes:
     return buffer.getvalue()
 
 
-def _photo(path: Path, position: tuple[float, float], seed: int) -> Path:
-    rgb = np.random.default_rng(seed).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
-    return write_jpeg(path, rgb, lat=position[0], lon=position[1], focal_35mm=28)
-
-
 def test_mixed_folder_then_a_second_run_creates_nothing(
     service: RunningProcess, helsinki_id: int, tmp_path: Path
 ) -> None:
     folder = tmp_path / "photos"
     (folder / "sub").mkdir(parents=True)
-    _photo(folder / "a.jpg", INSIDE_HELSINKI[0], seed=1)
-    _photo(folder / "b.jpg", INSIDE_HELSINKI[1], seed=2)
+    photo(folder / "a.jpg", INSIDE_HELSINKI[0], seed=1)
+    photo(folder / "b.jpg", INSIDE_HELSINKI[1], seed=2)
     shutil.copy(folder / "a.jpg", folder / "copy-of-a.jpg")  # same content: uploaded once
-    _photo(folder / "sub" / "c.jpg", INSIDE_HELSINKI[2], seed=3)  # only with --recursive
+    photo(folder / "sub" / "c.jpg", INSIDE_HELSINKI[2], seed=3)  # only with --recursive
     (folder / "no-gps.png").write_bytes(_png())  # a photo the service refuses: no position
     (folder / "notes.txt").write_text("not a photo")
     (folder / "fake.jpg").write_bytes(b"a text file named like a photo")
@@ -163,7 +155,7 @@ def test_mixed_folder_then_a_second_run_creates_nothing(
 
 
 def test_cannot_start_exits_2_with_the_reason(service: RunningProcess, helsinki_id: int, tmp_path: Path) -> None:
-    _photo(tmp_path / "x.jpg", INSIDE_HELSINKI[0], seed=6)
+    photo(tmp_path / "x.jpg", INSIDE_HELSINKI[0], seed=6)
     counts = table_counts(service.database)
     unknown_map = run_ingest(service, str(tmp_path), "--map", "424242")
     assert unknown_map.returncode == 2 and "map 424242 not found" in unknown_map.stderr
@@ -183,49 +175,3 @@ def test_cannot_start_exits_2_with_the_reason(service: RunningProcess, helsinki_
         check=False,
     )
     assert nobody.returncode == 2 and "cannot reach the service" in nobody.stderr
-
-
-def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -> None:
-    """No server: a mock transport answers in turn.
-
-    503, then a connection error, then 202 for one photo; always 429 for the other.
-    """
-    _photo(tmp_path / "ok.jpg", INSIDE_HELSINKI[0], seed=4)
-    _photo(tmp_path / "busy.jpg", INSIDE_HELSINKI[1], seed=5)
-    calls: dict[str, int] = {}
-
-    def handler(request: httpx.Request) -> httpx.Response:
-        if request.method == "GET":
-            return httpx.Response(200, json={"id": 1, "name": "mock"})
-        name = "busy" if b'filename="busy.jpg"' in request.content else "ok"
-        calls[name] = calls.get(name, 0) + 1
-        if name == "busy":
-            return httpx.Response(429, json={"error": {"code": "rate_limited", "message": "slow down"}})
-        if calls[name] == 1:
-            return httpx.Response(503, json={"error": {"code": "unavailable", "message": "busy"}})
-        if calls[name] == 2:
-            raise httpx.ConnectError("connection refused", request=request)
-        return httpx.Response(202, json={"id": 9, "job_id": 10, "status": "queued", "duplicate": False})
-
-    report = ingest_folder(
-        tmp_path,
-        1,
-        url="http://mock",
-        api_key=WRITE_KEY,
-        retries=3,
-        backoff_s=0.0,
-        transport=httpx.MockTransport(handler),
-        console=Console(file=io.StringIO()),
-    )
-    files = {f.path: f for f in report.files}
-    assert (files["ok.jpg"].outcome, files["ok.jpg"].attempts, files["ok.jpg"].reference_id) == ("accepted", 3, 9)
-    assert files["busy.jpg"].outcome == "failed" and files["busy.jpg"].attempts == 4 == calls["busy"]
-    assert "429 rate_limited" in (files["busy.jpg"].reason or "")
-    assert report.exit_code == 1
-
-    def down(request: httpx.Request) -> httpx.Response:
-        raise httpx.ConnectError("connection refused", request=request)
-
-    with pytest.raises(IngestAbortError, match="cannot reach the service"):
-        ingest_folder(tmp_path, 1, url="http://mock", api_key=None, retries=1, backoff_s=0.0,
-                      transport=httpx.MockTransport(down), console=Console(file=io.StringIO()))  # fmt: skip

@@ -1,0 +1,73 @@
+"""``geoloc ingest``'s retries against a mock transport: transient errors retried, given up at the limit.
+
+The same command against a real service is in ``tests/e2e/test_ingest.py``.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from rich.console import Console
+
+from cli.ingest import IngestAbortError, ingest_folder
+from geoloc.photos.exif import write_jpeg
+from tests.service_fixtures import WRITE_KEY
+
+INSIDE_HELSINKI = [(60.1716, 24.9443), (60.1700, 24.9450), (60.1690, 24.9420)]
+"""Positions inside the Helsinki map (lat, lon degrees)."""
+
+
+def photo(path: Path, position: tuple[float, float], seed: int) -> Path:
+    """A 320 x 240 noise JPEG at ``position`` (lat, lon) with a 28 mm focal length."""
+    rgb = np.random.default_rng(seed).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
+    return write_jpeg(path, rgb, lat=position[0], lon=position[1], focal_35mm=28)
+
+
+def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -> None:
+    """No server: a mock transport answers in turn.
+
+    503, then a connection error, then 202 for one photo; always 429 for the other.
+    """
+    photo(tmp_path / "ok.jpg", INSIDE_HELSINKI[0], seed=4)
+    photo(tmp_path / "busy.jpg", INSIDE_HELSINKI[1], seed=5)
+    calls: dict[str, int] = {}
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        if request.method == "GET":
+            return httpx.Response(200, json={"id": 1, "name": "mock"})
+        name = "busy" if b'filename="busy.jpg"' in request.content else "ok"
+        calls[name] = calls.get(name, 0) + 1
+        if name == "busy":
+            return httpx.Response(429, json={"error": {"code": "rate_limited", "message": "slow down"}})
+        if calls[name] == 1:
+            return httpx.Response(503, json={"error": {"code": "unavailable", "message": "busy"}})
+        if calls[name] == 2:
+            raise httpx.ConnectError("connection refused", request=request)
+        return httpx.Response(202, json={"id": 9, "job_id": 10, "status": "queued", "duplicate": False})
+
+    report = ingest_folder(
+        tmp_path,
+        1,
+        url="http://mock",
+        api_key=WRITE_KEY,
+        retries=3,
+        backoff_s=0.0,
+        transport=httpx.MockTransport(handler),
+        console=Console(file=io.StringIO()),
+    )
+    files = {f.path: f for f in report.files}
+    assert (files["ok.jpg"].outcome, files["ok.jpg"].attempts, files["ok.jpg"].reference_id) == ("accepted", 3, 9)
+    assert files["busy.jpg"].outcome == "failed" and files["busy.jpg"].attempts == 4 == calls["busy"]
+    assert "429 rate_limited" in (files["busy.jpg"].reason or "")
+    assert report.exit_code == 1
+
+    def down(request: httpx.Request) -> httpx.Response:
+        raise httpx.ConnectError("connection refused", request=request)
+
+    with pytest.raises(IngestAbortError, match="cannot reach the service"):
+        ingest_folder(tmp_path, 1, url="http://mock", api_key=None, retries=1, backoff_s=0.0,
+                      transport=httpx.MockTransport(down), console=Console(file=io.StringIO()))  # fmt: skip
