@@ -2,20 +2,22 @@
 
 The API (checking an upload), the workers (answering a job) and the command line (``geoloc analyze``,
 ``geoloc eval``) all read photos through :func:`load_photo`, so they see the same pixels and the same EXIF.
-It applies the EXIF orientation, reads GPS, heading and focal length (:mod:`geoloc.photos.exif`), resizes to
+It applies the EXIF orientation, reads GPS, heading and focal length (:mod:`geoloc.photos.exif`) and the
+capture's time, walk and compass (:mod:`geoloc.photos.capture`), resizes to
 at most :data:`WORKING_MAX_SIDE` pixels on the long side and derives the intrinsics of that image.
 """
 
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageOps
 
 from geoloc.core.camera import DEFAULT_HFOV_DEG, Intrinsics, intrinsics_from_focal
+from geoloc.photos.capture import CaptureInfo, read_capture
 from geoloc.photos.exif import ExifInfo, read_exif
 
 WORKING_MAX_SIDE = 1024
@@ -30,6 +32,8 @@ class Photo:
     intrinsics: Intrinsics
     exif: ExifInfo
     original_size: tuple[int, int]  # (width, height) after EXIF orientation, before resizing
+    capture: CaptureInfo = field(default_factory=CaptureInfo)
+    """Capture time, walk (sequence id) and compass (:mod:`geoloc.photos.capture`); not yet used by the method."""
 
     @property
     def gps(self) -> tuple[float, float] | None:
@@ -70,4 +74,4 @@ def load_photo(
         size = (max(1, round(width * scale)), max(1, round(height * scale)))
         image = image.resize(size, Image.Resampling.LANCZOS)
         intrinsics = intrinsics.scaled(*size)
-    return Photo(np.asarray(image), intrinsics, exif, (width, height))
+    return Photo(np.asarray(image), intrinsics, exif, (width, height), read_capture(data))
