@@ -70,6 +70,10 @@ FIRST_WALK_START = datetime(2024, 6, 1, 10, 0, 0)
 _DENSE_M = 0.5  # the walked path is handled as points this far apart
 
 
+class NoStreetsError(ValueError):
+    """A walk world was asked of a map without streets (OSM highways) to walk along."""
+
+
 @dataclass
 class Walk:
     """One walk's person and phone: the noise parameters drawn for it (metres, degrees, seconds)."""
@@ -316,7 +320,7 @@ def sample_walks(
     """``opts.n_references`` reference photos on walks (module docstring): the shots in walk order, the walks."""
     nodes, adj = _street_graph(scene.map)
     if not any(adj):
-        raise ValueError(f"{scene.map.source}: walk capture needs streets (OSM highways); this map has none")
+        raise NoStreetsError(f"{scene.map.source}: walk capture needs streets (OSM highways); this map has none")
     tall = _tall_near(scene)
     count = n_walks(opts.n_references)
     shots: list[Shot] = []
