@@ -11,6 +11,15 @@ Layout of a world folder (``geoloc sim world``)::
                            column_building_id, column_facade_id (W,) int32
     contact_sheet.jpg      thumbnails with names, and a map of the poses
 
+A walk world (``WorldOptions.capture == "walk"``, :mod:`geoloc.sim.walks`) has its references on walks
+and adds to the manifest ``options.capture``, ``walks`` (each walk's phone: GPS and compass noise
+parameters, pace, sequence UUID) and, per image, ``walk`` (walk id, index in the walk, heading mode),
+``compass`` (the heading written, its error, outlier flag, true std and stated accuracy; null: none) and
+``capture_time``, with the GPS record split into its correlated offset and jump; its photos carry
+sub-second capture times, GPSImgDirection and a Mapillary-style ImageDescription (:mod:`geoloc.sim.phone`).
+A scattered world has none of these keys, so it is byte-identical to one written before they existed; the
+manifest version is unchanged (the loader needs nothing new).
+
 The poses are sampled by :mod:`geoloc.sim.sampling` (deterministic for a seed), rendered by
 :func:`geoloc.sim.render.render` and written here; :func:`load_world` reads a world folder back.
 :class:`WorldOptions` and :func:`camera_for` live in :mod:`geoloc.sim.options` and are named here too,
