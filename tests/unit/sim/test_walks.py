@@ -11,6 +11,7 @@ import piexif
 import pytest
 import shapely
 
+from contracts.settings import shared_path
 from geoloc.maps import CityMap, load_map
 from geoloc.photos.exif import read_exif
 from geoloc.sim import Scene
@@ -28,11 +29,8 @@ from geoloc.sim.walks import (
 )
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
-OSM = Path("/work/shared/data/osm")
-HELSINKI = OSM / "helsinki.osm.pbf"
-PATCH = OSM / "germany_patch.osm"
-
-pytestmark = pytest.mark.skipif(not HELSINKI.exists() or not PATCH.exists(), reason="shared OSM maps missing")
+HELSINKI = shared_path("data", "osm", "helsinki.osm.pbf")
+PATCH = shared_path("data", "osm", "germany_patch.osm")  # 31 buildings, 545 m of streets: a small real map
 
 
 @pytest.fixture(scope="module")
