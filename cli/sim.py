@@ -43,6 +43,12 @@ def world(
     radius_m: float = typer.Option(220.0, "--radius-m", min=0.0, help="World disk radius (m); 0: whole map."),
     pitch_std_deg: float = typer.Option(1.0, "--pitch-std-deg", min=0.0, help="Camera pitch std (deg)."),
     roll_std_deg: float = typer.Option(0.3, "--roll-std-deg", min=0.0, help="Camera roll std (deg)."),
+    capture: str = typer.Option(
+        "scattered",
+        "--capture",
+        help="How references are taken: 'scattered' (one by one along the streets) or 'walk' (on walks, a photo "
+        "every 4-12 m, with a phone's correlated GPS, compass and capture time; needs OSM highways).",
+    ),
 ) -> None:
     """Sample references along streets and queries elsewhere, and render them.
 
@@ -51,17 +57,21 @@ def world(
     # lazy (CLI start-up time): the map reader and the simulator (pyproj, shapely, OpenCV, the compiled ray
     # caster) load only for this command, so that `geoloc --help` and the other commands start without them.
     from geoloc.maps import MapLoadError
+    from geoloc.sim.walks import NoStreetsError  # lazy: as the line above
     from geoloc.sim.world import WorldOptions, generate_world  # lazy: as the line above
 
     width, height = _parse_size(size)
+    if capture not in ("scattered", "walk"):
+        raise typer.BadParameter(f"--capture must be 'scattered' or 'walk', got {capture!r}")
     opts = WorldOptions(
         n_references=references, n_queries=queries, seed=seed, radius_m=radius_m,  # what, and where
         gps_noise_m=gps_noise_m, query_gps_noise_m=query_gps_noise_m,  # the GPS the photos carry
         width=width, height=height, hfov_deg=hfov, pitch_std_deg=pitch_std_deg, roll_std_deg=roll_std_deg,  # camera
+        capture="walk" if capture == "walk" else "scattered",  # how people took the references
     )  # fmt: skip
     try:
         manifest = generate_world(map_path, out, opts, progress=lambda msg: typer.echo(msg, err=True))
-    except MapLoadError as exc:
+    except (MapLoadError, NoStreetsError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
     n_ref = sum(r["role"] == "reference" for r in manifest["images"])

@@ -181,8 +181,17 @@ def exif_bytes(
     make: str = "GeolocSim",
     model: str = "StreetCam 1",
     taken: datetime | None = None,
+    subsec_time: str | None = None,
+    description: str | None = None,
+    gps_accuracy_m: float | None = None,
 ) -> bytes:
-    """The EXIF block (APP1 payload) for the given fields (see :func:`write_jpeg`)."""
+    """The EXIF block (APP1 payload) for the given fields (see :func:`write_jpeg`).
+
+    The optional fields are written only when given, so that a block without them is byte-for-byte what
+    it was before they existed: ``subsec_time`` (digits, e.g. ``"250"``: SubSecTimeOriginal and
+    SubSecTime), ``description`` (ImageDescription, e.g. a Mapillary-style JSON carrying the compass's
+    stated accuracy, for which EXIF has no tag), ``gps_accuracy_m`` (GPSHPositioningError, metres).
+    """
     stamp = (taken or datetime(2024, 6, 1, 12, 0, 0)).strftime("%Y:%m:%d %H:%M:%S").encode()
     zeroth = {
         piexif.ImageIFD.Make: make.encode(),
@@ -191,11 +200,16 @@ def exif_bytes(
         piexif.ImageIFD.DateTime: stamp,
         piexif.ImageIFD.Software: b"geoloc.sim",
     }
+    if description is not None:
+        zeroth[piexif.ImageIFD.ImageDescription] = description.encode()
     exif: dict[int, Any] = {
         piexif.ExifIFD.DateTimeOriginal: stamp,
         piexif.ExifIFD.PixelXDimension: int(width),
         piexif.ExifIFD.PixelYDimension: int(height),
     }
+    if subsec_time is not None:
+        exif[piexif.ExifIFD.SubSecTimeOriginal] = subsec_time.encode()
+        exif[piexif.ExifIFD.SubSecTime] = subsec_time.encode()
     if focal_35mm is not None:
         exif[piexif.ExifIFD.FocalLengthIn35mmFilm] = int(round(focal_35mm))
     if focal_mm is not None:
@@ -210,6 +224,8 @@ def exif_bytes(
         if altitude is not None:
             gps[piexif.GPSIFD.GPSAltitudeRef] = 0 if altitude >= 0 else 1
             gps[piexif.GPSIFD.GPSAltitude] = _to_rational(abs(altitude), 100)
+        if gps_accuracy_m is not None:
+            gps[piexif.GPSIFD.GPSHPositioningError] = _to_rational(abs(float(gps_accuracy_m)), 100)
     if heading_deg is not None:
         gps[piexif.GPSIFD.GPSImgDirectionRef] = b"T"
         gps[piexif.GPSIFD.GPSImgDirection] = _to_rational(float(heading_deg) % 360.0, 100)
@@ -231,12 +247,17 @@ def write_jpeg(
     make: str = "GeolocSim",
     model: str = "StreetCam 1",
     taken: datetime | None = None,
+    subsec_time: str | None = None,
+    description: str | None = None,
+    gps_accuracy_m: float | None = None,
 ) -> Path:
     """Write (H, W, 3) uint8 RGB as a JPEG with EXIF; returns the path.
 
     lat, lon: WGS84 degrees, or None for a photo without GPS. focal_35mm: 35 mm-equivalent focal
     length (EXIF stores it as an integer number of mm). focal_mm: the physical focal length.
     heading_deg: written as GPSImgDirection (true north) when given; phones often do not.
+    taken: DateTimeOriginal (local time, whole seconds); subsec_time, description, gps_accuracy_m: see
+    :func:`exif_bytes`.
     """
     path = Path(path)
     rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
@@ -244,6 +265,7 @@ def write_jpeg(
     block = exif_bytes(
         width=w, height=h, lat=lat, lon=lon, altitude=altitude, heading_deg=heading_deg,  # where
         focal_35mm=focal_35mm, focal_mm=focal_mm, make=make, model=model, taken=taken,  # the camera
+        subsec_time=subsec_time, description=description, gps_accuracy_m=gps_accuracy_m,  # what phones add
     )
     Image.fromarray(rgb, "RGB").save(path, "JPEG", quality=int(quality), exif=block)
     return path

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 from geoloc.core.camera import Intrinsics
 
@@ -28,6 +29,10 @@ class WorldOptions:
     pitch_std_deg: float = 1.0
     roll_std_deg: float = 0.3
     jpeg_quality: int = 90
+    # "scattered": references one by one along the streets (geoloc.sim.sampling); "walk": on walks, with a
+    # phone's correlated GPS, compass and capture times (geoloc.sim.walks). Recorded in the manifest's
+    # options only when not "scattered", so that scattered worlds stay byte-identical to those made before.
+    capture: Literal["scattered", "walk"] = "scattered"
 
 
 def camera_for(width: int, height: int, hfov_deg: float) -> tuple[Intrinsics, int, float]:

@@ -11,6 +11,15 @@ Layout of a world folder (``geoloc sim world``)::
                            column_building_id, column_facade_id (W,) int32
     contact_sheet.jpg      thumbnails with names, and a map of the poses
 
+A walk world (``WorldOptions.capture == "walk"``, :mod:`geoloc.sim.walks`) has its references on walks
+and adds to the manifest ``options.capture``, ``walks`` (each walk's phone: GPS and compass noise
+parameters, pace, sequence UUID) and, per image, ``walk`` (walk id, index in the walk, heading mode),
+``compass`` (the heading written, its error, outlier flag, true std and stated accuracy; null: none) and
+``capture_time``, with the GPS record split into its correlated offset and jump; its photos carry
+sub-second capture times, GPSImgDirection and a Mapillary-style ImageDescription (:mod:`geoloc.sim.phone`).
+A scattered world has none of these keys, so it is byte-identical to one written before they existed; the
+manifest version is unchanged (the loader needs nothing new).
+
 The poses are sampled by :mod:`geoloc.sim.sampling` (deterministic for a seed), rendered by
 :func:`geoloc.sim.render.render` and written here; :func:`load_world` reads a world folder back.
 :class:`WorldOptions` and :func:`camera_for` live in :mod:`geoloc.sim.options` and are named here too,
@@ -35,10 +44,12 @@ from geoloc.maps import CityMap, load_map
 from geoloc.photos.exif import write_jpeg
 from geoloc.sim.contact_sheet import contact_sheet
 from geoloc.sim.options import WorldOptions, camera_for
+from geoloc.sim.phone import query_photo, walk_photo
 from geoloc.sim.pose import Pose
 from geoloc.sim.render import Render, render
 from geoloc.sim.sampling import QUERY_KINDS, sample_queries, sample_references, world_centre
 from geoloc.sim.scene import Scene
+from geoloc.sim.walks import Shot, Walk, sample_walks
 
 __all__ = ["MANIFEST_VERSION", "World", "WorldImage", "WorldOptions", "camera_for", "generate_world", "load_world"]
 
@@ -126,6 +137,19 @@ def _save_gt(path: Path, r: Render) -> None:
     )
 
 
+def _reference_poses(
+    scene: Scene, opts: WorldOptions, rng: np.random.Generator, centre: np.ndarray
+) -> tuple[list[Pose], list[Shot], list[Walk]]:
+    """The references' poses, and for a walk world its shots and walks (empty for a scattered one).
+
+    Walks draw from their own generator, so that a scattered world's draws from ``rng`` stay as they were.
+    """
+    if opts.capture == "walk":
+        shots, walks = sample_walks(scene, opts, np.random.default_rng([opts.seed, 300]), centre)
+        return [shot.pose for shot in shots], shots, walks
+    return sample_references(scene, opts, rng, centre), [], []
+
+
 def generate_world(
     map_path: str | Path,
     out_dir: str | Path,
@@ -149,29 +173,38 @@ def generate_world(
     rng = np.random.default_rng([opts.seed, 100])
     centre = world_centre(city_map)
     intr, f35, fmm = camera_for(opts.width, opts.height, opts.hfov_deg)
-    refs = sample_references(scene, opts, rng, centre)
-    say(f"sampled {len(refs)} reference poses")
+    walking = opts.capture == "walk"
+    refs, shots, walks = _reference_poses(scene, opts, rng, centre)
+    say(f"sampled {len(refs)} reference poses" + (f" on {len(walks)} walks" if walking else ""))
     records: list[dict[str, Any]] = []
     ref_seen: dict[int, float] = {}
     gps_rng = np.random.default_rng([opts.seed, 200])
+    gps: dict[str, Any] | None
+    extra: dict[str, Any] | None  # EXIF fields of a walk world's photos (phone.py), None in a scattered one
     for i, pose in enumerate(refs):
         name = f"ref_{i:03d}"
         r = render(scene, pose, intr, seed=opts.seed * 100_003 + i)
         for b, share in r.building_shares().items():
             ref_seen[b] = max(ref_seen.get(b, 0.0), share)
-        gps = _gps_with_noise(scene, pose, opts.gps_noise_m, gps_rng)
-        _write(out, "references", name, r, gps, f35, fmm, opts, i)
-        records.append(_image_record(scene, name, "reference", "street", r, f35, fmm, gps, "references"))
+        if walking:
+            gps, extra, phone = walk_photo(scene, shots[i], walks[shots[i].walk_id])
+        else:
+            gps, extra, phone = _gps_with_noise(scene, pose, opts.gps_noise_m, gps_rng), None, {}
+        _write(out, "references", name, r, gps, f35, fmm, opts, i, extra)
+        kind = "walk" if walking else "street"
+        records.append({**_image_record(scene, name, "reference", kind, r, f35, fmm, gps, "references"), **phone})
         if (i + 1) % 10 == 0 or i + 1 == len(refs):
             say(f"references {i + 1}/{len(refs)} ({time.perf_counter() - t0:.1f} s)")
     queries = sample_queries(scene, opts, rng, centre, refs, ref_seen)
+    compass_rng = np.random.default_rng([opts.seed, 400])
     say(f"sampled {len(queries)} query poses " + str({k: sum(q[0] == k for q in queries) for k in QUERY_KINDS}))
     for i, (kind, pose) in enumerate(queries):
         name = f"query_{i:03d}"
         r = render(scene, pose, intr, seed=opts.seed * 100_003 + 50_000 + i)
         gps = _gps_with_noise(scene, pose, opts.query_gps_noise_m, gps_rng)
-        _write(out, "queries", name, r, gps, f35, fmm, opts, 10_000 + i)
-        records.append(_image_record(scene, name, "query", kind, r, f35, fmm, gps, "queries"))
+        extra, phone = query_photo(scene, pose, compass_rng, _taken(10_000 + i)) if walking else (None, {})
+        _write(out, "queries", name, r, gps, f35, fmm, opts, 10_000 + i, extra)
+        records.append({**_image_record(scene, name, "query", kind, r, f35, fmm, gps, "queries"), **phone})
         if (i + 1) % 10 == 0 or i + 1 == len(queries):
             say(f"queries {i + 1}/{len(queries)} ({time.perf_counter() - t0:.1f} s)")
     lat0, lon0 = city_map.frame.to_wgs84(*centre)
@@ -183,7 +216,7 @@ def generate_world(
             "source": city_map.source,
             "origin_wgs84": {"lat": city_map.frame.origin_lat, "lon": city_map.frame.origin_lon},
         },
-        "options": {k: getattr(opts, k) for k in opts.__dataclass_fields__},
+        "options": {k: getattr(opts, k) for k in opts.__dataclass_fields__ if k != "capture" or walking},
         "region": {
             "centre_m": [float(centre[0]), float(centre[1])],
             "centre_wgs84": [float(lat0), float(lon0)],
@@ -201,6 +234,8 @@ def generate_world(
         },
         "images": records,
     }
+    if walking:
+        manifest["walks"] = [w.as_dict() | {"n_photos": sum(s.walk_id == w.walk_id for s in shots)} for w in walks]
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     contact_sheet(out, manifest, scene)
     say(f"wrote {len(records)} images, manifest and contact sheet to {out} ({time.perf_counter() - t0:.1f} s)")
@@ -217,8 +252,10 @@ def _write(
     fmm: float,
     opts: WorldOptions,
     index: int,
+    extra: dict[str, Any] | None = None,
 ) -> None:
-    taken = datetime(2024, 6, 1, 10, 0, 0) + timedelta(seconds=37 * index)
+    """Write one photo and its ground truth; ``extra``: more :func:`write_jpeg` fields (they win)."""
+    fields: dict[str, Any] = {"taken": _taken(index), **(extra or {})}
     write_jpeg(
         out / folder / f"{name}.jpg",
         r.rgb,
@@ -228,9 +265,14 @@ def _write(
         focal_mm=fmm,
         quality=opts.jpeg_quality,
         altitude=12.0 if gps else None,
-        taken=taken,
+        **fields,
     )
     _save_gt(out / "gt" / f"{name}.npz", r)
+
+
+def _taken(index: int) -> datetime:
+    """The capture time of a scattered world's photo ``index`` (queries: 10,000 + their index)."""
+    return datetime(2024, 6, 1, 10, 0, 0) + timedelta(seconds=37 * index)
 
 
 # ----------------------------------------------------------------------------------------------
