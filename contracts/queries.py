@@ -31,7 +31,9 @@ class QueryParams(BaseModel):
     """How a query is answered.
 
     top_n: how many distinct locations to return; k: how many references to retrieve for identities;
-    prior: the position prior (None: none); prior_heading_deg: the heading prior (request, else EXIF);
+    prior: the position prior (None: none); prior_heading_deg: the heading prior (deg from true north; the
+    request's, else the photo's compass); prior_heading_accuracy_deg: the compass's accuracy (deg) when the
+    heading came from the compass, None for a stated heading (and in parameters stored before it existed);
     focal_length_35mm: the request's 35 mm-equivalent focal length (None: the photo's EXIF, else a default
     field of view); original_filename: the uploaded file's name (kept for people, not used by the method).
     """
@@ -42,6 +44,7 @@ class QueryParams(BaseModel):
     k: int
     prior: PriorPosition | None = None
     prior_heading_deg: float | None = None
+    prior_heading_accuracy_deg: float | None = None
     focal_length_35mm: float | None = None
     original_filename: str | None = None
 

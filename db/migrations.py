@@ -25,6 +25,9 @@ Storage decisions (see also the module docstrings of the access modules):
   documents are logged once when the migration runs.
 - ``jobs.published_at`` (migration 4) is when the job's id was last handed to the broker (distributed
   profile; see :mod:`workers.broker`); the embedded pool claims from the table and never sets it.
+- ``reference_images.prior_heading_accuracy_deg`` (migration 5) is the accuracy (deg) of a heading prior
+  that came from the photo's compass; NULL for a heading the uploader stated (and for every reference
+  stored before it), which the worker weights as before (:mod:`workers.method_handlers`).
 """
 
 from __future__ import annotations
@@ -219,6 +222,13 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         "job publication to a broker",
         """
         ALTER TABLE jobs ADD COLUMN published_at REAL;
+        """,
+    ),
+    (
+        5,
+        "compass accuracy of a reference's heading prior",
+        """
+        ALTER TABLE reference_images ADD COLUMN prior_heading_accuracy_deg REAL;
         """,
     ),
 ]

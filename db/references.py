@@ -51,14 +51,19 @@ def insert_reference(
     position_source: str,
     prior_heading_deg: float | None = None,
     focal_length_35mm: float | None = None,
+    prior_heading_accuracy_deg: float | None = None,
 ) -> int:
-    """Insert a queued reference; returns its id. Call inside a transaction."""
+    """Insert a queued reference; returns its id. Call inside a transaction.
+
+    prior_heading_accuracy_deg: the accuracy (deg) of a heading prior from the photo's compass; None for a
+    heading the uploader stated (the worker weights the two differently, see :mod:`workers.method_handlers`).
+    """
     now = time.time()
     return db.insert_returning_id(
         "INSERT INTO reference_images (map_id, image_path, original_filename, sha256, size_bytes,"
         " image_format, width, height, gps_lat, gps_lon, position_source, prior_heading_deg,"
-        " focal_length_35mm, status, created_at, updated_at)"
-        " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'queued', ?, ?)",
+        " prior_heading_accuracy_deg, focal_length_35mm, status, created_at, updated_at)"
+        " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'queued', ?, ?)",
         (
             map_id,
             image_path,
@@ -72,6 +77,7 @@ def insert_reference(
             gps_lon,
             position_source,
             prior_heading_deg,
+            prior_heading_accuracy_deg,
             focal_length_35mm,
             now,
             now,

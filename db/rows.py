@@ -62,6 +62,7 @@ class ReferenceRow(TypedDict):
     gps_lon: float
     position_source: Literal["exif", "request"]
     prior_heading_deg: float | None
+    prior_heading_accuracy_deg: float | None
     focal_length_35mm: float | None
     status: str
     job_id: int | None

@@ -1,4 +1,10 @@
-"""Checking an uploaded photo by its content (Pillow), reading its EXIF (``geoloc.photos.exif``), serving it."""
+"""Checking an uploaded photo by its content (Pillow), reading its EXIF (``geoloc.photos.exif``), serving it.
+
+The heading prior of an upload without a form ``heading_deg`` is the photo's compass
+(:func:`geoloc.photos.capture.read_capture`: Mapillary's JSON first, then EXIF ``GPSImgDirection``; a magnetic
+heading is kept and its accuracy widened by the declination bound), stored with its accuracy so that the
+worker weights it as a robust prior (:mod:`geoloc.photos.heading_prior`).
+"""
 
 from __future__ import annotations
 
@@ -10,7 +16,9 @@ from pathlib import Path
 from fastapi.responses import FileResponse
 from PIL import Image, UnidentifiedImageError
 
+from geoloc.photos.capture import read_capture
 from geoloc.photos.exif import read_exif
+from geoloc.photos.heading_prior import DEFAULT_SIGMA_DEG
 from service.errors import ApiError
 
 ACCEPTED_FORMATS = {"JPEG": "jpg", "MPO": "jpg", "PNG": "png", "WEBP": "webp", "TIFF": "tif"}
@@ -29,6 +37,9 @@ class ImageInfo:
     gps_lon: float | None = None
     focal_length_35mm: float | None = None
     heading_deg: float | None = None
+    """The compass heading (deg clockwise from true north), None without a compass."""
+    heading_accuracy_deg: float | None = None
+    """The compass's accuracy (deg): as stated (widened when magnetic), DEFAULT_SIGMA_DEG when it states none."""
 
 
 def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
@@ -76,11 +87,14 @@ def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
 
 
 def _read_exif_into(path: Path, info: ImageInfo) -> None:
-    """Fill GPS position, 35 mm focal length and heading (GPSImgDirection) from EXIF, when present."""
+    """Fill GPS position, 35 mm focal length and the compass (heading, accuracy) from EXIF, when present."""
     exif = read_exif(path)
     info.gps_lat, info.gps_lon = (exif.lat, exif.lon) if exif.has_gps else (None, None)
     info.focal_length_35mm = exif.focal_35mm
-    info.heading_deg = exif.heading_deg
+    compass = read_capture(path).compass
+    if compass is not None:
+        info.heading_deg = compass.heading_deg
+        info.heading_accuracy_deg = DEFAULT_SIGMA_DEG if compass.accuracy_deg is None else compass.accuracy_deg
 
 
 def distance_outside_bbox_m(lat: float, lon: float, bbox: tuple[float, float, float, float]) -> float:

@@ -186,7 +186,8 @@ class ReferenceOut(BaseModel):
                     "width": 4032,
                     "height": 3024,
                     "position": {"lat": 60.1699, "lon": 24.9384, "source": "exif"},
-                    "prior_heading_deg": None,
+                    "prior_heading_deg": 84.0,
+                    "prior_heading_accuracy_deg": 20.0,
                     "focal_length_35mm": 26.0,
                     "estimated": {"lat": 60.16992, "lon": 24.93851, "heading_deg": 87.0},
                     "buildings_seen": [
@@ -224,7 +225,17 @@ class ReferenceOut(BaseModel):
     width: int
     height: int
     position: Position
-    prior_heading_deg: float | None = None
+    prior_heading_deg: float | None = Field(
+        default=None,
+        description="Heading prior (deg clockwise from true north): the form's `heading_deg`, else the photo's compass",
+    )
+    prior_heading_accuracy_deg: float | None = Field(
+        default=None,
+        description=(
+            "The compass's accuracy (deg) when the prior came from the photo's compass (a robust prior, see "
+            "docs/method.md); null for a form heading, weighted as a plain 20 deg Gaussian"
+        ),
+    )
     focal_length_35mm: float | None = None
     estimated: EstimatedPose | None = None
     buildings_seen: list[BuildingInPhoto] | None = None

@@ -136,6 +136,7 @@ class QueryIntake(PhotoIntake):
             k=form.k,
             prior=self.prior,
             prior_heading_deg=form.heading_deg if form.heading_deg is not None else info.heading_deg,
+            prior_heading_accuracy_deg=None if form.heading_deg is not None else info.heading_accuracy_deg,
             focal_length_35mm=form.focal_length_35mm,
             original_filename=received.filename,
         )

@@ -125,7 +125,9 @@ class ReferenceIntake(PhotoIntake):
             gps_lat=ref_lat,
             gps_lon=ref_lon,
             position_source=source,
+            # A form heading overrides the compass and is weighted as before (no accuracy stored).
             prior_heading_deg=form.heading_deg if form.heading_deg is not None else info.heading_deg,
+            prior_heading_accuracy_deg=None if form.heading_deg is not None else info.heading_accuracy_deg,
             focal_length_35mm=form.focal_length_35mm if form.focal_length_35mm is not None else info.focal_length_35mm,
         )
 
@@ -225,6 +227,7 @@ def reference_out(row: ReferenceRow, job: JobRow | None) -> ReferenceOut:
         height=row["height"],
         position=Position(lat=row["gps_lat"], lon=row["gps_lon"], source=row["position_source"]),
         prior_heading_deg=row["prior_heading_deg"],
+        prior_heading_accuracy_deg=row["prior_heading_accuracy_deg"],
         focal_length_35mm=row["focal_length_35mm"],
         estimated=estimated,
         buildings_seen=None if buildings is None else [BuildingInPhoto.model_validate(b) for b in buildings],

@@ -46,11 +46,14 @@ from db import maps as map_store
 from db import queries as query_store
 from db import references as reference_store
 from db.files import open_store
+from geoloc.core.geo import LocalFrame
 from geoloc.localize.grid import PositionPrior
+from geoloc.localize.labeling import stated_heading_prior
 from geoloc.localize.query import QueryAnswer, QueryConfig, geolocate
 from geoloc.localize.reference import label_reference_photo
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
+from geoloc.photos.heading_prior import HeadingPrior, compass_heading_prior
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.model_files import vocabulary_path
@@ -127,6 +130,22 @@ def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
     return vocabulary
 
 
+def _heading_prior(
+    frame: LocalFrame, heading_deg: float | None, accuracy_deg: float | None, east_m: float = 0.0, north_m: float = 0.0
+) -> HeadingPrior | None:
+    """The heading prior of a stored heading (deg from true north) at a local point (m) of ``frame``.
+
+    No accuracy: a heading the uploader stated (or one stored before accuracies were), today's plain Gaussian
+    (:func:`geoloc.localize.labeling.stated_heading_prior`). With one: the photo's compass, the robust prior
+    (:func:`geoloc.photos.heading_prior.compass_heading_prior`: sigma floored, uniform outlier floor).
+    """
+    if heading_deg is None:
+        return None
+    if accuracy_deg is None:
+        return stated_heading_prior(float(frame.heading_to_bearing(heading_deg, east_m, north_m)))
+    return compass_heading_prior(heading_deg, accuracy_deg, frame, east_m, north_m)
+
+
 @register(LABEL_REFERENCE, LabelReferencePayload)
 def label_reference(db: Database, payload: LabelReferencePayload) -> LabelReferenceResult:
     """Label a reference with the map, extract and index its features, store its pose and identities."""
@@ -140,10 +159,8 @@ def label_reference(db: Database, payload: LabelReferencePayload) -> LabelRefere
     t0 = time.perf_counter()
     photo = _stored_photo(ref["image_path"], ref["focal_length_35mm"])
     gps_x, gps_y = (float(v) for v in frame.to_local(ref["gps_lat"], ref["gps_lon"]))
-    prior_yaw = None
-    if ref["prior_heading_deg"] is not None:
-        prior_yaw = float(frame.heading_to_bearing(ref["prior_heading_deg"], gps_x, gps_y))
-    labelled = label_reference_photo(city, photo, (gps_x, gps_y), prior_yaw_deg=prior_yaw, context=context)
+    prior = _heading_prior(frame, ref["prior_heading_deg"], ref["prior_heading_accuracy_deg"], gps_x, gps_y)
+    labelled = label_reference_photo(city, photo, (gps_x, gps_y), heading_prior=prior, context=context)
     label, identity, features = labelled.label, labelled.identity, labelled.evidence.features
     vocabulary = vocabulary_for(db, map_id)
     words = vocabulary.words(features.descriptors)
@@ -219,12 +236,11 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         raise PermanentJobError(f"query {query_id} has no stored photo")
     photo = _stored_photo(query["image_path"], params.focal_length_35mm)
     evidence = analyze_photo(photo, context=context)
-    position_prior = prior_yaw = None
+    position_prior = None
     if params.prior is not None:
         x, y = (float(v) for v in frame.to_local(params.prior.lat, params.prior.lon))
         position_prior = PositionPrior.from_radius(x, y, float(params.prior.radius_m))
-    if params.prior_heading_deg is not None:
-        prior_yaw = float(frame.heading_to_bearing(params.prior_heading_deg))
+    heading_prior = _heading_prior(frame, params.prior_heading_deg, params.prior_heading_accuracy_deg)
     answer = geolocate(
         city,
         photo,
@@ -233,7 +249,7 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         vocabulary_for(db, map_id),
         QueryConfig(k=params.k),
         position_prior=position_prior,
-        prior_yaw_deg=prior_yaw,
+        heading_prior=heading_prior,
         top_n=params.top_n,
         context=context,
     )

@@ -19,7 +19,7 @@ import numpy as np
 import shapely
 from shapely.ops import unary_union
 
-from geoloc.localize.labeling import heading_prior
+from geoloc.localize.labeling import resolve_heading_prior
 from geoloc.localize.likelihood import default_yaws_deg
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.posterior import (
@@ -32,6 +32,7 @@ from geoloc.localize.posterior import (
     top_poses,
 )
 from geoloc.maps import CityMap
+from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.vision.image_model import ImageModel
 
 DEFAULT_QUERY_CELL_M = 10.0
@@ -156,15 +157,18 @@ def localize(
     candidate_buildings: list[int] | None = None,
     position_prior: PositionPrior | None = None,
     prior_yaw_deg: float | None = None,
+    heading_prior: HeadingPrior | None = None,
     top_n: int = 10,
 ) -> Localization:
     """Localise a photo from its map likelihood (its image model with identities, from transfer) on the map.
 
     candidate_buildings: the buildings that define the search region (default: those the image model's
     identities name). With ``likelihood.options.use_identity`` False the same region is searched with the
-    geometry-only likelihood (the paper's baseline). prior_yaw_deg: local bearing.
+    geometry-only likelihood (the paper's baseline). prior_yaw_deg: a stated heading (local bearing, deg),
+    today's Gaussian; or heading_prior: a :class:`HeadingPrior` (the compass's robust prior), not both.
     """
     city_map, image_model = likelihood.city_map, likelihood.image_model
+    yaw_prior = resolve_heading_prior(prior_yaw_deg, heading_prior)
     cell_m, n_yaws = options.cell_m, options.n_yaws
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -183,7 +187,7 @@ def localize(
         "cell_m": cell_m,
         "identity": identity_likelihood,
         "position_prior": position_prior is not None,
-        "heading_prior": prior_yaw_deg is not None,
+        "heading_prior": yaw_prior is not None,
     }
     if len(positions) == 0:
         raise ValueError("no candidate positions: the search region lies entirely inside buildings")
@@ -196,7 +200,7 @@ def localize(
     likelihood_table = likelihood.with_options(use_identity=identity_likelihood).of_panoramas(panoramas, yaws)
     timings["likelihood"] = 1e3 * (time.perf_counter() - t0)
 
-    prior = _prior(positions, yaws, position_prior, prior_yaw_deg)
+    prior = _prior(positions, yaws, position_prior, yaw_prior)
     posterior = pose_posterior(likelihood_table, prior, options.sharpness)
     separation = cell_m if options.min_separation_m is None else options.min_separation_m
     poses = top_poses(positions, posterior, yaws, n=top_n, min_separation_m=separation, likelihood=likelihood_table)
@@ -205,13 +209,13 @@ def localize(
 
 
 def _prior(
-    positions: np.ndarray, yaws: np.ndarray, position_prior: PositionPrior | None, prior_yaw_deg: float | None
+    positions: np.ndarray, yaws: np.ndarray, position_prior: PositionPrior | None, yaw_prior: HeadingPrior | None
 ) -> np.ndarray | None:
-    if position_prior is None and prior_yaw_deg is None:
+    if position_prior is None and yaw_prior is None:
         return None
     prior = np.ones((len(positions), len(yaws)))
     if position_prior is not None:
         prior *= position_prior.weights(positions)[:, None]
-    if prior_yaw_deg is not None:
-        prior *= heading_prior(yaws, prior_yaw_deg)[None, :]
+    if yaw_prior is not None:
+        prior *= yaw_prior.weights(yaws)[None, :]
     return prior

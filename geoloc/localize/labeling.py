@@ -29,6 +29,7 @@ from geoloc.localize.posterior import DEFAULT_SHARPNESS, grid_around
 from geoloc.localize.refinement import RefinedPose, refine_pose
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import Panoramas, panorama_window
+from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.vision.image_model import ImageModel, column_bins
 
 DEFAULT_REFERENCE_CELL_M = 2.0
@@ -42,6 +43,7 @@ paper's 3 x 3 at 10 m, uniform prior, plain weights: 11.3 deg / 30 % / 30 %, 0.5
 11 x 11 at 2 m, uniform prior, plain weights: 1.2 deg / 72 % / 17 %, 0.57;
 11 x 11 at 2 m, this prior, weights likelihood ** 8 (the defaults): 1.3 deg / 78 % / 10 %, 0.78."""
 HEADING_PRIOR_SIGMA_DEG = 20.0
+"""Sigma (deg) of a heading the user states (the API's ``heading_deg`` form field): a plain Gaussian, no floor."""
 MODE_SEPARATION_M = 6.0
 MODE_YAW_SEPARATION_DEG = 30.0
 AMBIGUOUS_MARGIN = 5.0
@@ -136,6 +138,24 @@ def heading_prior(
     return np.exp(-0.5 * (delta / sigma_deg) ** 2)
 
 
+def stated_heading_prior(prior_yaw_deg: float, sigma_deg: float = HEADING_PRIOR_SIGMA_DEG) -> HeadingPrior:
+    """A stated heading (local bearing, deg) as a :class:`HeadingPrior`: today's Gaussian, no outlier floor.
+
+    Its weights are bit-identical to :func:`heading_prior`'s: with eps = 0, ``(1 - 0) * g + 0 == g``.
+    """
+    return HeadingPrior(float(prior_yaw_deg), float(sigma_deg), 0.0)
+
+
+def resolve_heading_prior(prior_yaw_deg: float | None, prior: HeadingPrior | None) -> HeadingPrior | None:
+    """The one heading prior of a call that takes either a plain ``prior_yaw_deg`` or a :class:`HeadingPrior`.
+
+    A plain yaw (local bearing, deg) is :func:`stated_heading_prior`; both at once is a ValueError.
+    """
+    if prior_yaw_deg is not None and prior is not None:
+        raise ValueError("give prior_yaw_deg or heading_prior, not both")
+    return stated_heading_prior(prior_yaw_deg) if prior_yaw_deg is not None else prior
+
+
 def column_building_ids(
     panoramas: Panoramas, yaws_deg: np.ndarray, intrinsics: Intrinsics, offsets_deg: np.ndarray, bin_deg: float
 ) -> np.ndarray:
@@ -217,13 +237,15 @@ def label_reference(
     gps_xy: tuple[float, float],
     *,
     prior_yaw_deg: float | None = None,
+    heading_prior: HeadingPrior | None = None,
     options: LabelOptions = LabelOptions(),
 ) -> ReferenceLabel:
     """Label one geo-tagged photo with the map.
 
     image_model: the photo's facade evidence (geometry only; identities are what we want to find).
     building_mask: (H, W) bool building pixels. gps_xy: the GPS tag in the local frame (m).
-    prior_yaw_deg: optional heading prior (local bearing), Gaussian with HEADING_PRIOR_SIGMA_DEG.
+    prior_yaw_deg: optional stated heading (local bearing), Gaussian with HEADING_PRIOR_SIGMA_DEG.
+    heading_prior: instead, a :class:`HeadingPrior` (e.g. the photo's compass, robust to a wrong one).
     options: the labelling's :class:`LabelOptions`.
     Poses inside building footprints are not sampled; if every grid cell is inside, the GPS tag alone is used.
     The ``options.n_modes`` strongest distinct grid modes (e.g. the wall in front and the one behind) are
@@ -231,6 +253,7 @@ def label_reference(
     search) and the best refined pose is the label's pose.
     """
     gps_sigma_m, sharpness = options.gps_sigma_m, options.sharpness
+    prior = resolve_heading_prior(prior_yaw_deg, heading_prior)
     grid = grid_around(city_map, gps_xy, options.half_size_m, options.cell_m)
     positions = grid.positions if grid.valid.any() else np.asarray([gps_xy], dtype=float)
     yaws = default_yaws_deg(options.n_yaws)
@@ -238,8 +261,8 @@ def label_reference(
     panoramas = likelihood.panoramas(positions)
     table = likelihood.of_panoramas(panoramas, yaws)
     weights = np.power(table.astype(float), sharpness)
-    if prior_yaw_deg is not None:
-        weights = weights * heading_prior(yaws, prior_yaw_deg)[None, :]
+    if prior is not None:
+        weights = weights * prior.weights(yaws)[None, :]
     if gps_sigma_m:
         d2 = np.sum((positions - np.asarray(gps_xy, dtype=float)) ** 2, axis=1)
         weights = weights * np.exp(-0.5 * d2 / gps_sigma_m**2)[:, None]
@@ -260,9 +283,7 @@ def label_reference(
             prior_sigma_m=gps_sigma_m,
             sharpness=sharpness,
         )
-        score = refined.posterior * (
-            1.0 if prior_yaw_deg is None else float(heading_prior(refined.yaw_deg, prior_yaw_deg))
-        )
+        score = refined.posterior * (1.0 if prior is None else float(prior.weights(refined.yaw_deg)))
         refined_modes.append((float(score), refined))
         if score > best_score:
             best, best_score = refined, score

@@ -22,6 +22,7 @@ from geoloc.localize.identity import IdentityMap
 from geoloc.localize.labeling import LabelOptions, ReferenceLabel, label_reference
 from geoloc.localize.store import StoredReference
 from geoloc.maps import CityMap
+from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.photos.photo import Photo
 from geoloc.vision.evidence import PhotoEvidence, analyze_photo
 from geoloc.vision.ground import DEFAULT_CAMERA_HEIGHT_M
@@ -78,6 +79,7 @@ def label_reference_photo(
     gps_xy: tuple[float, float],
     *,
     prior_yaw_deg: float | None = None,
+    heading_prior: HeadingPrior | None = None,
     evidence: PhotoEvidence | None = None,
     strategy: str = "marginalized",
     options: LabelOptions | None = None,
@@ -85,7 +87,8 @@ def label_reference_photo(
 ) -> LabelledReference:
     """Label a geo-tagged reference photo (GPS tag in local metres) with the map.
 
-    prior_yaw_deg: optional heading prior (local bearing, deg). evidence: the photo's analysis when already
+    prior_yaw_deg: optional stated heading (local bearing, deg; today's Gaussian), or heading_prior: a
+    :class:`HeadingPrior` (the compass's robust prior), not both. evidence: the photo's analysis when already
     done. strategy: "marginalized" (default, the paper's better one) or "greedy" chooses which identity
     map the keypoints carry. options: the labelling's tuning (default :class:`LabelOptions`). context: the
     models and threads the photo's analysis runs with (:func:`geoloc.vision.evidence.analyze_photo`).
@@ -102,6 +105,7 @@ def label_reference_photo(
         photo.intrinsics,
         gps_xy,
         prior_yaw_deg=prior_yaw_deg,
+        heading_prior=heading_prior,
         options=options,
     )
     identity = label.marginalized if strategy == "marginalized" else label.greedy

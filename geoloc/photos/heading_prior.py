@@ -13,7 +13,10 @@ opposite to the compass keeps a fifth of the weight of one along it, so the imag
 compass. sigma = max(accuracy, :data:`SIGMA_FLOOR_DEG`) (the stated accuracies are optimistic), or
 :data:`DEFAULT_SIGMA_DEG` when no accuracy is stated (EXIF ``GPSImgDirection`` carries none).
 
-Not wired into labelling or queries yet: that changes answers and is its own step.
+Used by reference labelling and the query stage (``heading_prior=`` of
+:func:`geoloc.localize.reference.label_reference_photo` and :func:`geoloc.localize.query.geolocate`) when the
+service takes the heading from the photo's compass; a heading the user states is today's plain Gaussian
+(:func:`geoloc.localize.labeling.stated_heading_prior`, eps = 0), so answers with a stated heading are unchanged.
 """
 
 from __future__ import annotations
@@ -66,6 +69,34 @@ def heading_prior_from_compass(
     outlier_probability: float = OUTLIER_PROBABILITY,
 ) -> HeadingPrior:
     """The prior of a compass reading at a local point (m) of ``frame`` (the meridian convergence applied)."""
-    sigma = default_sigma_deg if reading.accuracy_deg is None else max(reading.accuracy_deg, sigma_floor_deg)
-    bearing = float(frame.heading_to_bearing(reading.heading_deg, east_m, north_m))
-    return HeadingPrior(bearing, float(sigma), float(outlier_probability))
+    return compass_heading_prior(
+        reading.heading_deg,
+        reading.accuracy_deg,
+        frame,
+        east_m,
+        north_m,
+        sigma_floor_deg=sigma_floor_deg,
+        default_sigma_deg=default_sigma_deg,
+        outlier_probability=outlier_probability,
+    )
+
+
+def compass_heading_prior(
+    heading_deg: float,
+    accuracy_deg: float | None,
+    frame: LocalFrame,
+    east_m: float = 0.0,
+    north_m: float = 0.0,
+    *,
+    sigma_floor_deg: float = SIGMA_FLOOR_DEG,
+    default_sigma_deg: float = DEFAULT_SIGMA_DEG,
+    outlier_probability: float = OUTLIER_PROBABILITY,
+) -> HeadingPrior:
+    """The robust prior of a compass heading (deg from true north) with its accuracy (deg, None: unstated).
+
+    The point (``east_m``, ``north_m``, local m of ``frame``) gives the meridian convergence. sigma is the
+    accuracy floored at ``sigma_floor_deg``, or ``default_sigma_deg`` without one; eps is ``outlier_probability``.
+    """
+    sigma = default_sigma_deg if accuracy_deg is None else max(float(accuracy_deg), sigma_floor_deg)
+    bearing = float(frame.heading_to_bearing(heading_deg, east_m, north_m))
+    return HeadingPrior(bearing % 360.0, float(sigma), float(outlier_probability))

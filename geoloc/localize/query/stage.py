@@ -19,6 +19,7 @@ from geoloc.localize.query.trust import choose_anchored
 from geoloc.localize.retrieval import Vocabulary
 from geoloc.localize.store import ReferenceStore
 from geoloc.maps import CityMap
+from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.photos.photo import Photo
 from geoloc.vision.evidence import PhotoEvidence, image_model_with_identity
 
@@ -33,14 +34,16 @@ def geolocate(
     *,
     position_prior: PositionPrior | None = None,
     prior_yaw_deg: float | None = None,
+    heading_prior: HeadingPrior | None = None,
     top_n: int = 10,
     identity_override: IdentityMap | None = None,
     context: MethodContext,
 ) -> QueryAnswer:
     """Geolocate a photo (its evidence already analysed) against the references of ``store``.
 
-    position_prior: optional Gaussian prior (e.g. the photo's GPS). prior_yaw_deg: optional heading prior
-    (local bearing). identity_override: use these identities instead of the transferred ones (evaluation
+    position_prior: optional Gaussian prior (e.g. the photo's GPS). prior_yaw_deg: optional stated heading
+    (local bearing, deg; today's Gaussian) or heading_prior: a :class:`HeadingPrior` (the compass's robust
+    one), not both. identity_override: use these identities instead of the transferred ones (evaluation
     ablation: ground-truth identities). context: the job threads (the matching and the PnP proposals run on
     them; the answer does not depend on their number). Positions are local metres of ``city_map.frame``.
 
@@ -68,7 +71,12 @@ def geolocate(
 
     t0 = time.perf_counter()
     localization = localize(
-        likelihood, config.grid, position_prior=position_prior, prior_yaw_deg=prior_yaw_deg, top_n=top_n + SPARE_POSES
+        likelihood,
+        config.grid,
+        position_prior=position_prior,
+        prior_yaw_deg=prior_yaw_deg,
+        heading_prior=heading_prior,
+        top_n=top_n + SPARE_POSES,
     )
     timings["localize"] = 1e3 * (time.perf_counter() - t0)
 
