@@ -359,9 +359,20 @@ def _dms(value: float) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int
 
 
 def jpeg_bytes(
-    width: int = 640, height: int = 480, *, gps: tuple[float, float] | None = None, seed: int = 0, quality: int = 90
+    width: int = 640,
+    height: int = 480,
+    *,
+    gps: tuple[float, float] | None = None,
+    seed: int = 0,
+    quality: int = 90,
+    description: str | None = None,
+    direction: tuple[float, str] | None = None,
 ) -> bytes:
-    """A textured JPEG, optionally with EXIF GPS (lat, lon) and a 35 mm focal length."""
+    """A textured JPEG, optionally with EXIF GPS (lat, lon) and a 35 mm focal length.
+
+    description: the 0th IFD's ImageDescription (e.g. Mapillary's JSON); direction: EXIF GPSImgDirection
+    (deg) and its ref ("T" or "M").
+    """
     import numpy as np
     import piexif
     from PIL import Image
@@ -378,6 +389,11 @@ def jpeg_bytes(
             piexif.GPSIFD.GPSLongitudeRef: b"E" if lon >= 0 else b"W",
             piexif.GPSIFD.GPSLongitude: _dms(lon),
         }
+    if description is not None:
+        exif["0th"][piexif.ImageIFD.ImageDescription] = description.encode()
+    if direction is not None:
+        exif["GPS"][piexif.GPSIFD.GPSImgDirection] = (int(round(direction[0] * 100)), 100)
+        exif["GPS"][piexif.GPSIFD.GPSImgDirectionRef] = direction[1].encode()
     buffer = io.BytesIO()
     image.save(buffer, "JPEG", quality=quality, exif=piexif.dump(exif))
     return buffer.getvalue()

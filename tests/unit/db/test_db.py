@@ -144,6 +144,59 @@ def test_concurrent_first_migrations_apply_once(tmp_path: Path, profile: Profile
     database.close()
 
 
+def test_migration_5_adds_the_compass_accuracy_to_an_existing_database(
+    tmp_path: Path, profile: Profile, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A database at version 4 with a reference keeps it; the reference reads a NULL accuracy (a stated heading)."""
+    from db import migrations
+
+    path = profile.postgres.new_empty_database() if profile.postgres else tmp_path / "v4.sqlite3"
+    database = connect(path)
+    with monkeypatch.context() as patched:
+        patched.setattr(migrations, "MIGRATIONS", [m for m in migrations.MIGRATIONS if m[0] <= 4])
+        assert migrate(database) == 4
+    map_id = add_map(database)
+    with transaction(database):  # the version-4 columns only, as the service wrote them before
+        old_id = database.insert_returning_id(
+            "INSERT INTO reference_images (map_id, image_path, original_filename, sha256, size_bytes, image_format,"
+            " width, height, gps_lat, gps_lon, position_source, prior_heading_deg, status, created_at, updated_at)"
+            " VALUES (?, 'images/old.jpg', 'old.jpg', ?, 10, 'JPEG', 640, 480, 60.17, 24.94, 'exif', 90.0,"
+            " 'done', 0, 0)",
+            (map_id, "a" * 64),
+        )
+    assert migrate(database) == LATEST_VERSION == 5
+    old = reference_store.get_reference(database, old_id)
+    assert old is not None and old["prior_heading_deg"] == 90.0 and old["prior_heading_accuracy_deg"] is None
+    with transaction(database):
+        new_id = reference_store.insert_reference(
+            database,
+            map_id=map_id,
+            image_path="images/new.jpg",
+            original_filename="new.jpg",
+            sha256="b" * 64,
+            size_bytes=10,
+            image_format="JPEG",
+            width=640,
+            height=480,
+            gps_lat=60.17,
+            gps_lon=24.94,
+            position_source="exif",
+            prior_heading_deg=123.5,
+            prior_heading_accuracy_deg=20.0,
+        )
+    new = reference_store.get_reference(database, new_id)
+    assert new is not None and (new["prior_heading_deg"], new["prior_heading_accuracy_deg"]) == (123.5, 20.0)
+    database.close()
+
+
+def test_query_params_stored_before_the_compass_accuracy_still_load() -> None:
+    from contracts.queries import QueryParams
+
+    old = QueryParams.from_json({"top_n": 3, "k": 5, "prior_heading_deg": 45.0})
+    assert old.prior_heading_deg == 45.0 and old.prior_heading_accuracy_deg is None
+    assert "prior_heading_accuracy_deg" not in old.to_json()
+
+
 def test_connection_settings(db) -> None:
     if db.is_postgres:  # autocommit, with lock waits bounded
         assert db.execute("SELECT current_setting('lock_timeout')").fetchone()[0] == "30s"
