@@ -253,17 +253,21 @@ def photos(
         None, "--truth", help="CSV with columns name, true_heading_deg (and heading_accuracy_deg) to compare with."
     ),
     json_out: Path | None = typer.Option(None, "--json", help="Write the results here."),
+    compass_prior: bool = typer.Option(
+        False, "--compass-prior", help="Use each photo's compass as the robust heading prior (as the service does)."
+    ),
 ) -> None:
     """Label real photos with their EXIF GPS on a map (as the service labels references); compare headings.
 
     For each photo: the estimated compass heading and position, the buildings named, and with --truth the
-    heading error against the recorded compass heading.
+    heading error against the recorded compass heading. Without --compass-prior the labelling uses no heading
+    prior (the map alone, as this command always did); with it, the photo's compass as the service weights it.
     """
     # The method loads numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.evaluation.world import evaluate_photos  # lazy: CLI start-up
     from workers.context import method_context
 
-    result = evaluate_photos(photos_dir, map_path, truth_csv, context=method_context())
+    result = evaluate_photos(photos_dir, map_path, truth_csv, compass_prior=compass_prior, context=method_context())
     result["command"] = " ".join(["geoloc", *sys.argv[1:]])
     for row in result["photos"]:
         error = "" if row.get("heading_error_deg") is None else f", error {row['heading_error_deg']:.1f} deg"

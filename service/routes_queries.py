@@ -191,8 +191,9 @@ async def create_query(
     """Geolocate a photo on a map: ranked locations with headings, the heatmap, the buildings in the photo.
 
     A prior position (``lat``/``lon`` with ``radius_m``, or the photo's EXIF GPS unless
-    ``use_exif_gps`` is false) and a prior heading (``heading_deg`` or EXIF GPSImgDirection) are used as
-    priors and reported in ``result.search``. 200 with the answer, or 202 if it took longer than ``wait_s``;
+    ``use_exif_gps`` is false) and a prior heading (``heading_deg``, else the photo's compass with its accuracy
+    as a robust prior: Mapillary's JSON, else EXIF GPSImgDirection) are used as priors and reported in
+    ``result.search``. 200 with the answer, or 202 if it took longer than ``wait_s``;
     429 while the job queue is full (retry after ``Retry-After`` seconds).
     """
     form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, focal_length_35mm, top_n, k, wait_s)

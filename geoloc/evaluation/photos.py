@@ -13,15 +13,23 @@ from geoloc.core.context import MethodContext
 from geoloc.evaluation.summaries import angle_error_deg, mean_or_none
 from geoloc.localize.reference import label_reference_photo
 from geoloc.maps import load_map
+from geoloc.photos.heading_prior import heading_prior_from_compass
 from geoloc.photos.photo import load_photo
 
 
 def evaluate_photos(
-    photos_dir: str | Path, map_path: str | Path, truth_csv: str | Path | None = None, *, context: MethodContext
+    photos_dir: str | Path,
+    map_path: str | Path,
+    truth_csv: str | Path | None = None,
+    *,
+    compass_prior: bool = False,
+    context: MethodContext,
 ) -> dict[str, Any]:
     """Label real geo-tagged photos on a map with their EXIF GPS (the service's reference labelling).
 
-    context: the models and threads the labelling runs with.
+    compass_prior: weight the headings with the photo's compass (``Photo.capture.compass``) as the robust
+    prior the service uses (:func:`geoloc.photos.heading_prior.heading_prior_from_compass`); off by default,
+    the map alone (as before). context: the models and threads the labelling runs with.
 
     truth_csv: optional CSV with ``name`` and ``true_heading_deg`` columns (e.g. the phone's compass). Returns
     per photo the estimated compass heading and position, how far labelling moved it from the GPS tag,
@@ -40,7 +48,9 @@ def evaluate_photos(
         if photo.gps is None:
             continue
         gps_x, gps_y = (float(v) for v in city.frame.to_local(*photo.gps))
-        labelled = label_reference_photo(city, photo, (gps_x, gps_y), context=context)
+        reading = photo.capture.compass if compass_prior else None
+        prior = None if reading is None else heading_prior_from_compass(reading, city.frame, gps_x, gps_y)
+        labelled = label_reference_photo(city, photo, (gps_x, gps_y), heading_prior=prior, context=context)
         label = labelled.label
         heading = float(city.frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m)) % 360.0
         lat, lon = (float(v) for v in city.frame.to_wgs84(label.x_m, label.y_m))

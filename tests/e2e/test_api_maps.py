@@ -7,6 +7,7 @@ answered with the right 4xx, a reason, the service still up and nothing stored.
 from __future__ import annotations
 
 import io
+import json
 import os
 import subprocess
 from collections.abc import Iterator
@@ -204,6 +205,38 @@ def test_reference_position_from_the_request_overrides_exif(client: httpx.Client
     reference = client.get(f"/v1/references/{response.json()['id']}").json()
     assert reference["position"]["source"] == "request" and reference["prior_heading_deg"] == 90
     assert client.delete(f"/v1/references/{reference['id']}").status_code == 204
+
+
+def test_a_mapillary_compass_is_the_prior_with_its_accuracy_and_a_form_heading_overrides_it(
+    client: httpx.Client, helsinki: dict[str, Any]
+) -> None:
+    description = json.dumps({"MAPCompassHeading": {"TrueHeading": 123.5, "AccuracyDegrees": 20.0}})
+    # GPSImgDirection "M" is there too: the Mapillary true heading wins (as geoloc.photos.capture says).
+    compass = jpeg_bytes(gps=INSIDE_HELSINKI, seed=11, description=description, direction=(300.0, "M"))
+    response = client.post(f"/v1/maps/{helsinki['id']}/references", files={"image": ("walk.jpg", compass)})
+    assert response.status_code == 202, response.text
+    reference = client.get(f"/v1/references/{response.json()['id']}").json()
+    assert (reference["prior_heading_deg"], reference["prior_heading_accuracy_deg"]) == (123.5, 20.0)
+    assert client.delete(f"/v1/references/{reference['id']}").status_code == 204
+
+    stated = jpeg_bytes(gps=INSIDE_HELSINKI, seed=12, description=description)
+    response = client.post(
+        f"/v1/maps/{helsinki['id']}/references", files={"image": ("said.jpg", stated)}, data={"heading_deg": "80"}
+    )
+    assert response.status_code == 202, response.text
+    reference = client.get(f"/v1/references/{response.json()['id']}").json()
+    assert (reference["prior_heading_deg"], reference["prior_heading_accuracy_deg"]) == (80, None)
+    assert client.delete(f"/v1/references/{reference['id']}").status_code == 204
+
+    # A query stores the same prior in its parameters; a form heading overrides it there too.
+    for data, expected in (({}, (123.5, 20.0)), ({"heading_deg": "80"}, (80, None))):
+        response = client.post(
+            f"/v1/maps/{helsinki['id']}/queries", files={"image": ("q.jpg", compass)}, data={"wait_s": "0", **data}
+        )
+        assert response.status_code in (200, 202), response.text
+        params = response.json()["params"]
+        assert (params["prior_heading_deg"], params["prior_heading_accuracy_deg"]) == expected
+        assert client.delete(f"/v1/queries/{response.json()['id']}").status_code == 204
 
 
 # --- bad inputs ---------------------------------------------------------------------------------
