@@ -206,7 +206,8 @@ def print_world_summary(result: dict[str, Any], seconds: float) -> None:
     """The tables of ``geoloc eval world`` from its result dict."""
     typer.echo(
         f"world {result['world']}: {result['references']} references, {result['queries']} queries "
-        f"{result['query_kinds']}, {result['shown_by_references']} shown by some reference; {seconds:.0f} s"
+        f"{result['query_kinds']}, {result['shown_by_references']} shown by some reference; "
+        f"capture {result.get('capture', 'scattered')}; {seconds:.0f} s"
     )
     for seg, labelling in result["reference_labelling"].items():
         acc, heading, position = (
@@ -219,6 +220,16 @@ def print_world_summary(result: dict[str, Any], seconds: float) -> None:
             f"(paper 0.7466 / 0.7627); heading median {heading['median']} deg, within 5 deg "
             f"{heading['within_5deg']}; position median {position['median_m']} m, within 5 m {position['within_5m']}"
         )
+        typer.echo(
+            f"references [{seg}] pose: position median {position.get('median_m')} m, within 1 / 2 m "
+            f"{position.get('within_1m')} / {position.get('within_2m')}; heading within 2 / 5 deg "
+            f"{heading.get('within_2deg')} / {heading.get('within_5deg')}"
+        )
+        for walk in labelling.get("per_walk", []):
+            typer.echo(
+                f"  walk {walk['walk_id']} ({walk['n']} references): position median {walk['position_median_m']} m, "
+                f"heading within 5 deg {walk['heading_within_5deg']}"
+            )
     for source, paper in (("ours", "0.7363 / 0.7915 / 0.8177"), ("gt_reference_labels", "0.7543 / 0.8113 / 0.8254")):
         acc = result["query_identity_accuracy"][source]
         typer.echo(

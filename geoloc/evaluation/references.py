@@ -15,7 +15,13 @@ from geoloc.core.context import MethodContext
 from geoloc.evaluation.facades import orientation_errors
 from geoloc.evaluation.ground_truth import gt_keypoint_identity
 from geoloc.evaluation.store import InMemoryReferenceStore
-from geoloc.evaluation.summaries import angle_error_deg, angle_summary, distance_summary, mean_or_none
+from geoloc.evaluation.summaries import (
+    angle_error_deg,
+    mean_or_none,
+    per_walk_summary,
+    reference_heading_summary,
+    reference_position_summary,
+)
 from geoloc.localize.identity import identity_accuracy
 from geoloc.localize.reference import LabelledReference, label_reference_photo, stored_reference
 from geoloc.localize.retrieval import Vocabulary
@@ -55,6 +61,7 @@ def label_references(
     labelled: dict[str, LabelledReference] = {}
     accuracy: dict[str, list[float]] = {"greedy": [], "marginalized": []}
     heading_errors, position_errors, radius_held, orientation = [], [], [], []
+    walk_ids: list[int | None] = []  # each reference's walk (walk worlds; None in a scattered one)
     timings: dict[str, list[float]] = defaultdict(list)
     for i, image in enumerate(world.references):
         gt = world.gt(image.name)
@@ -64,6 +71,7 @@ def label_references(
         gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
         ref = label_reference_photo(city, photo, (gps_xy[0], gps_xy[1]), evidence=evidence, context=context)
         labelled[image.name] = ref
+        walk_ids.append(image.record["walk"]["walk_id"] if "walk" in image.record else None)
         for key, value in ref.timings_ms.items():
             timings[key].append(value)
         truth = gt["building_id"]
@@ -87,10 +95,10 @@ def label_references(
             f"[{segmentation}] reference {i + 1}/{len(world.references)} {image.name}: "
             f"heading error {heading_errors[-1]:.1f} deg, position error {error:.1f} m"
         )
-    summary = {
+    summary: dict[str, Any] = {
         "identity_accuracy": {k: mean_or_none(v) for k, v in accuracy.items()},
-        "heading_error_deg": angle_summary(heading_errors),
-        "position_error_m": distance_summary(position_errors),
+        "heading_error_deg": reference_heading_summary(heading_errors),
+        "position_error_m": reference_position_summary(position_errors),
         "position_90_region_holds_truth": mean_or_none([float(v) for v in radius_held]),
         "facade_orientation": {
             "median_abs_error_deg": mean_or_none([o.median_abs_error_deg for o in orientation]),
@@ -99,4 +107,6 @@ def label_references(
         },
         "timing_ms": {k: round(float(np.median(v)), 1) for k, v in sorted(timings.items())},
     }
+    if any(w is not None for w in walk_ids):
+        summary["per_walk"] = per_walk_summary(walk_ids, position_errors, heading_errors)
     return LabelledWorld(store, gt_store, labelled, summary, {})

@@ -72,6 +72,51 @@ def distance_summary(errors: list[float]) -> dict[str, Any]:
     return _error_summary(errors, ("median_m", 2), {"within_5m": 5.0, "within_10m": 10.0})
 
 
+def reference_heading_summary(errors: list[float]) -> dict[str, Any]:
+    """A reference block's heading errors (deg): :func:`angle_summary` and the share within 2 deg.
+
+    Within 2 deg and 5 deg are issue 19's targets for reference poses; the keys of :func:`angle_summary` keep
+    their values.
+    """
+    return _error_summary(errors, ("median", 3), {"within_2deg": 2.0, "within_5deg": 5.0})
+
+
+def reference_position_summary(errors: list[float]) -> dict[str, Any]:
+    """A reference block's position errors (m): :func:`distance_summary` and the shares within 1 m and 2 m.
+
+    Within 1 m and 2 m are issue 19's targets for reference poses; the keys of :func:`distance_summary` keep
+    their values.
+    """
+    return _error_summary(
+        errors, ("median_m", 2), {"within_1m": 1.0, "within_2m": 2.0, "within_5m": 5.0, "within_10m": 10.0}
+    )
+
+
+def per_walk_summary(
+    walk_ids: list[int | None], position_errors_m: list[float], heading_errors_deg: list[float]
+) -> list[dict[str, Any]]:
+    """Per walk (ascending ``walk_id``): count, median position error (m) and share of headings within 5 deg.
+
+    walk_ids: each reference's walk (None: not on a walk, left out); the three lists are aligned. Empty when no
+    reference is on a walk (a scattered world).
+    """
+    walks = sorted({w for w in walk_ids if w is not None})
+    rows = []
+    for walk in walks:
+        members = [i for i, w in enumerate(walk_ids) if w == walk]
+        position = np.array([position_errors_m[i] for i in members], dtype=float)
+        heading = np.array([heading_errors_deg[i] for i in members], dtype=float)
+        rows.append(
+            {
+                "walk_id": walk,
+                "n": len(members),
+                "position_median_m": round(float(np.median(position)), 2),
+                "heading_within_5deg": round(float(np.mean(heading <= 5.0)), 4),
+            }
+        )
+    return rows
+
+
 def _error_summary(errors: list[float], median: tuple[str, int], within: dict[str, float]) -> dict[str, Any]:
     """``n``, the median (key, decimals) and the share of errors at most each threshold (to 4 decimals)."""
     arr = np.asarray(errors, dtype=float)

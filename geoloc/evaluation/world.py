@@ -16,7 +16,9 @@ Runs (each query is answered once per run; :func:`default_runs`):
 - the paper's method without the map anchors, no prior: ``paper_identity/none`` and
   ``paper_geometry/none`` (Fig. 7's two curves).
 
-Reported per world: reference labelling (Table I identity accuracy, heading and position errors), query
+Reported per world: its capture kind (:func:`capture_kind`), reference labelling (Table I identity accuracy,
+heading and position errors, with issue 19's reference-pose shares: position within 1 / 2 m, heading within
+2 / 5 deg; per walk in a walk world), query
 identity accuracy of the transfer for k = 1, 4, 8 with our and with ground-truth reference labels
 (Table II), retrieval, the raw-GPS baseline, and per run: errors at N = 1 (all queries, queries whose
 buildings some reference shows, per query kind), best of top N = 1..10 (Fig. 7), heading errors, how
@@ -51,11 +53,22 @@ __all__ = [
     "TOP_N",
     "EvalRun",
     "angle_error_deg",
+    "capture_kind",
     "default_runs",
     "evaluate_photos",
     "evaluate_world",
     "shown_by_references",
 ]
+
+
+def capture_kind(manifest: dict[str, Any]) -> str:
+    """How a world's references were captured: ``"walk"`` or ``"scattered"``.
+
+    Walk worlds record ``options.capture`` in their manifest; scattered worlds made before walks existed (and
+    those made since, which leave the default out so that their files stay byte-identical) do not, and read
+    as ``"scattered"``.
+    """
+    return str(manifest.get("options", {}).get("capture", "scattered"))
 
 
 def default_runs(config: QueryConfig) -> list[EvalRun]:
@@ -107,6 +120,7 @@ def evaluate_world(
 
     result: dict[str, Any] = {
         "world": str(world_dir),
+        "capture": capture_kind(world.manifest),
         "map": world.manifest.get("map", {}).get("path") if hasattr(world, "manifest") else None,
         "references": len(world.references),
         "queries": len(queries),
