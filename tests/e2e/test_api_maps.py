@@ -28,6 +28,7 @@ from tests.service_fixtures import (
     geoloc_command,
     jpeg_bytes,
     png_header_only,
+    read_rows,
     running_service,
     service_env,
     stored_files,
@@ -84,6 +85,13 @@ class Unchanged:
 
     def __init__(self, service: RunningProcess) -> None:
         self.service = service
+        # Earlier tests' jobs (a reference labelled, then deleted) may still be writing, e.g. the map's
+        # vocabulary on its first label job: wait until none is queued or running before taking the snapshot.
+        wait_for(
+            lambda: not read_rows(service.database, "SELECT id FROM jobs WHERE status IN ('queued', 'running')"),
+            timeout=120,
+            what="earlier tests' jobs to finish",
+        )
         self.counts = table_counts(service.database)
         self.files = stored_files(service.data_dir)
 
