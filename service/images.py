@@ -16,8 +16,8 @@ from pathlib import Path
 from fastapi.responses import FileResponse
 from PIL import Image, UnidentifiedImageError
 
-from geoloc.photos.capture import read_capture
-from geoloc.photos.exif import read_exif
+from geoloc.photos.capture import capture_of
+from geoloc.photos.exif import exif_info, load_exif
 from geoloc.photos.heading_prior import DEFAULT_SIGMA_DEG
 from service.errors import ApiError
 
@@ -88,10 +88,11 @@ def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
 
 def _read_exif_into(path: Path, info: ImageInfo) -> None:
     """Fill GPS position, 35 mm focal length and the compass (heading, accuracy) from EXIF, when present."""
-    exif = read_exif(path)
+    block = load_exif(path)  # read and parsed once for both readings
+    exif = exif_info(block)
     info.gps_lat, info.gps_lon = (exif.lat, exif.lon) if exif.has_gps else (None, None)
     info.focal_length_35mm = exif.focal_35mm
-    compass = read_capture(path).compass
+    compass = capture_of(block).compass
     if compass is not None:
         info.heading_deg = compass.heading_deg
         info.heading_accuracy_deg = DEFAULT_SIGMA_DEG if compass.accuracy_deg is None else compass.accuracy_deg

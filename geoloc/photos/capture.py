@@ -1,6 +1,7 @@
 """What a photo says about its capture: when, in which walk, and where the camera pointed (the compass).
 
-:func:`read_capture` reads, from the same bytes :func:`geoloc.photos.exif.read_exif` reads:
+:func:`read_capture` (or :func:`capture_of`, on the block :func:`geoloc.photos.exif.load_exif` parsed once for
+:func:`geoloc.photos.exif.exif_info` too) reads:
 
 - EXIF ``DateTimeOriginal`` + ``SubSecTimeOriginal`` (+ ``OffsetTimeOriginal`` when present);
 - EXIF ``GPSImgDirection`` + ``GPSImgDirectionRef`` ("T" true, "M" magnetic);
@@ -31,7 +32,6 @@ datetime: the camera's wall-clock time, comparable only with other naive times o
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import re
@@ -41,7 +41,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 import piexif
-from PIL import Image
+
+from geoloc.photos.exif import ExifBlock, load_exif
 
 CompassSource = Literal["exif", "mapillary"]
 CompassReference = Literal["true", "magnetic-converted"]
@@ -256,16 +257,14 @@ def read_capture(data: bytes | str | Path, *, declination_deg: float | None = No
     declination_deg: the magnetic declination at the photo (deg, east positive) when the caller knows it;
     it converts a magnetic heading instead of the declination bound. A missing path raises ``FileNotFoundError``.
     """
-    raw = Path(data).read_bytes() if isinstance(data, str | Path) else bytes(data)
-    try:
-        with Image.open(io.BytesIO(raw)) as img:
-            block = img.info.get("exif")
-    except Exception:  # not an image we can open (e.g. truncated): try the raw bytes
-        block = raw if raw[:2] == b"\xff\xd8" else None
-    if not block:
+    return capture_of(load_exif(data), declination_deg=declination_deg)
+
+
+def capture_of(block: ExifBlock, *, declination_deg: float | None = None) -> CaptureInfo:
+    """:class:`CaptureInfo` of an EXIF block parsed by :func:`geoloc.photos.exif.load_exif`; never raises."""
+    if block.tags is None:
         return CaptureInfo()
     try:
-        exif = piexif.load(block)
-        return capture_from_exif(exif, declination_deg=declination_deg)
-    except Exception:  # malformed EXIF, or a field of a type piexif let through
+        return capture_from_exif(block.tags, declination_deg=declination_deg)
+    except Exception:  # a field of a type piexif let through
         return CaptureInfo()

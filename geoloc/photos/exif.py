@@ -95,25 +95,54 @@ def _text(value: Any) -> str | None:
     return None
 
 
+@dataclass(frozen=True)
+class ExifBlock:
+    """A photo's EXIF parsed once: its pixel size (None when Pillow cannot open it) and ``piexif.load``'s dict.
+
+    ``tags`` is None without EXIF or when it is malformed. :func:`exif_info` and
+    :func:`geoloc.photos.capture.capture_of` read their fields from it.
+    """
+
+    size: tuple[int, int] | None
+    tags: dict[str, Any] | None
+
+
+def load_exif(data: bytes | str | Path) -> ExifBlock:
+    """The EXIF of a photo given as bytes or a path, parsed; never raises on bad metadata.
+
+    A path that does not exist raises ``FileNotFoundError`` (that is not a metadata problem).
+    """
+    raw = Path(data).read_bytes() if isinstance(data, str | Path) else bytes(data)
+    size = None
+    try:
+        with Image.open(io.BytesIO(raw)) as img:
+            size = img.size
+            block = img.info.get("exif")
+    except Exception:  # not an image we can open (e.g. truncated): try the raw bytes
+        block = raw if raw[:2] == b"\xff\xd8" else None
+    if not block:
+        return ExifBlock(size, None)
+    try:
+        return ExifBlock(size, piexif.load(block))
+    except Exception:  # malformed EXIF
+        return ExifBlock(size, None)
+
+
 def read_exif(data: bytes | str | Path) -> ExifInfo:
     """EXIF of a photo given as bytes or a path. Never raises on bad metadata (see module docstring).
 
     A path that does not exist raises ``FileNotFoundError`` (that is not a metadata problem).
     """
-    raw = Path(data).read_bytes() if isinstance(data, str | Path) else bytes(data)
+    return exif_info(load_exif(data))
+
+
+def exif_info(block: ExifBlock) -> ExifInfo:
+    """The :class:`ExifInfo` fields of a parsed EXIF block."""
     info = ExifInfo()
-    exif_bytes = None
-    try:
-        with Image.open(io.BytesIO(raw)) as img:
-            info.width, info.height = img.size
-            exif_bytes = img.info.get("exif")
-    except Exception:  # not an image we can open (e.g. truncated): try the raw bytes
-        exif_bytes = raw if raw[:2] == b"\xff\xd8" else None
-    if not exif_bytes:
-        return info
-    try:
-        exif = piexif.load(exif_bytes)
-    except Exception:  # malformed EXIF
+    if block.size is not None:
+        info.width, info.height = block.size
+    exif = block.tags
+    if exif is None:
         return info
     zeroth, ex, gps = exif.get("0th") or {}, exif.get("Exif") or {}, exif.get("GPS") or {}
 

@@ -59,26 +59,10 @@ class HeadingPrior:
 
 
 def heading_prior_from_compass(
-    reading: CompassReading,
-    frame: LocalFrame,
-    east_m: float = 0.0,
-    north_m: float = 0.0,
-    *,
-    sigma_floor_deg: float = SIGMA_FLOOR_DEG,
-    default_sigma_deg: float = DEFAULT_SIGMA_DEG,
-    outlier_probability: float = OUTLIER_PROBABILITY,
+    reading: CompassReading, frame: LocalFrame, east_m: float = 0.0, north_m: float = 0.0
 ) -> HeadingPrior:
-    """The prior of a compass reading at a local point (m) of ``frame`` (the meridian convergence applied)."""
-    return compass_heading_prior(
-        reading.heading_deg,
-        reading.accuracy_deg,
-        frame,
-        east_m,
-        north_m,
-        sigma_floor_deg=sigma_floor_deg,
-        default_sigma_deg=default_sigma_deg,
-        outlier_probability=outlier_probability,
-    )
+    """:func:`compass_heading_prior` of a compass reading at a local point (m) of ``frame``."""
+    return compass_heading_prior(reading.heading_deg, reading.accuracy_deg, frame, east_m, north_m)
 
 
 def compass_heading_prior(

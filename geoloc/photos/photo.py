@@ -17,8 +17,8 @@ import numpy as np
 from PIL import Image, ImageOps
 
 from geoloc.core.camera import DEFAULT_HFOV_DEG, Intrinsics, intrinsics_from_focal
-from geoloc.photos.capture import CaptureInfo, read_capture
-from geoloc.photos.exif import ExifInfo, read_exif
+from geoloc.photos.capture import CaptureInfo, capture_of
+from geoloc.photos.exif import ExifInfo, exif_info, load_exif
 
 WORKING_MAX_SIDE = 1024
 """Photos are analysed at most this many pixels on their long side (phone photos are 3-12 MP)."""
@@ -60,7 +60,8 @@ def load_photo(
         image.load()
     except Exception as exc:  # Pillow raises many types for bad data
         raise ValueError(f"not a decodable image: {exc}") from exc
-    exif = read_exif(data)
+    block = load_exif(data)  # parsed once for both readings
+    exif = exif_info(block)
     image = ImageOps.exif_transpose(image).convert("RGB")
     width, height = image.size
     intrinsics = intrinsics_from_focal(
@@ -74,4 +75,4 @@ def load_photo(
         size = (max(1, round(width * scale)), max(1, round(height * scale)))
         image = image.resize(size, Image.Resampling.LANCZOS)
         intrinsics = intrinsics.scaled(*size)
-    return Photo(np.asarray(image), intrinsics, exif, (width, height), read_capture(data))
+    return Photo(np.asarray(image), intrinsics, exif, (width, height), capture_of(block))

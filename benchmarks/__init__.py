@@ -1,0 +1,1 @@
+"""Speed and load benchmarks (see docs/measurements.md), and the real PostgreSQL and Redis servers the tests use too."""
