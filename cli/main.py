@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from cli import analyze as analyze_cmd
+from cli import backup as backup_cmd
 from cli import eval as eval_cmd
 from cli import ingest as ingest_cmd
 from cli import map as map_cmd
@@ -18,5 +19,6 @@ app.add_typer(sim_cmd.app, name="sim")
 app.add_typer(models_cmd.app, name="models")
 app.add_typer(eval_cmd.app, name="eval")
 serve_cmd.register(app)
+backup_cmd.register(app)
 app.command("analyze")(analyze_cmd.analyze)
 app.command("ingest")(ingest_cmd.ingest)
