@@ -173,8 +173,11 @@ class RunningProcess:
         return int(self.process.returncode)
 
 
-def start_process(args: list[str], data_dir: Path, env: dict[str, str]) -> RunningProcess:
-    """Start ``geoloc ARGS`` in its own process group, output to ``data_dir/../<name>-<command>[-n].log``."""
+def start_process(args: list[str], data_dir: Path, env: dict[str, str], cwd: Path = REPO_ROOT) -> RunningProcess:
+    """Start ``geoloc ARGS`` in its own process group, output to ``data_dir/../<name>-<command>[-n].log``.
+
+    ``cwd``: the folder it runs in (first on its children's ``python -m`` import path: another release's code).
+    """
     data_dir.mkdir(parents=True, exist_ok=True)
     log_path = data_dir.parent / f"{data_dir.name}-{args[0]}.log"
     for n in range(2, 100):  # a second process on the same data folder (two API processes) gets its own log
@@ -184,7 +187,7 @@ def start_process(args: list[str], data_dir: Path, env: dict[str, str]) -> Runni
     log_file = log_path.open("ab")
     process = subprocess.Popen(
         [*geoloc_command(), *args],
-        cwd=REPO_ROOT,
+        cwd=cwd,
         env=env,
         stdout=log_file,
         stderr=subprocess.STDOUT,
@@ -225,12 +228,13 @@ def running_service(
     workers: int = 1,
     models: Path | None = None,
     api_keys: str | None = API_KEYS,
+    cwd: Path = REPO_ROOT,
     **env_overrides: str,
 ) -> Iterator[RunningProcess]:
     """``geoloc serve`` on a free loopback port (with ``api_keys``, none if None); yields once /healthz answers.
 
     Workers need the built models: pass ``models`` (the ``built_models`` fixture) to link them into
-    ``data_dir`` when ``workers`` > 0.
+    ``data_dir`` when ``workers`` > 0. ``cwd``: as for :func:`start_process`.
     """
     port = free_port()
     if models is not None:
@@ -244,6 +248,7 @@ def running_service(
         ["serve", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers), "--log-level", "warning"],
         data_dir,
         env,
+        cwd,
     )
     running.base_url = f"http://127.0.0.1:{port}"
 
