@@ -141,11 +141,12 @@ def _data_files(deployment: Deployment) -> Iterator[tuple[str, Path]]:
     if not root.is_dir():
         return
     skipped = {*SKIPPED_IN_DATA_DIR, *(DATABASE_FILENAME + suffix for suffix in SQLITE_COMPANIONS)}
-    if deployment.store_dir.resolve() == root.resolve():
-        skipped.update(STORED_FOLDERS)
+    store = {(deployment.store_dir / folder).resolve() for folder in STORED_FOLDERS}
     for path in sorted(root.rglob("*")):
         relative = path.relative_to(root)
         if relative.parts[0] in skipped or not path.is_file() or path.is_symlink():
+            continue
+        if store.intersection(path.resolve().parents):  # the store inside the data folder: copied as store/
             continue
         yield "data/" + relative.as_posix(), path
 
@@ -208,6 +209,8 @@ def create_backup(deployment: Deployment, dest: Path, *, now: float | None = Non
     """
     if dest.exists() and (not dest.is_dir() or any(dest.iterdir())):
         raise BackupError(f"{dest} exists and is not an empty folder: a backup goes to a new folder")
+    if not deployment.distributed and not Path(deployment.database).is_file():
+        raise BackupError(f"no database to back up at {deployment.database}")
     dest.mkdir(parents=True, exist_ok=True)
     files: dict[str, dict[str, Any]] = {}
     _copy_pass(deployment, dest, files)

@@ -85,6 +85,18 @@ def test_a_backup_holds_the_database_and_stored_files_but_no_cache_or_uploads(tm
     assert all(len(entry["sha256"]) == 64 and entry["size"] > 0 for entry in manifest["files"])
     with pytest.raises(BackupError, match="not an empty folder"):
         create_backup(deployment, tmp_path / "backup")
+    with pytest.raises(BackupError, match="no database to back up at"):
+        create_backup(_deployment(tmp_path / "none"), tmp_path / "backup-of-nothing")
+    assert not (tmp_path / "backup-of-nothing").exists(), "nothing written"
+
+
+def test_a_store_inside_the_data_folder_is_copied_once(tmp_path: Path) -> None:
+    deployment = _filled(tmp_path)
+    (deployment.data_dir / "store" / "images").mkdir(parents=True)
+    (deployment.data_dir / "images" / "1" / "abc.jpg").rename(deployment.data_dir / "store" / "images" / "abc.jpg")
+    inside = Deployment(deployment.data_dir, deployment.database, deployment.data_dir / "store")
+    paths = [entry["path"] for entry in create_backup(inside, tmp_path / "backup").manifest["files"]]
+    assert "store/images/abc.jpg" in paths and not any(p.startswith("data/store/") for p in paths)
 
 
 def test_restore_into_a_fresh_folder_gives_the_same_rows_and_files(tmp_path: Path) -> None:
