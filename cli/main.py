@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import typer
 
+from cli import about as about_cmd
 from cli import analyze as analyze_cmd
 from cli import eval as eval_cmd
 from cli import ingest as ingest_cmd
@@ -20,3 +21,4 @@ app.add_typer(eval_cmd.app, name="eval")
 serve_cmd.register(app)
 app.command("analyze")(analyze_cmd.analyze)
 app.command("ingest")(ingest_cmd.ingest)
+app.command("about")(about_cmd.about)
