@@ -23,10 +23,10 @@ a GIS tool opens it without error and a script reads why it is empty.
 
 from __future__ import annotations
 
-import math
 from typing import Annotated, Any, Literal
 
 from fastapi import Query, Request
+from pyproj import Geod
 
 from service.models import QueryOut, ReferenceList
 
@@ -36,8 +36,7 @@ VIEW_CONE_LENGTH_M = 50.0
 DEFAULT_FOV_DEG = 60.0
 """The cone's opening (deg) when the answer states no field of view."""
 CONE_ARC_POINTS = 9
-_METRES_PER_DEG_LAT = 111_132.0
-_METRES_PER_DEG_LON_EQUATOR = 111_320.0
+_GEOD = Geod(ellps="WGS84")
 
 Feature = dict[str, Any]
 
@@ -76,21 +75,16 @@ def wants_geojson(request: Request, format_name: str | None) -> bool:
     return GEOJSON_MEDIA_TYPE in request.headers.get("accept", "").lower()
 
 
-def _offset(lat: float, lon: float, bearing_deg: float, distance_m: float) -> list[float]:
-    """``[lon, lat]`` ``distance_m`` from (lat, lon) towards ``bearing_deg`` (local tangent plane; mm at 50 m)."""
-    east = distance_m * math.sin(math.radians(bearing_deg))
-    north = distance_m * math.cos(math.radians(bearing_deg))
-    metres_per_deg_lon = _METRES_PER_DEG_LON_EQUATOR * math.cos(math.radians(lat))
-    return [round(lon + east / metres_per_deg_lon, 8), round(lat + north / _METRES_PER_DEG_LAT, 8)]
-
-
 def view_cone(lat: float, lon: float, heading_deg: float, fov_deg: float, length_m: float) -> dict[str, Any]:
-    """The GeoJSON Polygon of a view: apex at (lat, lon), ``fov_deg`` wide around ``heading_deg``, ``length_m``."""
+    """The GeoJSON Polygon of a view: apex at (lat, lon), ``fov_deg`` wide around ``heading_deg``, ``length_m``.
+
+    The far edge's points are ``length_m`` from the apex along the WGS84 geodesics (pyproj), 8 decimals (1 mm).
+    """
+    # From the right edge to the left: the ring runs counterclockwise, as RFC 7946 asks of exterior rings.
+    azimuths = [heading_deg + fov_deg / 2 - fov_deg * i / (CONE_ARC_POINTS - 1) for i in range(CONE_ARC_POINTS)]
+    lons, lats, _ = _GEOD.fwd([lon] * CONE_ARC_POINTS, [lat] * CONE_ARC_POINTS, azimuths, [length_m] * CONE_ARC_POINTS)
     apex = [lon, lat]
-    arc = [
-        _offset(lat, lon, heading_deg - fov_deg / 2 + fov_deg * i / (CONE_ARC_POINTS - 1), length_m)
-        for i in range(CONE_ARC_POINTS)
-    ]
+    arc = [[round(float(x), 8), round(float(y), 8)] for x, y in zip(lons, lats, strict=True)]
     return {"type": "Polygon", "coordinates": [[apex, *arc, apex]]}
 
 
