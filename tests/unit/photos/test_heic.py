@@ -81,3 +81,11 @@ def test_a_corrupt_heic_gets_a_4xx_with_a_reason(tmp_path: Path, twins: tuple[by
         validate_image(path, max_pixels=50_000_000, min_side=64)
     assert 400 <= refused.value.status < 500 and refused.value.message
     assert str(tmp_path) not in refused.value.message
+
+
+def test_geoloc_ingest_picks_a_heic_by_its_content(twins: tuple[bytes, bytes]) -> None:
+    from cli.photo_files import sniff_photo  # the CLI's own check of a folder's files
+
+    jpeg, heic = twins
+    assert (sniff_photo(jpeg[:16]), sniff_photo(heic[:16])) == ("image/jpeg", "image/heic")
+    assert sniff_photo(b"\x00\x00\x00\x1cftypisom\x00\x00") is None  # an MP4 is not a photo
