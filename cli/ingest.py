@@ -1,6 +1,6 @@
 """``geoloc ingest DIR --map ID``: upload a folder of geo-tagged photos as references of a map.
 
-Every file is checked by content (JPEG, PNG, WEBP, TIFF; anything else is skipped with a reason),
+Every file is checked by content (JPEG, PNG, WEBP, TIFF, HEIC; anything else is skipped with a reason),
 hashed (sha256) and posted to ``POST /v1/maps/{id}/references``. Files with the same content in
 the folder are uploaded once. The service answers ``duplicate: true`` for a photo it already holds,
 so a second run creates nothing new. Connection errors, 408, 429 and 5xx are retried with

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import typer
 
+from cli import about as about_cmd
 from cli import analyze as analyze_cmd
 from cli import backup as backup_cmd
 from cli import eval as eval_cmd
@@ -22,3 +23,4 @@ serve_cmd.register(app)
 backup_cmd.register(app)
 app.command("analyze")(analyze_cmd.analyze)
 app.command("ingest")(ingest_cmd.ingest)
+app.command("about")(about_cmd.about)

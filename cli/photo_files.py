@@ -21,8 +21,12 @@ OUTCOMES: dict[str, str] = {
 """Outcome of one file -> its label in the summary, in summary order."""
 
 
+HEIF_BRANDS = {b"heic", b"heix", b"heim", b"heis", b"hevc", b"hevx", b"mif1", b"msf1"}
+"""ISO-BMFF major brands of HEIC/HEIF photos (the ``ftyp`` box at byte 4)."""
+
+
 def sniff_photo(head: bytes) -> str | None:
-    """MIME type of a photo from its first bytes (JPEG, PNG, WEBP, TIFF), else None."""
+    """MIME type of a photo from its first bytes (JPEG, PNG, WEBP, TIFF, HEIC/HEIF), else None."""
     if head.startswith(b"\xff\xd8\xff"):
         return "image/jpeg"
     if head.startswith(b"\x89PNG\r\n\x1a\n"):
@@ -31,6 +35,8 @@ def sniff_photo(head: bytes) -> str | None:
         return "image/webp"
     if head[:4] in (b"II*\x00", b"MM\x00*"):
         return "image/tiff"
+    if head[4:8] == b"ftyp" and head[8:12] in HEIF_BRANDS:
+        return "image/heic"
     return None
 
 
@@ -93,7 +99,10 @@ def scan_folder(folder: Path, *, recursive: bool) -> tuple[list[Candidate], list
         if mime is None:
             others.append(
                 FileResult(
-                    relative, "skipped", "not a photo: content is not JPEG, PNG, WEBP or TIFF", size_bytes=len(data)
+                    relative,
+                    "skipped",
+                    "not a photo: content is not JPEG, PNG, WEBP, TIFF or HEIC",
+                    size_bytes=len(data),
                 )
             )
             continue

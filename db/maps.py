@@ -110,17 +110,21 @@ def insert_map(
     size_bytes: int,
     content: MapContent,
     read_options: dict[str, Any] | None = None,
+    attribution: str | None = None,
 ) -> int:
     """Insert a map with its buildings and facades; returns the map id. Call inside a transaction.
 
-    read_options: how the file was read (``MapReadOptions.as_dict()``; default ``{}``).
+    read_options: how the file was read (``MapReadOptions.as_dict()``; default ``{}``). attribution: what the
+    upload stated, None for none (the column, from migration 6, is then left to its NULL).
     """
     min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
     facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
+    stated = ("attribution",) if attribution is not None else ()
+    columns = ", ".join(("repair_report", "read_options", "created_at", *stated))
     map_id = db.insert_returning_id(
         "INSERT INTO maps (name, source_filename, source_format, source_path, sha256, size_bytes,"
         " min_lat, min_lon, max_lat, max_lon, origin_lat, origin_lon, building_count, facade_count,"
-        " repair_report, read_options, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        f" {columns}) VALUES ({', '.join('?' * (17 + len(stated)))})",
         (
             name,
             source_filename,
@@ -139,6 +143,7 @@ def insert_map(
             json.dumps(content.repair_report),
             _options_json(read_options),
             time.time(),
+            *((attribution,) if attribution is not None else ()),
         ),
     )
     db.executemany(
@@ -196,15 +201,20 @@ def map_reference_counts(db: Database, map_id: int) -> dict[str, int]:
     return {row["status"]: int(row["n"]) for row in rows}
 
 
-def list_buildings(db: Database, map_id: int, decode: bool = True) -> list[dict[str, Any]]:
-    """Buildings of a map (no WKB), by building id.
+def list_buildings(
+    db: Database, map_id: int, decode: bool = True, building_ids: list[int] | None = None
+) -> list[dict[str, Any]]:
+    """Buildings of a map (no WKB), by building id; only those of ``building_ids`` when given.
 
     ``footprint_geojson`` is decoded, or left as its JSON text with ``decode=False``.
     """
+    if building_ids is not None and not building_ids:
+        return []
+    only = "" if building_ids is None else f" AND building_id IN ({', '.join('?' * len(building_ids))})"
     rows = db.query(
         "SELECT building_id, osm_id, name, height_m, footprint_geojson FROM buildings"
-        " WHERE map_id = ? ORDER BY building_id",
-        (map_id,),
+        f" WHERE map_id = ?{only} ORDER BY building_id",
+        (map_id, *(building_ids or ())),
     )
     out = []
     for row in rows:

@@ -28,6 +28,9 @@ Storage decisions (see also the module docstrings of the access modules):
 - ``reference_images.prior_heading_accuracy_deg`` (migration 5) is the accuracy (deg) of a heading prior
   that came from the photo's compass; NULL for a heading the uploader stated (and for every reference
   stored before it), which the worker weights as before (:mod:`workers.method_handlers`).
+- ``maps.attribution`` (migration 6) is the attribution the map upload stated (its data's licence requires it
+  shown with everything derived from the map); NULL when the upload stated none, and for every map stored
+  before it: the API then shows the default, "© OpenStreetMap contributors" (:mod:`contracts.licenses`).
 """
 
 from __future__ import annotations
@@ -229,6 +232,13 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         "compass accuracy of a reference's heading prior",
         """
         ALTER TABLE reference_images ADD COLUMN prior_heading_accuracy_deg REAL;
+        """,
+    ),
+    (
+        6,
+        "the attribution a map upload states",
+        """
+        ALTER TABLE maps ADD COLUMN attribution TEXT;
         """,
     ),
 ]

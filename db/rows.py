@@ -34,6 +34,8 @@ class MapRow(TypedDict):
     facade_count: int
     repair_report: dict[str, Any]
     read_options: dict[str, Any]
+    attribution: str | None
+    """The attribution the upload stated, None when it stated none (the default then applies)."""
     created_at: float
     bbox_wgs84: tuple[float, float, float, float]
     """(min_lat, min_lon, max_lat, max_lon), from the four columns."""

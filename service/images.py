@@ -21,8 +21,11 @@ from geoloc.photos.exif import exif_info, load_exif
 from geoloc.photos.heading_prior import DEFAULT_SIGMA_DEG
 from service.errors import ApiError
 
-ACCEPTED_FORMATS = {"JPEG": "jpg", "MPO": "jpg", "PNG": "png", "WEBP": "webp", "TIFF": "tif"}
-"""Pillow format -> stored file extension. MPO is how Pillow names multi-picture phone JPEGs."""
+ACCEPTED_FORMATS = {"JPEG": "jpg", "MPO": "jpg", "PNG": "png", "WEBP": "webp", "TIFF": "tif", "HEIF": "heic"}
+"""Pillow format -> stored file extension. MPO is how Pillow names multi-picture phone JPEGs; HEIF is HEIC/HEIF
+(iPhones' default), opened through ``pillow-heif`` (registered by :mod:`geoloc.photos.exif`)."""
+ACCEPTED_NAMES = "JPEG, PNG, WEBP, TIFF, HEIC/HEIF"
+"""The accepted formats as the error messages and the form fields' descriptions name them."""
 
 
 @dataclass
@@ -63,7 +66,7 @@ def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
             raise ApiError(
                 415,
                 "unsupported_image_format",
-                f"image format {image.format} is not accepted (accepted: JPEG, PNG, WEBP, TIFF)",
+                f"image format {image.format} is not accepted (accepted: {ACCEPTED_NAMES})",
             )
         width, height = image.size
         if width * height > max_pixels:
@@ -108,7 +111,13 @@ def distance_outside_bbox_m(lat: float, lon: float, bbox: tuple[float, float, fl
     return math.hypot(d_lat * metres_per_deg_lat, d_lon * metres_per_deg_lon)
 
 
-STORED_MEDIA_TYPES = {".jpg": "image/jpeg", ".png": "image/png", ".webp": "image/webp", ".tif": "image/tiff"}
+STORED_MEDIA_TYPES = {
+    ".jpg": "image/jpeg",
+    ".png": "image/png",
+    ".webp": "image/webp",
+    ".tif": "image/tiff",
+    ".heic": "image/heic",
+}
 """Media type of a stored photo by the extension :data:`ACCEPTED_FORMATS` gave its file."""
 
 

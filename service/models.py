@@ -6,7 +6,7 @@ The parts that workers compute (query answers, reference labels) are in :mod:`co
 from __future__ import annotations
 
 from datetime import UTC, datetime
-from typing import Any, Literal, overload
+from typing import Annotated, Any, Literal, overload
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -21,6 +21,17 @@ def timestamp(value: None) -> None: ...
 def timestamp(value: float | None) -> datetime | None:
     """Unix seconds -> aware UTC datetime (None stays None)."""
     return datetime.fromtimestamp(value, tz=UTC) if value is not None else None
+
+
+Attribution = Annotated[
+    str,
+    Field(
+        description="The map data's attribution, to show with anything derived from the map: the map upload's "
+        '`attribution` field, else "© OpenStreetMap contributors" (every format; docs/licenses.md)',
+        examples=["© OpenStreetMap contributors"],
+    ),
+]
+"""An answer's or a map's ``attribution`` (:func:`contracts.licenses.map_attribution`)."""
 
 
 class ErrorDetail(BaseModel):
@@ -63,6 +74,7 @@ class MapOut(BaseModel):
                     "facade_count": 6892,
                     "reference_count": 0,
                     "repair_report": {"format": "pbf", "closed_unclosed_ways": 1, "skipped_unclosed": 27},
+                    "attribution": "© OpenStreetMap contributors",
                     "created_at": "2025-01-01T12:00:00Z",
                     "duplicate": False,
                 }
@@ -90,6 +102,7 @@ class MapOut(BaseModel):
         default_factory=dict,
         description="The upload's read options that differ from the defaults (layer, *_attribute, crs)",
     )
+    attribution: Attribution
     created_at: datetime
     duplicate: bool = Field(
         default=False, description="True when this file was already uploaded with the same read options (same sha256)"
@@ -208,6 +221,7 @@ class ReferenceOut(BaseModel):
                         "labeling": 2504.1,
                         "total": 2840.2,
                     },
+                    "attribution": "© OpenStreetMap contributors",
                     "created_at": "2025-01-01T12:00:00Z",
                     "updated_at": "2025-01-01T12:00:05Z",
                 }
@@ -240,6 +254,7 @@ class ReferenceOut(BaseModel):
     estimated: EstimatedPose | None = None
     buildings_seen: list[BuildingInPhoto] | None = None
     timings: dict[str, float] | None = None
+    attribution: Attribution
     created_at: datetime
     updated_at: datetime
 
@@ -277,6 +292,7 @@ class QueryOut(BaseModel):
     job_id: int | None = Field(default=None, examples=[93])
     params: dict[str, Any] = Field(examples=[{"top_n": 10, "k": 4, "prior": {"lat": 60.1695, "lon": 24.9412}}])
     result: QueryResult | None = None
+    attribution: Attribution
     created_at: datetime | None = None
     updated_at: datetime | None = None
 
@@ -293,6 +309,7 @@ class ReferenceList(BaseModel):
                     "total": 60,
                     "counts": {"queued": 12, "processing": 2, "done": 45, "failed": 1},
                     "next_after_id": 100,
+                    "attribution": "© OpenStreetMap contributors",
                 }
             ]
         }
@@ -305,6 +322,28 @@ class ReferenceList(BaseModel):
     next_after_id: int | None = Field(
         description="Pass as `after_id` for the next page; null on the last page", examples=[100]
     )
+    attribution: Attribution
+
+
+class LicenseOut(BaseModel):
+    """One thing the service is built from and its licence (:data:`contracts.licenses.LICENSES`)."""
+
+    name: str = Field(examples=["ALIKED keypoint weights (aliked-n16)"])
+    license: str = Field(examples=["BSD-3-Clause"])
+    source: str = Field(examples=["github.com/Shiaoming/ALIKED@683d7c6 (LICENSE, © 2022 Zhao Xiaoming)"])
+    kind: Literal["model", "dataset", "map data", "dependency"]
+
+
+class About(BaseModel):
+    """The service's version and the licences of its models, data and main dependencies."""
+
+    name: str = Field(examples=["geoloc"])
+    version: str = Field(examples=["0.1.0"])
+    map_attribution_default: str = Field(
+        description="The attribution of a map whose upload states none", examples=["© OpenStreetMap contributors"]
+    )
+    licenses: list[LicenseOut]
+
 
 def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
     """``responses=`` for a route: each status answered with :class:`ErrorResponse`.

@@ -243,17 +243,18 @@ class Renderer:
         return None
 
     def body_of(self, response: Schema) -> tuple[str, Schema | None]:
-        """(what the body is, its schema) for a response."""
+        """(what the body is, its schema) for a response: JSON first, then the other media types it may have."""
         content = response.get("content") or {}
         if not content:
             return "(empty)", None
-        media, entry = sorted(content.items())[0]
+        (media, entry), *others = sorted(content.items(), key=lambda item: (item[0] != "application/json", item[0]))
+        also = "".join(f"; or `{other}`" for other, _ in others)
         schema = entry.get("schema") or {}
         if "$ref" in schema and _ref_name(schema["$ref"]) in HIDDEN_SCHEMAS:
             schema = {"$ref": "#/components/schemas/ErrorResponse"}
         if not schema:
-            return f"`{media}`", None
-        return (type_of(schema) if media == "application/json" else f"`{media}`: {type_of(schema)}"), schema
+            return f"`{media}`{also}", None
+        return (type_of(schema) if media == "application/json" else f"`{media}`: {type_of(schema)}") + also, schema
 
     def operation(self, method: str, path: str, op: Schema) -> list[str]:
         """The section of one operation: description, auth, parameters, body, responses, example."""

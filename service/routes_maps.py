@@ -15,6 +15,7 @@ from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
 from fastapi.responses import JSONResponse
 
 from contracts.answers import BoundingBox, LatLon
+from contracts.licenses import map_attribution
 from contracts.settings import Settings
 from db import Database, transaction
 from db import maps as map_store
@@ -76,6 +77,7 @@ def map_out(row: MapRow, *, reference_count: int = 0, duplicate: bool = False) -
         reference_count=reference_count,
         repair_report=row["repair_report"],
         read_options=row["read_options"],
+        attribution=map_attribution(row["attribution"]),
         created_at=timestamp(row["created_at"]),
         duplicate=duplicate,
     )
@@ -122,6 +124,15 @@ def upload_map(
             "declares; for files that declare none and are not WGS84 lon/lat",
         ),
     ] = None,
+    attribution: Annotated[
+        str | None,
+        Form(
+            max_length=500,
+            description="The map data's attribution as its licence requires it shown (e.g. a GIS source's "
+            '"© City of Helsinki, CC BY 4.0"); default "© OpenStreetMap contributors". Returned with the map '
+            "and every answer on it",
+        ),
+    ] = None,
     db: Database = Depends(get_db),
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
@@ -132,7 +143,8 @@ def upload_map(
     existing map when the same file (sha256) was already uploaded with the same options
     (``duplicate: true``); 413 over the size limit; 422 when the file is not map data, holds no usable
     buildings, names a layer or attribute it does not have, or has coordinates that cannot be placed
-    (the message says which CRS they look like and how to fix it).
+    (the message says which CRS they look like and how to fix it). ``attribution`` is not part of the
+    duplicate check: the same file sent again gets the existing map with the attribution it was stored with.
     """
     options = _read_options(layer, name_attribute, height_attribute, levels_attribute, crs)
     if options.crs is not None:
@@ -174,6 +186,7 @@ def upload_map(
                     size_bytes=received.size_bytes,
                     content=content,
                     read_options=read_options,
+                    attribution=attribution.strip() if attribution and attribution.strip() else None,
                 )
         if existing is not None:
             out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
@@ -230,14 +243,15 @@ def get_map(map_id: MapId, db: Database = Depends(get_db)) -> MapOut:
         200: {"content": {"application/geo+json": {}}, "description": "GeoJSON FeatureCollection"},
         **error_responses(404),
     },
+    response_class=Response,
     dependencies=[Depends(require_read)],
 )
 def get_buildings(map_id: MapId, db: Database = Depends(get_db)) -> Response:
-    """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat).
+    """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat), with the map's ``attribution``.
 
     Each feature has its building id, OSM id, name and height.
     """
-    require_map(db, map_id)
+    attribution = json.dumps(map_attribution(require_map(db, map_id)["attribution"]))
     # The stored geometry text goes out as it is: no decoding and re-encoding of a city's footprints.
     features = ",".join(
         f'{{"type":"Feature","id":{b["building_id"]},"geometry":{b["footprint_geojson"]},"properties":'
@@ -245,7 +259,8 @@ def get_buildings(map_id: MapId, db: Database = Depends(get_db)) -> Response:
         + "}"
         for b in map_store.list_buildings(db, map_id, decode=False)
     )
-    return Response('{"type":"FeatureCollection","features":[' + features + "]}", media_type="application/geo+json")
+    body = '{"type":"FeatureCollection","attribution":' + attribution + ',"features":[' + features + "]}"
+    return Response(body, media_type="application/geo+json")
 
 
 @router.delete(

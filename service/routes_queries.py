@@ -14,6 +14,7 @@ thread for the few milliseconds it takes. While the job queue is full the reques
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Annotated, Any
 
 import cv2
@@ -24,10 +25,12 @@ from fastapi.responses import FileResponse, JSONResponse
 
 from contracts.answers import QueryResult
 from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload
+from contracts.licenses import map_attribution
 from contracts.queries import PriorPosition, QueryParams
 from contracts.settings import Settings
 from db import Database, connect, transaction
 from db import jobs as job_store
+from db import maps as map_store
 from db import queries as query_store
 from db.files import FileStore
 from db.rows import JobRow, MapRow, QueryRow
@@ -35,7 +38,15 @@ from service.auth import require_read, require_write
 from service.bounds import MapId, QueryId, bounded_form, check_bounds
 from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
-from service.images import STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
+from service.geojson import (
+    GEOJSON_MEDIA_TYPE,
+    GEOJSON_RESPONSE,
+    GeoJsonFormat,
+    pose_points,
+    query_collection,
+    wants_geojson,
+)
+from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
 from service.intake import READ_ERRORS, PhotoIntake, work_status
 from service.limits import require_queue_capacity
 from service.models import QueryOut, error_responses, timestamp
@@ -48,8 +59,8 @@ router = APIRouter(tags=["queries"])
 DEFAULT_PRIOR_RADIUS_M = 50.0
 
 
-def query_out(row: QueryRow, job: JobRow | None) -> QueryOut:
-    """A query row (and its job) as its API model."""
+def query_out(row: QueryRow, job: JobRow | None, attribution: str) -> QueryOut:
+    """A query row (and its job) as its API model, with its map's ``attribution``."""
     state, error = work_status(row["status"], row["error"], job)
     return QueryOut(
         id=row["id"],
@@ -59,6 +70,7 @@ def query_out(row: QueryRow, job: JobRow | None) -> QueryOut:
         job_id=row["job_id"],
         params=row["params"].to_json(),
         result=None if row["result"] is None else QueryResult.model_validate(row["result"]),
+        attribution=attribution,
         created_at=timestamp(row["created_at"]),
         updated_at=timestamp(row["updated_at"]),
     )
@@ -151,12 +163,30 @@ class QueryIntake(PhotoIntake):
         query_store.set_query_job(db, subject_id, job_id)
 
 
-def _load_query(settings: Settings, query_id: int) -> QueryOut:
+def _attribution(db: Database, map_id: int) -> str:
+    row = map_store.get_map(db, map_id)
+    return map_attribution(None if row is None else row["attribution"])
+
+
+def _load_query(settings: Settings, query_id: int, *, geojson: bool = False) -> QueryOut | dict[str, Any]:
+    """The query as its API model, or with ``geojson`` as its FeatureCollection (:mod:`service.geojson`)."""
     db = connect(settings.database)
     try:
-        return query_out(*_load(db, query_id))
+        row, job = _load(db, query_id)
+        out = query_out(row, job, _attribution(db, row["map_id"]))
+        if not geojson:
+            return out
+        wanted = [b.building_id for b in out.result.buildings] if out.result else []
+        buildings = map_store.list_buildings(db, row["map_id"], building_ids=wanted) if wanted else []
+        return query_collection(out, {b["building_id"]: b["footprint_geojson"] for b in buildings})
     finally:
         db.close()
+
+
+def _query_model(settings: Settings, query_id: int) -> QueryOut:
+    out = _load_query(settings, query_id)
+    assert isinstance(out, QueryOut)
+    return out
 
 
 @router.post(
@@ -172,7 +202,7 @@ def _load_query(settings: Settings, query_id: int) -> QueryOut:
 async def create_query(
     request: Request,
     map_id: MapId,
-    image: Annotated[UploadFile, File(description="The photo to geolocate (JPEG, PNG, WEBP or TIFF)")],
+    image: Annotated[UploadFile, File(description=f"The photo to geolocate ({ACCEPTED_NAMES}; checked by content)")],
     lat: Annotated[float | None, bounded_form("lat", "Prior position latitude (WGS84)")] = None,
     lon: Annotated[float | None, bounded_form("lon", "Prior position longitude (WGS84)")] = None,
     radius_m: Annotated[float | None, bounded_form("radius_m", "Prior position radius (m, about 2 sigma)")] = None,
@@ -201,7 +231,7 @@ async def create_query(
     assert accepted.job_id is not None  # a query is never a duplicate
     waiter: JobWaiter = request.app.state.job_waiter
     await waiter.wait(accepted.job_id, wait_s)
-    out = await run_in_threadpool(_load_query, settings, accepted.subject_id)
+    out = await run_in_threadpool(_query_model, settings, accepted.subject_id)
     if out.status in ("done", "failed"):
         return out
     return JSONResponse(out.model_dump(mode="json"), status_code=status.HTTP_202_ACCEPTED)
@@ -210,7 +240,7 @@ async def create_query(
 @router.get(
     "/v1/queries/{query_id}",
     response_model=QueryOut,
-    responses=error_responses(404),
+    responses={200: {"content": GEOJSON_RESPONSE}, **error_responses(404)},
     dependencies=[Depends(require_read)],
 )
 async def get_query(
@@ -220,18 +250,25 @@ async def get_query(
         float,
         Query(ge=0, le=300, description="Wait up to this long for the answer if it is not ready (a long poll)"),
     ] = 0.0,
+    format_name: GeoJsonFormat = None,
     settings: Settings = Depends(app_settings),
-) -> QueryOut:
+) -> QueryOut | JSONResponse:
     """A query: status (queued, processing, done, failed) and, when done, its answer.
 
     With ``wait_s`` the request waits (holding no thread) until the answer is ready or ``wait_s`` passed, so a
-    client need not poll in a loop.
+    client need not poll in a loop. With ``Accept: application/geo+json`` or ``?format=geojson`` the answer is
+    a GeoJSON FeatureCollection: a Point per ranked pose, a Polygon view cone per pose, the identified
+    buildings' footprints, ``attribution`` as a foreign member; a query not answered (yet) gets the same status
+    code with an empty collection whose ``status`` (and ``error``) say why.
     """
-    out = await run_in_threadpool(_load_query, settings, query_id)
+    out = await run_in_threadpool(_query_model, settings, query_id)
     if wait_s > 0 and out.status not in ("done", "failed") and out.job_id is not None:
         waiter: JobWaiter = request.app.state.job_waiter
         await waiter.wait(out.job_id, wait_s)
-        out = await run_in_threadpool(_load_query, settings, query_id)
+        out = await run_in_threadpool(_query_model, settings, query_id)
+    if wants_geojson(request, format_name):
+        body = await run_in_threadpool(partial(_load_query, settings, query_id, geojson=True))
+        return JSONResponse(body, media_type=GEOJSON_MEDIA_TYPE)
     return out
 
 
@@ -262,21 +299,23 @@ def get_heatmap_png(query_id: QueryId, db: Database = Depends(get_db)) -> Respon
 @router.get(
     "/v1/queries/{query_id}/answer.geojson",
     responses={200: {"content": {"application/geo+json": {}}}, **error_responses(404, 409)},
+    response_class=Response,
     dependencies=[Depends(require_read)],
 )
 def get_answer_geojson(query_id: QueryId, db: Database = Depends(get_db)) -> JSONResponse:
-    """The ranked locations as GeoJSON points (properties: rank, heading, probabilities)."""
+    """The ranked locations as GeoJSON points (properties: rank, heading, probabilities), with ``attribution``.
+
+    ``GET /v1/queries/{id}?format=geojson`` adds view cones and the identified buildings.
+    """
     result = _done_result(db, query_id)
-    features = [
-        {
-            "type": "Feature",
-            "geometry": {"type": "Point", "coordinates": [loc["lon"], loc["lat"]]},
-            "properties": {k: loc[k] for k in ("rank", "heading_deg", "probability", "uncertainty_radius_m", "source")},
-        }
-        for loc in result["locations"]
-    ]
-    body = {"type": "FeatureCollection", "features": features, "properties": {"query_id": query_id}}
-    return JSONResponse(body, media_type="application/geo+json")
+    row, _ = _load(db, query_id)
+    body = {
+        "type": "FeatureCollection",
+        "features": pose_points(result["locations"]),
+        "attribution": _attribution(db, row["map_id"]),
+        "properties": {"query_id": query_id},
+    }
+    return JSONResponse(body, media_type=GEOJSON_MEDIA_TYPE)
 
 
 @router.delete(

@@ -9,12 +9,13 @@ import logging
 from dataclasses import dataclass
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Query, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Query, Request, Response, UploadFile, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
 from contracts.answers import BuildingInPhoto, EstimatedPose
 from contracts.jobs import LABEL_REFERENCE, LabelReferencePayload
+from contracts.licenses import map_attribution
 from contracts.settings import Settings
 from db import Database, transaction
 from db import jobs as job_store
@@ -25,7 +26,8 @@ from service.auth import require_read, require_write
 from service.bounds import MapId, ReferenceId, bounded_form, check_bounds
 from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
-from service.images import STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
+from service.geojson import GEOJSON_MEDIA_TYPE, GEOJSON_RESPONSE, GeoJsonFormat, references_collection, wants_geojson
+from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
 from service.intake import READ_ERRORS, PhotoIntake, require_map, work_status
 from service.limits import require_queue_capacity
 from service.models import (
@@ -167,7 +169,7 @@ class ReferenceForm:
 )
 async def upload_reference(
     map_id: MapId,
-    image: Annotated[UploadFile, File(description="The photo (JPEG, PNG, WEBP or TIFF; checked by content)")],
+    image: Annotated[UploadFile, File(description=f"The photo ({ACCEPTED_NAMES}; checked by content)")],
     lat: Annotated[float | None, bounded_form("lat", "Latitude (WGS84); overrides EXIF GPS")] = None,
     lon: Annotated[float | None, bounded_form("lon", "Longitude (WGS84); overrides EXIF GPS")] = None,
     heading_deg: Annotated[
@@ -207,8 +209,8 @@ async def upload_reference(
     )
 
 
-def reference_out(row: ReferenceRow, job: JobRow | None) -> ReferenceOut:
-    """A reference row (and its job) as its API model."""
+def reference_out(row: ReferenceRow, job: JobRow | None, attribution: str) -> ReferenceOut:
+    """A reference row (and its job) as its API model, with its map's ``attribution``."""
     status_now, error = work_status(row["status"], row["error"], job)
     estimated, buildings = None, row["buildings_seen"]
     if row["estimated_lat"] is not None or row["estimated_heading_deg"] is not None:
@@ -232,6 +234,7 @@ def reference_out(row: ReferenceRow, job: JobRow | None) -> ReferenceOut:
         estimated=estimated,
         buildings_seen=None if buildings is None else [BuildingInPhoto.model_validate(b) for b in buildings],
         timings=row["timings"],
+        attribution=attribution,
         created_at=timestamp(row["created_at"]),
         updated_at=timestamp(row["updated_at"]),
     )
@@ -252,7 +255,7 @@ def get_reference(reference_id: ReferenceId, db: Database = Depends(get_db)) -> 
     if row is None:
         raise ApiError(404, "not_found", f"reference {reference_id} not found")
     job = job_store.get_job(db, row["job_id"]) if row["job_id"] is not None else None
-    return reference_out(row, job)
+    return reference_out(row, job, map_attribution(require_map(db, row["map_id"])["attribution"]))
 
 
 @router.delete(
@@ -299,36 +302,43 @@ def get_labels_png(
 @router.get(
     "/v1/maps/{map_id}/references",
     response_model=ReferenceList,
-    responses=READ_ERRORS,
+    responses={200: {"content": GEOJSON_RESPONSE}, **READ_ERRORS},
     dependencies=[Depends(require_read)],
 )
 def list_map_references(
+    request: Request,
     map_id: MapId,
     after_id: Annotated[
         int, Query(ge=0, le=2**63 - 1, description="Return references with ids above this (paging cursor)")
     ] = 0,
     limit: Annotated[int, Query(ge=1, le=500, description="Most references in this page")] = 100,
+    format_name: GeoJsonFormat = None,
     db: Database = Depends(get_db),
-) -> ReferenceList:
+) -> ReferenceList | JSONResponse:
     """A map's references, oldest first, a page at a time (follow ``next_after_id``).
 
     Each with its status and, once labelled, its estimated pose; ``counts`` and ``total`` cover the
-    whole map (ingestion progress).
+    whole map (ingestion progress). With ``Accept: application/geo+json`` or ``?format=geojson``: the page as
+    a GeoJSON FeatureCollection, a Point per reference at its estimated pose (else its uploaded position).
     """
-    require_map(db, map_id)
+    attribution = map_attribution(require_map(db, map_id)["attribution"])
     rows = reference_store.list_references_after(db, map_id, after_id=after_id, limit=limit + 1)
     page = rows[:limit]
     counts = reference_store.effective_status_counts(db, map_id)
-    return ReferenceList(
+    listed = ReferenceList(
         map_id=map_id,
         references=[
-            reference_out(row, job_store.get_job(db, row["job_id"]) if row["job_id"] is not None else None)
+            reference_out(row, job_store.get_job(db, row["job_id"]) if row["job_id"] is not None else None, attribution)
             for row in page
         ],
         total=sum(counts.values()),
         counts=counts,
         next_after_id=page[-1]["id"] if len(rows) > limit else None,
+        attribution=attribution,
     )
+    if wants_geojson(request, format_name):
+        return JSONResponse(references_collection(listed), media_type=GEOJSON_MEDIA_TYPE)
+    return listed
 
 
 @router.get(

@@ -1,4 +1,4 @@
-"""Health, readiness and jobs."""
+"""Health, readiness, the licences (``/v1/about``) and jobs."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from typing import Literal
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 
+from contracts.licenses import about_document
 from contracts.settings import Settings
 from db import LATEST_VERSION, Database, connect, schema_version
 from db import jobs as job_store
@@ -17,7 +18,7 @@ from service.auth import require_read
 from service.bounds import JobId
 from service.deps import app_settings, get_db
 from service.errors import ApiError, error_body
-from service.models import ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
+from service.models import About, ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
 from workers.broker import broker_problem
 from workers.context import model_problems
 
@@ -43,6 +44,16 @@ def model_problems_cached(settings: Settings) -> list[str]:
 def healthz() -> Health:
     """The process is alive."""
     return Health(status="ok")
+
+
+@router.get("/v1/about", response_model=About, tags=["system"], dependencies=[Depends(require_read)])
+def about() -> About:
+    """The service's version and the licence table: model weights, their data sets, the map data, dependencies.
+
+    Scope ``read``, like every ``/v1`` read (whoever may see the data may see its licences). The same table as
+    ``geoloc about`` and docs/licenses.md (:data:`contracts.licenses.LICENSES`).
+    """
+    return About.model_validate(about_document())
 
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": ErrorResponse}}, tags=["system"])

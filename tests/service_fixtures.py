@@ -417,3 +417,25 @@ def png_header_only(width: int, height: int) -> bytes:
     return (
         b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
     )
+
+
+def phone_photo_twins(source: Path, max_side: int = 816) -> tuple[bytes, bytes]:
+    """A real phone photo as a JPEG and a HEIC twin: the same pixels (resized) and the same EXIF bytes.
+
+    ``source`` is a JPEG with EXIF (e.g. ``shared/data/berlin/images/01.jpg``: GPS, compass, focal length);
+    the HEIC is written by pillow-heif, as an iPhone would store the photo.
+    """
+    import pillow_heif
+    from PIL import Image
+
+    pillow_heif.register_heif_opener()
+    with Image.open(source) as original:
+        exif = original.info["exif"]
+        scale = max_side / max(original.size)
+        image = original.convert("RGB").resize((round(original.width * scale), round(original.height * scale)))
+    twins = []
+    for kind in ("JPEG", "HEIF"):
+        buffer = io.BytesIO()
+        image.save(buffer, kind, quality=80, exif=exif)
+        twins.append(buffer.getvalue())
+    return twins[0], twins[1]

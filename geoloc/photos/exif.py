@@ -1,5 +1,9 @@
 """EXIF of photos: reading what a phone writes (GPS, focal length, heading) and writing it into JPEGs.
 
+Importing this module registers HEIC/HEIF (iPhones' default format) with Pillow (``pillow-heif``), so every
+reader of photos (this module, :mod:`geoloc.photos.photo`, the API's upload check) opens a HEIC as it opens a
+JPEG, and reads its EXIF (GPS, heading, focal length) from the same block.
+
 :func:`read_exif` never raises on bad metadata: malformed or missing EXIF gives ``None`` fields
 (and whatever could be read). :func:`write_jpeg` writes an RGB array as a JPEG carrying GPS
 (optional), focal length, make/model and time, as a phone would.
@@ -17,7 +21,10 @@ from typing import Any
 
 import numpy as np
 import piexif
+import pillow_heif
 from PIL import Image
+
+pillow_heif.register_heif_opener()
 
 
 @dataclass
@@ -292,9 +299,20 @@ def write_jpeg(
     rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
     h, w = rgb.shape[:2]
     block = exif_bytes(
-        width=w, height=h, lat=lat, lon=lon, altitude=altitude, heading_deg=heading_deg,  # where
-        focal_35mm=focal_35mm, focal_mm=focal_mm, make=make, model=model, taken=taken,  # the camera
-        subsec_time=subsec_time, description=description, gps_accuracy_m=gps_accuracy_m,  # what phones add
+        width=w,
+        height=h,
+        lat=lat,
+        lon=lon,
+        altitude=altitude,
+        heading_deg=heading_deg,  # where
+        focal_35mm=focal_35mm,
+        focal_mm=focal_mm,
+        make=make,
+        model=model,
+        taken=taken,  # the camera
+        subsec_time=subsec_time,
+        description=description,
+        gps_accuracy_m=gps_accuracy_m,  # what phones add
     )
     Image.fromarray(rgb, "RGB").save(path, "JPEG", quality=int(quality), exif=block)
     return path

