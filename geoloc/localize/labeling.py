@@ -86,6 +86,25 @@ class LabelOptions:
         )
 
 
+@dataclass(frozen=True)
+class KnownPose:
+    """A pose labelling must keep (a sequence's joint placement, :mod:`geoloc.localize.sequence`).
+
+    x_m, y_m, yaw_deg: local metres and bearing; position_covariance: (2, 2) m^2, what the label reports.
+    """
+
+    x_m: float
+    y_m: float
+    yaw_deg: float
+    position_covariance: np.ndarray
+
+
+PLACED_LABEL_OPTIONS = LabelOptions(gps_sigma_m=1.0, half_size_m=3.0, cell_m=0.5)
+"""The grid around a placed pose (:class:`KnownPose`): its identities are marginalised over these poses."""
+PLACED_HEADING_SIGMA_DEG = 1.0
+"""Heading sigma (deg) around a placed pose for its marginalised identities."""
+
+
 @dataclass
 class ReferenceLabel:
     """What labelling found for one reference photo (local frame, metres and degrees).
@@ -239,6 +258,7 @@ def label_reference(
     prior_yaw_deg: float | None = None,
     heading_prior: HeadingPrior | None = None,
     options: LabelOptions = LabelOptions(),
+    known_pose: KnownPose | None = None,
 ) -> ReferenceLabel:
     """Label one geo-tagged photo with the map.
 
@@ -251,6 +271,8 @@ def label_reference(
     The ``options.n_modes`` strongest distinct grid modes (e.g. the wall in front and the one behind) are
     refined continuously (:func:`geoloc.localize.refinement.refine_pose`: vanishing-point yaw, 0.5 m position
     search) and the best refined pose is the label's pose.
+    known_pose: a pose to keep instead (no refinement; ``gps_xy`` and the heading prior should centre on it,
+    as :func:`label_known_pose` does): the label's identities are those of the grid's poses near it.
     """
     gps_sigma_m, sharpness = options.gps_sigma_m, options.sharpness
     prior = resolve_heading_prior(prior_yaw_deg, heading_prior)
@@ -273,7 +295,14 @@ def label_reference(
     refined_modes: list[tuple[float, RefinedPose]] = []
     # The refinement's likelihood keeps the weighted normalisation and the skyline term (as it always has).
     refining = likelihood.with_options(normalization="weighted", use_skyline=True)
-    for p_index, y_index in distinct_modes(positions, yaws, weights, options.n_modes):
+    if known_pose is not None:
+        k = known_pose
+        at = refining.at(k.x_m, k.y_m, k.yaw_deg)
+        known = RefinedPose(k.x_m, k.y_m, k.yaw_deg, at, at**sharpness, np.asarray(k.position_covariance), 0)
+        refined_modes.append((known.posterior, known))
+        best = known
+    modes = distinct_modes(positions, yaws, weights, options.n_modes) if known_pose is None else []
+    for p_index, y_index in modes:
         refined = refine_pose(
             refining,
             float(positions[p_index, 0]),
@@ -313,6 +342,30 @@ def label_reference(
         vp_bins=best.vp_bins,
         mode_scores=[score for score, _ in distinct],
         alternative=distinct[1][1] if len(distinct) > 1 else None,
+    )
+
+
+def label_known_pose(
+    city_map: CityMap,
+    image_model: ImageModel,
+    building_mask: np.ndarray,
+    intrinsics: Intrinsics,
+    pose: KnownPose,
+) -> ReferenceLabel:
+    """The label of a photo at a pose placed elsewhere (:class:`KnownPose`), which it keeps.
+
+    Its identities are marginalised over the :data:`PLACED_LABEL_OPTIONS` grid around the pose, weighted by a
+    Gaussian of :data:`PLACED_HEADING_SIGMA_DEG` around its heading.
+    """
+    return label_reference(
+        city_map,
+        image_model,
+        building_mask,
+        intrinsics,
+        (pose.x_m, pose.y_m),
+        heading_prior=HeadingPrior(pose.yaw_deg % 360.0, PLACED_HEADING_SIGMA_DEG, 0.0),
+        options=PLACED_LABEL_OPTIONS,
+        known_pose=pose,
     )
 
 

@@ -19,7 +19,7 @@ from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from geoloc.core.context import MethodContext
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.localize.identity import IdentityMap
-from geoloc.localize.labeling import LabelOptions, ReferenceLabel, label_reference
+from geoloc.localize.labeling import KnownPose, LabelOptions, ReferenceLabel, label_known_pose, label_reference
 from geoloc.localize.store import StoredReference
 from geoloc.maps import CityMap
 from geoloc.photos.heading_prior import HeadingPrior
@@ -108,9 +108,36 @@ def label_reference_photo(
         heading_prior=heading_prior,
         options=options,
     )
+    timings = dict(evidence.timings_ms, labeling=1e3 * (time.perf_counter() - t0))
+    return _labelled(city_map, photo, evidence, label, strategy, timings)
+
+
+def label_at_pose(
+    city_map: CityMap, photo: Photo, labelled: LabelledReference, pose: KnownPose, strategy: str = "marginalized"
+) -> LabelledReference:
+    """``labelled`` re-labelled at a pose placed elsewhere (a sequence's joint placement).
+
+    Its identities come from the map around ``pose`` (:func:`geoloc.localize.labeling.label_known_pose`), its
+    anchors are cast from it.
+    """
+    evidence = labelled.evidence
+    t0 = time.perf_counter()
+    label = label_known_pose(city_map, evidence.image_model, evidence.building_mask, photo.intrinsics, pose)
+    timings = dict(labelled.timings_ms, placed_labeling=1e3 * (time.perf_counter() - t0))
+    return _labelled(city_map, photo, evidence, label, strategy, timings)
+
+
+def _labelled(
+    city_map: CityMap,
+    photo: Photo,
+    evidence: PhotoEvidence,
+    label: ReferenceLabel,
+    strategy: str,
+    timings: dict[str, float],
+) -> LabelledReference:
+    """The labelled reference of a label: its keypoints' identities and anchors (and the runner-up's anchors)."""
     identity = label.marginalized if strategy == "marginalized" else label.greedy
     keypoint_identity = identity.probabilities_at(evidence.features.xy)
-    timings = dict(evidence.timings_ms, labeling=1e3 * (time.perf_counter() - t0))
     t0 = time.perf_counter()
     anchors = anchor_keypoints(city_map, _camera_pose(label, evidence), photo.intrinsics, evidence.features.xy)
     alternative = None

@@ -1,0 +1,206 @@
+"""Every frame of a sequence placed jointly: one robust pose graph on gtsam (Levenberg-Marquardt).
+
+One planar pose per frame (position east/north in m, heading), with these factors:
+
+- the frame's own label (:func:`geoloc.localize.labeling.label_reference`: the map likelihood around its GPS):
+  its position with the label's covariance (floored) and its heading with
+  :attr:`PlacementOptions.label_yaw_sigma_deg`, under a Cauchy loss: a label on the mirror view across the
+  street is an outlier the neighbours overrule;
+- its GPS tag, sigma its stated accuracy, under a Huber loss (a jump beside tall buildings);
+- its compass, when it has one (:class:`geoloc.photos.heading_prior.HeadingPrior`'s mean and sigma), Cauchy;
+- relative poses to the frames 1 to ``max(steps)`` further along the walk, both ways
+  (:mod:`geoloc.localize.sequence.relative`), sigma ``edge_sigma_m + edge_sigma_per_m * distance`` and
+  ``edge_yaw_sigma_deg``, Cauchy: a wrong source label gives a wrong edge.
+
+gtsam was measured against the alternatives the issue names (pycolmap's bundle adjustment needs 3D tracks
+this problem does not have; pyceres would need every residual written by hand): its Pose2 factors, robust
+noise models and marginal covariances are exactly this problem. The graph's heading is gtsam's theta, the
+angle from east counter-clockwise: theta = 90 deg - bearing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from geoloc.core.camera import Intrinsics
+from geoloc.localize.anchors import MapAnchors
+from geoloc.localize.sequence.relative import DEFAULT_MIN_ANCHORED, DEFAULT_RATIO, RelativePose, relative_pose
+from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.vision.features import Features
+
+DEFAULT_GPS_SIGMA_M = 8.0
+"""GPS sigma (m) of a frame whose photo states no accuracy (a phone's typical stated 5-10 m)."""
+LOOSE_SIGMA = 1e4
+"""Sigma of a factor's components it does not constrain (a compass says nothing of position)."""
+
+
+@dataclass(frozen=True)
+class PlacementOptions:
+    """The placement's tuning (defaults measured on Helsinki seed 1's walk world; docs/measurements.md).
+
+    steps: edges join each frame to the frames this many further along the walk. ratio, min_anchored: the
+    relative poses' matching (:func:`geoloc.localize.sequence.relative.relative_pose`). edge_sigma_m,
+    edge_sigma_per_m, edge_yaw_sigma_deg: an edge's sigmas. label_yaw_sigma_deg, label_position_floor_m: a
+    label's heading sigma and the floor of its position sigma. cauchy_k, huber_k: the robust losses' scales
+    (in sigmas). max_iterations: Levenberg-Marquardt's.
+    """
+
+    steps: tuple[int, ...] = (1, 2, 3)
+    ratio: float = DEFAULT_RATIO
+    min_anchored: int = DEFAULT_MIN_ANCHORED
+    edge_sigma_m: float = 0.3
+    edge_sigma_per_m: float = 0.03
+    edge_yaw_sigma_deg: float = 0.5
+    label_yaw_sigma_deg: float = 2.0
+    label_position_floor_m: float = 0.5
+    cauchy_k: float = 1.0
+    huber_k: float = 1.5
+    max_iterations: int = 100
+
+
+@dataclass(frozen=True)
+class SequenceFrame:
+    """One frame of a sequence as the placement sees it (local frame of the map: metres, bearings in deg).
+
+    x_m, y_m, yaw_deg, position_covariance: its label's pose and (2, 2) m^2 covariance. gps_xy, gps_sigma_m:
+    its GPS tag and that tag's sigma. heading_prior: its compass (None: none). features, anchors, intrinsics:
+    its keypoints, their 3D points on the map seen from the label's pose, and its camera.
+    """
+
+    x_m: float
+    y_m: float
+    yaw_deg: float
+    position_covariance: np.ndarray
+    gps_xy: tuple[float, float]
+    gps_sigma_m: float
+    heading_prior: HeadingPrior | None
+    features: Features
+    anchors: MapAnchors
+    intrinsics: Intrinsics
+
+
+@dataclass(frozen=True)
+class PlacedPose:
+    """A frame's jointly placed pose.
+
+    x_m, y_m, yaw_deg: the pose; position_covariance: (2, 2) m^2 (gtsam's marginal); n_edges: relative poses
+    that joined it to other frames (0: placed by its own label, GPS and compass alone).
+    """
+
+    x_m: float
+    y_m: float
+    yaw_deg: float
+    position_covariance: np.ndarray
+    n_edges: int
+
+
+def _pose2(x_m: float, y_m: float, yaw_deg: float) -> gtsam.Pose2:
+    return gtsam.Pose2(x_m, y_m, math.radians(90.0 - yaw_deg))
+
+
+def _bearing_deg(pose: gtsam.Pose2) -> float:
+    return (90.0 - math.degrees(pose.theta())) % 360.0
+
+
+def _local(covariance_xy: np.ndarray, yaw_deg: float, yaw_sigma_deg: float) -> np.ndarray:
+    """(3, 3) covariance in a pose's own axes (gtsam's tangent space) of a map-frame (2, 2) one and a yaw sigma."""
+    theta = math.radians(90.0 - yaw_deg)
+    rotation = np.array([[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]])
+    out = np.zeros((3, 3))
+    out[:2, :2] = rotation.T @ covariance_xy @ rotation
+    out[2, 2] = math.radians(yaw_sigma_deg) ** 2
+    return out
+
+
+def _robust(loss: str, k: float, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
+    estimator = (
+        gtsam.noiseModel.mEstimator.Cauchy.Create(k)
+        if loss == "cauchy"
+        else (gtsam.noiseModel.mEstimator.Huber.Create(k))
+    )
+    return gtsam.noiseModel.Robust.Create(estimator, base)
+
+
+def relative_poses(frames: Sequence[SequenceFrame], options: PlacementOptions) -> list[RelativePose]:
+    """Every edge of the graph: frame i to i + s for s in ``options.steps``, both ways, where PnP finds one."""
+    edges = []
+    for i in range(len(frames)):
+        for step in options.steps:
+            j = i + step
+            if j >= len(frames):
+                continue
+            for source, target in ((i, j), (j, i)):
+                a, b = frames[source], frames[target]
+                edge = relative_pose(
+                    source,
+                    target,
+                    (a.x_m, a.y_m, a.yaw_deg),
+                    a.features,
+                    a.anchors,
+                    b.features,
+                    b.intrinsics,
+                    ratio=options.ratio,
+                    min_anchored=options.min_anchored,
+                )
+                if edge is not None:
+                    edges.append(edge)
+    return edges
+
+
+def place_sequence(
+    frames: Sequence[SequenceFrame],
+    options: PlacementOptions = PlacementOptions(),
+    edges: Sequence[RelativePose] | None = None,
+) -> list[PlacedPose]:
+    """Each frame's pose placed jointly (the module docstring's graph), in the frames' order.
+
+    edges: the relative poses when already computed (:func:`relative_poses`), else they are computed here.
+    """
+    edges = list(edges) if edges is not None else relative_poses(frames, options)
+    noise = gtsam.noiseModel
+    graph = gtsam.NonlinearFactorGraph()
+    initial = gtsam.Values()
+    floor = options.label_position_floor_m**2 * np.eye(2)
+    for k, frame in enumerate(frames):
+        label = _pose2(frame.x_m, frame.y_m, frame.yaw_deg)
+        initial.insert(k, label)
+        covariance = _local(frame.position_covariance + floor, frame.yaw_deg, options.label_yaw_sigma_deg)
+        label_noise = _robust("cauchy", options.cauchy_k, noise.Gaussian.Covariance(covariance))
+        graph.add(gtsam.PriorFactorPose2(k, label, label_noise))
+        gps_sigmas = np.array([frame.gps_sigma_m, frame.gps_sigma_m, LOOSE_SIGMA])
+        gps_noise = _robust("huber", options.huber_k, noise.Diagonal.Sigmas(gps_sigmas))
+        graph.add(gtsam.PriorFactorPose2(k, gtsam.Pose2(frame.gps_xy[0], frame.gps_xy[1], 0.0), gps_noise))
+        prior = frame.heading_prior
+        if prior is not None:
+            compass_sigmas = np.array([LOOSE_SIGMA, LOOSE_SIGMA, math.radians(prior.sigma_deg)])
+            compass_noise = _robust("cauchy", options.cauchy_k, noise.Diagonal.Sigmas(compass_sigmas))
+            graph.add(gtsam.PriorFactorPose2(k, _pose2(frame.x_m, frame.y_m, prior.mean_bearing_deg), compass_noise))
+    n_edges = np.zeros(len(frames), dtype=int)
+    for edge in edges:
+        sigma = options.edge_sigma_m + options.edge_sigma_per_m * edge.distance_m
+        sigmas = np.array([sigma, sigma, math.radians(options.edge_yaw_sigma_deg)])
+        measured = gtsam.Pose2(edge.forward_m, edge.left_m, math.radians(-edge.turn_deg))
+        graph.add(
+            gtsam.BetweenFactorPose2(
+                edge.source, edge.target, measured, _robust("cauchy", options.cauchy_k, noise.Diagonal.Sigmas(sigmas))
+            )
+        )
+        n_edges[[edge.source, edge.target]] += 1
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(options.max_iterations)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+    marginals = gtsam.Marginals(graph, result)
+    placed = []
+    for k in range(len(frames)):
+        pose = result.atPose2(k)
+        # The marginal is in the pose's own axes; rotate its position block back to east/north.
+        theta = pose.theta()
+        rotation = np.array([[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]])
+        covariance = rotation @ np.asarray(marginals.marginalCovariance(k))[:2, :2] @ rotation.T
+        placed.append(PlacedPose(pose.x(), pose.y(), _bearing_deg(pose), covariance, int(n_edges[k])))
+    return placed

@@ -1,0 +1,92 @@
+"""The sequence stage's entry: frames labelled alone in, the same frames placed jointly and re-labelled out.
+
+Used by the workers' sequence job and by ``geoloc eval world``: each frame was labelled alone first
+(:func:`geoloc.localize.reference.label_reference_photo`, as every reference is); the walk's frames are then placed
+in one pose graph (:func:`geoloc.localize.sequence.placement.place_sequence`) and each is re-labelled at its
+placed pose (:func:`geoloc.localize.reference.label_at_pose`: identities and anchors from there).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from geoloc.localize.labeling import KnownPose
+from geoloc.localize.reference import LabelledReference, label_at_pose
+from geoloc.localize.sequence.placement import (
+    DEFAULT_GPS_SIGMA_M,
+    PlacedPose,
+    PlacementOptions,
+    SequenceFrame,
+    place_sequence,
+    relative_poses,
+)
+from geoloc.maps import CityMap
+from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.photos.photo import Photo
+
+
+@dataclass(frozen=True)
+class LabelledFrame:
+    """One frame of a sequence, labelled alone.
+
+    photo, labelled: its photo and label; gps_xy, gps_sigma_m: its GPS tag (local m) and that tag's sigma (m);
+    heading_prior: its compass prior (None: none).
+    """
+
+    photo: Photo
+    labelled: LabelledReference
+    gps_xy: tuple[float, float]
+    gps_sigma_m: float = DEFAULT_GPS_SIGMA_M
+    heading_prior: HeadingPrior | None = None
+
+
+@dataclass(frozen=True)
+class PlacedSequence:
+    """A sequence placed jointly.
+
+    references: the frames re-labelled at their placed poses (in order); poses: those poses; n_edges: how many
+    relative poses joined them (0: each frame kept what its own label, GPS and compass say).
+    """
+
+    references: list[LabelledReference]
+    poses: list[PlacedPose]
+    n_edges: int
+
+
+def _frame(frame: LabelledFrame) -> SequenceFrame:
+    label = frame.labelled.label
+    return SequenceFrame(
+        label.x_m,
+        label.y_m,
+        label.yaw_deg,
+        label.position_covariance,
+        frame.gps_xy,
+        frame.gps_sigma_m,
+        frame.heading_prior,
+        frame.labelled.evidence.features,
+        frame.labelled.anchors,
+        frame.photo.intrinsics,
+    )
+
+
+def place_labelled_sequence(
+    city_map: CityMap, frames: Sequence[LabelledFrame], options: PlacementOptions = PlacementOptions()
+) -> PlacedSequence:
+    """Place a walk's frames jointly and re-label each at its placed pose (module docstring).
+
+    Each re-labelled reference's ``timings_ms`` gains ``sequence``: its share of the placement (ms).
+    """
+    t0 = time.perf_counter()
+    graph_frames = [_frame(frame) for frame in frames]
+    edges = relative_poses(graph_frames, options)
+    poses = place_sequence(graph_frames, options, edges)
+    share_ms = 1e3 * (time.perf_counter() - t0) / max(len(frames), 1)
+    references = []
+    for frame, pose in zip(frames, poses, strict=True):
+        known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, pose.position_covariance)
+        placed = label_at_pose(city_map, frame.photo, frame.labelled, known)
+        placed.timings_ms["sequence"] = share_ms
+        references.append(placed)
+    return PlacedSequence(references, poses, len(edges))
