@@ -33,6 +33,9 @@ LABEL_REFERENCE: Final = "label_reference"
 """Kind of the job the API enqueues for each new reference (payload :class:`LabelReferencePayload`)."""
 LOCALIZE_QUERY: Final = "localize_query"
 """Kind of the job the API enqueues for each new query (payload :class:`LocalizeQueryPayload`)."""
+PLACE_SEQUENCE: Final = "place_sequence"
+"""Kind of the job a labelled reference of a sequence enqueues (payload :class:`PlaceSequencePayload`): its walk
+placed jointly, in the background, while the references keep being served with their own labels."""
 
 
 class JobPayload(BaseModel):
@@ -67,6 +70,28 @@ class LocalizeQueryPayload(JobPayload):
 
     query_id: int
     map_id: int
+
+
+class PlaceSequencePayload(JobPayload):
+    """Place the sequence that reference ``reference_id`` of map ``map_id`` belongs to."""
+
+    reference_id: int
+    map_id: int
+
+
+class PlaceSequenceResult(JobResult):
+    """What placing a sequence reports on its job.
+
+    references: the sequence's size; placed: those re-labelled at a jointly placed pose; edges: relative poses
+    found; skipped: why nothing was placed (another reference of it still being labelled; no longer a
+    sequence), else None.
+    """
+
+    reference_id: int
+    references: int
+    placed: int
+    edges: int
+    skipped: str | None = None
 
 
 class LabelReferenceResult(JobResult):

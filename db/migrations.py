@@ -31,6 +31,11 @@ Storage decisions (see also the module docstrings of the access modules):
 - ``maps.attribution`` (migration 6) is the attribution the map upload stated (its data's licence requires it
   shown with everything derived from the map); NULL when the upload stated none, and for every map stored
   before it: the API then shows the default, "© OpenStreetMap contributors" (:mod:`contracts.licenses`).
+- ``reference_images.sequence_id``, ``capture_time``, ``device`` and ``placement`` (migration 7): the walk a
+  reference belongs to (the upload's ``sequence`` field, else the photo's Mapillary sequence id; NULL: none
+  stated), when it was taken (ISO 8601 as the photo states it: aware, or naive camera time), its camera (EXIF
+  make and model), and whether its pose is its own label's (``alone``, every reference stored before) or its
+  sequence's joint placement (``sequence``; :mod:`geoloc.localize.sequence`).
 """
 
 from __future__ import annotations
@@ -239,6 +244,17 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         "the attribution a map upload states",
         """
         ALTER TABLE maps ADD COLUMN attribution TEXT;
+        """,
+    ),
+    (
+        7,
+        "reference sequences: capture time, device, sequence id, placement",
+        """
+        ALTER TABLE reference_images ADD COLUMN sequence_id TEXT;
+        ALTER TABLE reference_images ADD COLUMN capture_time TEXT;
+        ALTER TABLE reference_images ADD COLUMN device TEXT;
+        ALTER TABLE reference_images ADD COLUMN placement TEXT NOT NULL DEFAULT 'alone';
+        CREATE INDEX reference_images_sequence ON reference_images(map_id, sequence_id);
         """,
     ),
 ]

@@ -52,18 +52,23 @@ def insert_reference(
     prior_heading_deg: float | None = None,
     focal_length_35mm: float | None = None,
     prior_heading_accuracy_deg: float | None = None,
+    sequence_id: str | None = None,
+    capture_time: str | None = None,
+    device: str | None = None,
 ) -> int:
     """Insert a queued reference; returns its id. Call inside a transaction.
 
     prior_heading_accuracy_deg: the accuracy (deg) of a heading prior from the photo's compass; None for a
     heading the uploader stated (the worker weights the two differently, see :mod:`workers.method_handlers`).
+    sequence_id, capture_time (ISO 8601), device: what groups it into a walk (:mod:`geoloc.localize.sequence`).
     """
     now = time.time()
     return db.insert_returning_id(
         "INSERT INTO reference_images (map_id, image_path, original_filename, sha256, size_bytes,"
         " image_format, width, height, gps_lat, gps_lon, position_source, prior_heading_deg,"
-        " prior_heading_accuracy_deg, focal_length_35mm, status, created_at, updated_at)"
-        " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'queued', ?, ?)",
+        " prior_heading_accuracy_deg, focal_length_35mm, sequence_id, capture_time, device, status,"
+        " created_at, updated_at)"
+        " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'queued', ?, ?)",
         (
             map_id,
             image_path,
@@ -79,6 +84,9 @@ def insert_reference(
             prior_heading_deg,
             prior_heading_accuracy_deg,
             focal_length_35mm,
+            sequence_id,
+            capture_time,
+            device,
             now,
             now,
         ),
@@ -134,6 +142,23 @@ def effective_status_counts(db: Database, map_id: int) -> dict[str, int]:
         state, _ = reported_status(row["status"], row["error"], row["job_status"], row["attempts"], row["job_error"])
         counts[state] += 1
     return counts
+
+
+def sequence_candidates(db: Database, map_id: int) -> list[ReferenceRow]:
+    """The map's references that may belong to a walk (a sequence id or a capture time), oldest first."""
+    rows = db.query(
+        "SELECT * FROM reference_images WHERE map_id = ? AND (sequence_id IS NOT NULL OR capture_time IS NOT NULL)"
+        " ORDER BY id",
+        (map_id,),
+    )
+    return [_decode(row) for row in rows]
+
+
+def set_reference_placement(db: Database, reference_id: int, placement: str) -> None:
+    """Record whether a reference's pose is its own label's (``alone``) or its sequence's (``sequence``)."""
+    db.execute(
+        "UPDATE reference_images SET placement = ?, updated_at = ? WHERE id = ?", (placement, time.time(), reference_id)
+    )
 
 
 def update_reference_result(

@@ -66,6 +66,10 @@ class ReferenceRow(TypedDict):
     prior_heading_deg: float | None
     prior_heading_accuracy_deg: float | None
     focal_length_35mm: float | None
+    sequence_id: str | None
+    capture_time: str | None
+    device: str | None
+    placement: Literal["alone", "sequence"]
     status: str
     job_id: int | None
     estimated_lat: float | None

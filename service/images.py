@@ -16,7 +16,7 @@ from pathlib import Path
 from fastapi.responses import FileResponse
 from PIL import Image, UnidentifiedImageError
 
-from geoloc.photos.capture import capture_of
+from geoloc.photos.capture import capture_of, photo_device
 from geoloc.photos.exif import exif_info, load_exif
 from geoloc.photos.heading_prior import DEFAULT_SIGMA_DEG
 from service.errors import ApiError
@@ -43,6 +43,12 @@ class ImageInfo:
     """The compass heading (deg clockwise from true north), None without a compass."""
     heading_accuracy_deg: float | None = None
     """The compass's accuracy (deg): as stated (widened when magnetic), DEFAULT_SIGMA_DEG when it states none."""
+    capture_time: str | None = None
+    """When it was taken (ISO 8601: aware, or naive camera time), None when the photo does not say."""
+    sequence_id: str | None = None
+    """Mapillary's sequence id (one walk), None without one."""
+    device: str | None = None
+    """The camera (EXIF make and model), None when the photo names neither."""
 
 
 def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
@@ -90,12 +96,16 @@ def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
 
 
 def _read_exif_into(path: Path, info: ImageInfo) -> None:
-    """Fill GPS position, 35 mm focal length and the compass (heading, accuracy) from EXIF, when present."""
+    """Fill GPS position, 35 mm focal length, the compass (heading, accuracy) and the capture from EXIF."""
     block = load_exif(path)  # read and parsed once for both readings
     exif = exif_info(block)
     info.gps_lat, info.gps_lon = (exif.lat, exif.lon) if exif.has_gps else (None, None)
     info.focal_length_35mm = exif.focal_35mm
-    compass = capture_of(block).compass
+    info.device = photo_device(exif.make, exif.model)
+    capture = capture_of(block)
+    info.capture_time = capture.time.isoformat() if capture.time is not None else None
+    info.sequence_id = capture.sequence_id
+    compass = capture.compass
     if compass is not None:
         info.heading_deg = compass.heading_deg
         info.heading_accuracy_deg = DEFAULT_SIGMA_DEG if compass.accuracy_deg is None else compass.accuracy_deg

@@ -202,6 +202,9 @@ class ReferenceOut(BaseModel):
                     "prior_heading_deg": 84.0,
                     "prior_heading_accuracy_deg": 20.0,
                     "focal_length_35mm": 26.0,
+                    "sequence_id": "walk-2025-01-01-a",
+                    "capture_time": "2025-01-01T12:00:00.250+02:00",
+                    "placement": "sequence",
                     "estimated": {"lat": 60.16992, "lon": 24.93851, "heading_deg": 87.0},
                     "buildings_seen": [
                         {
@@ -251,6 +254,21 @@ class ReferenceOut(BaseModel):
         ),
     )
     focal_length_35mm: float | None = None
+    sequence_id: str | None = Field(
+        default=None,
+        description="The walk it belongs to: the form's `sequence`, else the photo's Mapillary sequence id",
+    )
+    capture_time: str | None = Field(
+        default=None,
+        description="When it was taken (ISO 8601, as the photo states it: with an offset, or camera time)",
+    )
+    placement: Literal["alone", "sequence"] = Field(
+        default="alone",
+        description=(
+            "`alone`: the pose is its own label's; `sequence`: its walk was placed jointly (docs/method.md), "
+            "which replaces the label once the walk's references are labelled"
+        ),
+    )
     estimated: EstimatedPose | None = None
     buildings_seen: list[BuildingInPhoto] | None = None
     timings: dict[str, float] | None = None

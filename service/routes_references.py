@@ -9,7 +9,7 @@ import logging
 from dataclasses import dataclass
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Query, Request, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
@@ -131,6 +131,9 @@ class ReferenceIntake(PhotoIntake):
             prior_heading_deg=form.heading_deg if form.heading_deg is not None else info.heading_deg,
             prior_heading_accuracy_deg=None if form.heading_deg is not None else info.heading_accuracy_deg,
             focal_length_35mm=form.focal_length_35mm if form.focal_length_35mm is not None else info.focal_length_35mm,
+            sequence_id=form.sequence_id if form.sequence_id is not None else info.sequence_id,
+            capture_time=info.capture_time,
+            device=info.device,
         )
 
     def payload(self, subject_id: int, map_id: int) -> LabelReferencePayload:
@@ -154,6 +157,7 @@ class ReferenceForm:
     lon: float | None
     heading_deg: float | None
     focal_length_35mm: float | None
+    sequence_id: str | None = None
 
 
 @router.post(
@@ -178,6 +182,15 @@ async def upload_reference(
     focal_length_35mm: Annotated[
         float | None, bounded_form("focal_length_35mm", "35 mm-equivalent focal length; overrides EXIF")
     ] = None,
+    sequence: Annotated[
+        str | None,
+        Form(
+            max_length=200,
+            description="The walk this photo belongs to (any id the client chooses; overrides the photo's "
+            "Mapillary sequence id). A walk's references are placed jointly once labelled (docs/method.md); "
+            "without one, one camera's captures within 60 s and 50 m of each other form a walk",
+        ),
+    ] = None,
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
@@ -190,7 +203,9 @@ async def upload_reference(
     truncated image, no position, or a position outside the map (with the distance), 429 while the
     job queue is full (retry after ``Retry-After`` seconds).
     """
-    intake = ReferenceIntake(settings, store, publisher, ReferenceForm(lat, lon, heading_deg, focal_length_35mm))
+    stated_sequence = sequence.strip() if sequence and sequence.strip() else None
+    form = ReferenceForm(lat, lon, heading_deg, focal_length_35mm, stated_sequence)
+    intake = ReferenceIntake(settings, store, publisher, form)
     accepted = await run_in_threadpool(intake.accept, map_id, image)
     if intake.duplicate is not None:
         existing = intake.duplicate
@@ -231,6 +246,9 @@ def reference_out(row: ReferenceRow, job: JobRow | None, attribution: str) -> Re
         prior_heading_deg=row["prior_heading_deg"],
         prior_heading_accuracy_deg=row["prior_heading_accuracy_deg"],
         focal_length_35mm=row["focal_length_35mm"],
+        sequence_id=row["sequence_id"],
+        capture_time=row["capture_time"],
+        placement=row["placement"],
         estimated=estimated,
         buildings_seen=None if buildings is None else [BuildingInPhoto.model_validate(b) for b in buildings],
         timings=row["timings"],

@@ -84,9 +84,7 @@ def is_permanent(error: BaseException) -> bool:
     return isinstance(error, tuple(PERMANENT_ERRORS))
 
 
-def register(
-    kind: str, payload_type: type[P]
-) -> Callable[[Callable[[Database, P], R]], Callable[[Database, P], R]]:
+def register(kind: str, payload_type: type[P]) -> Callable[[Callable[[Database, P], R]], Callable[[Database, P], R]]:
     """Decorator registering ``handler`` for jobs of ``kind``, its payload read as ``payload_type``.
 
     A later registration of the same kind replaces the earlier one (plugins replace shipped handlers).
@@ -144,7 +142,7 @@ def load_plugins(specs: tuple[str, ...] | list[str]) -> list[str]:
 
 def load_builtin_handlers() -> None:
     """Import the modules that register the shipped handlers (the method's, when present)."""
-    for module in ("workers.method_handlers",):
+    for module in ("workers.method_handlers", "workers.sequence_handlers"):
         try:
             importlib.import_module(module)
         except ModuleNotFoundError as exc:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
@@ -35,22 +36,26 @@ from contracts.answers import (
 from contracts.jobs import (
     LABEL_REFERENCE,
     LOCALIZE_QUERY,
+    PLACE_SEQUENCE,
     LabelReferencePayload,
     LabelReferenceResult,
     LocalizeQueryPayload,
     LocalizeQueryResult,
+    PlaceSequencePayload,
 )
 from contracts.settings import data_dir, get_settings
 from db import Database, sbow, transaction
+from db import jobs as job_store
 from db import maps as map_store
 from db import queries as query_store
 from db import references as reference_store
 from db.files import open_store
+from db.rows import ReferenceRow
 from geoloc.core.geo import LocalFrame
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.labeling import stated_heading_prior
 from geoloc.localize.query import QueryAnswer, QueryConfig, geolocate
-from geoloc.localize.reference import label_reference_photo
+from geoloc.localize.reference import LabelledReference, label_reference_photo
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.photos.heading_prior import HeadingPrior, compass_heading_prior
@@ -146,56 +151,92 @@ def _heading_prior(
     return compass_heading_prior(heading_deg, accuracy_deg, frame, east_m, north_m)
 
 
+@dataclass(frozen=True)
+class AloneLabel:
+    """A reference labelled alone: its photo, label, GPS tag (local m of its map) and compass prior."""
+
+    photo: Photo
+    labelled: LabelledReference
+    gps_xy: tuple[float, float]
+    heading_prior: HeadingPrior | None
+
+
+def label_alone(city: CityMap, ref: ReferenceRow) -> AloneLabel:
+    """Label a stored reference with its map, alone (the label job's method, and a sequence's first step)."""
+    frame = city.frame
+    photo = _stored_photo(ref["image_path"], ref["focal_length_35mm"])
+    gps_x, gps_y = (float(v) for v in frame.to_local(ref["gps_lat"], ref["gps_lon"]))
+    prior = _heading_prior(frame, ref["prior_heading_deg"], ref["prior_heading_accuracy_deg"], gps_x, gps_y)
+    labelled = label_reference_photo(city, photo, (gps_x, gps_y), heading_prior=prior, context=worker_context())
+    return AloneLabel(photo, labelled, (gps_x, gps_y), prior)
+
+
+def reference_labels(city: CityMap, photo: Photo, labelled: LabelledReference, total_ms: float) -> ReferenceLabels:
+    """A labelled reference's answer (pose in WGS84 and compass degrees, buildings seen, timings)."""
+    label, frame = labelled.label, city.frame
+    lat, lon = (float(v) for v in frame.to_wgs84(label.x_m, label.y_m))
+    heading = float(frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m))
+    timings = {k: round(v, 1) for k, v in labelled.timings_ms.items()}
+    timings["total"] = round(total_ms, 1)
+    with answer_checked("reference labels"):
+        return ReferenceLabels(
+            estimated=EstimatedPose(lat=lat, lon=lon, heading_deg=round(heading, 2)),
+            buildings_seen=_describe_buildings(
+                city, labelled.identity.building_extents(), photo.original_size[0] / photo.intrinsics.width
+            ),
+            timings=timings,
+        )
+
+
+def save_labels(db: Database, reference_id: int, labelled: LabelledReference, labels: ReferenceLabels) -> None:
+    """Store a labelled reference's arrays and answer (inside the caller's transaction); it is ``done``."""
+    stored = labels.model_dump(mode="json")
+    estimated = labels.estimated
+    reference_store.save_labels(db, reference_id, labelled.label_arrays())
+    reference_store.save_keypoints(db, reference_id, labelled.keypoints())
+    reference_store.update_reference_result(
+        db,
+        reference_id,
+        status="done",
+        estimated_lat=estimated.lat,
+        estimated_lon=estimated.lon,
+        estimated_heading_deg=estimated.heading_deg,
+        buildings_seen=stored["buildings_seen"],
+        timings=stored["timings"],
+    )
+
+
 @register(LABEL_REFERENCE, LabelReferencePayload)
 def label_reference(db: Database, payload: LabelReferencePayload) -> LabelReferenceResult:
-    """Label a reference with the map, extract and index its features, store its pose and identities."""
-    context = worker_context()
+    """Label a reference with the map, extract and index its features, store its pose and identities.
+
+    A reference that may belong to a walk (a sequence id or a capture time) then queues its walk's joint
+    placement (:mod:`workers.sequence_handlers`), which runs once every reference of the walk is labelled.
+    """
     reference_id, map_id = payload.reference_id, payload.map_id
     ref = reference_store.get_reference(db, reference_id)
     if ref is None:
         raise PermanentJobError(f"reference {reference_id} no longer exists")
     city = city_map_for(db, map_id)
-    frame = city.frame
     t0 = time.perf_counter()
-    photo = _stored_photo(ref["image_path"], ref["focal_length_35mm"])
-    gps_x, gps_y = (float(v) for v in frame.to_local(ref["gps_lat"], ref["gps_lon"]))
-    prior = _heading_prior(frame, ref["prior_heading_deg"], ref["prior_heading_accuracy_deg"], gps_x, gps_y)
-    labelled = label_reference_photo(city, photo, (gps_x, gps_y), heading_prior=prior, context=context)
-    label, identity, features = labelled.label, labelled.identity, labelled.evidence.features
+    alone = label_alone(city, ref)
+    labelled = alone.labelled
     vocabulary = vocabulary_for(db, map_id)
-    words = vocabulary.words(features.descriptors)
-
-    lat, lon = (float(v) for v in frame.to_wgs84(label.x_m, label.y_m))
-    heading = float(frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m))
-    timings = {k: round(v, 1) for k, v in labelled.timings_ms.items()}
-    timings["total"] = round(1e3 * (time.perf_counter() - t0), 1)
-    with answer_checked("reference labels"):
-        labels = ReferenceLabels(
-            estimated=EstimatedPose(lat=lat, lon=lon, heading_deg=round(heading, 2)),
-            buildings_seen=_describe_buildings(
-                city, identity.building_extents(), photo.original_size[0] / photo.intrinsics.width
-            ),
-            timings=timings,
-        )
-    stored = labels.model_dump(mode="json")
+    words = vocabulary.words(labelled.evidence.features.descriptors)
+    labels = reference_labels(city, alone.photo, labelled, 1e3 * (time.perf_counter() - t0))
     with transaction(db):
         if reference_store.get_reference(db, reference_id) is None:
             raise PermanentJobError(f"reference {reference_id} was deleted while it was labelled")
-        reference_store.save_labels(db, reference_id, labelled.label_arrays())
-        reference_store.save_keypoints(db, reference_id, labelled.keypoints())
+        save_labels(db, reference_id, labelled, labels)
+        reference_store.set_reference_placement(db, reference_id, "alone")
         sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
-        reference_store.update_reference_result(
-            db,
-            reference_id,
-            status="done",
-            estimated_lat=lat,
-            estimated_lon=lon,
-            estimated_heading_deg=round(heading, 2),
-            buildings_seen=stored["buildings_seen"],
-            timings=stored["timings"],
-        )
+        if ref["sequence_id"] is not None or ref["capture_time"] is not None:
+            job_store.enqueue_job(
+                db, PLACE_SEQUENCE, PlaceSequencePayload(reference_id=reference_id, map_id=map_id), map_id=map_id
+            )
+    assert labels.estimated is not None and labels.estimated.heading_deg is not None
     return LabelReferenceResult(
-        reference_id=reference_id, heading_deg=round(heading, 2), buildings=len(labels.buildings_seen)
+        reference_id=reference_id, heading_deg=labels.estimated.heading_deg, buildings=len(labels.buildings_seen)
     )
 
 

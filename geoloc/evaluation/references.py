@@ -26,9 +26,9 @@ from geoloc.localize.identity import identity_accuracy
 from geoloc.localize.reference import LabelledReference, label_reference_photo, stored_reference
 from geoloc.localize.retrieval import Vocabulary
 from geoloc.localize.sequence import SequenceMember, group_sequences, place_labelled_sequence
-from geoloc.localize.sequence.grouping import photo_device
 from geoloc.localize.sequence.stage import LabelledFrame
 from geoloc.maps import CityMap
+from geoloc.photos.capture import photo_device
 from geoloc.photos.heading_prior import HeadingPrior, heading_prior_from_compass
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.sim.world import World

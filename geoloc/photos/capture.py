@@ -268,3 +268,9 @@ def capture_of(block: ExifBlock, *, declination_deg: float | None = None) -> Cap
         return capture_from_exif(block.tags, declination_deg=declination_deg)
     except Exception:  # a field of a type piexif let through
         return CaptureInfo()
+
+
+def photo_device(make: str | None, model: str | None) -> str | None:
+    """One device's name for grouping (EXIF make and model, stripped; None when the photo names neither)."""
+    name = " ".join(part.strip() for part in (make, model) if part and part.strip())
+    return name or None

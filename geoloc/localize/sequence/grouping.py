@@ -82,9 +82,3 @@ def group_sequences(
                 run = [member]
         groups.append(run)
     return [[m.reference_id for m in group] for group in groups if len(group) > 1]
-
-
-def photo_device(make: str | None, model: str | None) -> str | None:
-    """One device's name for grouping (EXIF make and model, stripped; None when the photo names neither)."""
-    name = " ".join(part.strip() for part in (make, model) if part and part.strip())
-    return name or None

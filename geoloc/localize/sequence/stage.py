@@ -3,7 +3,9 @@
 Used by the workers' sequence job and by ``geoloc eval world``: each frame was labelled alone first
 (:func:`geoloc.localize.reference.label_reference_photo`, as every reference is); the walk's frames are then placed
 in one pose graph (:func:`geoloc.localize.sequence.placement.place_sequence`) and each is re-labelled at its
-placed pose (:func:`geoloc.localize.reference.label_at_pose`: identities and anchors from there).
+placed pose (:func:`geoloc.localize.reference.label_at_pose`: identities and anchors from there). A frame that no
+relative pose joins to the others keeps its own label unchanged (its label already weighed its GPS and compass),
+so a "sequence" of photos that do not see each other (consecutive captures of scattered places) changes nothing.
 """
 
 from __future__ import annotations
@@ -76,7 +78,8 @@ def place_labelled_sequence(
 ) -> PlacedSequence:
     """Place a walk's frames jointly and re-label each at its placed pose (module docstring).
 
-    Each re-labelled reference's ``timings_ms`` gains ``sequence``: its share of the placement (ms).
+    Each re-labelled reference's ``timings_ms`` gains ``sequence``: its share of the placement (ms); a frame no
+    relative pose joins is returned as it came.
     """
     t0 = time.perf_counter()
     graph_frames = [_frame(frame) for frame in frames]
@@ -85,6 +88,9 @@ def place_labelled_sequence(
     share_ms = 1e3 * (time.perf_counter() - t0) / max(len(frames), 1)
     references = []
     for frame, pose in zip(frames, poses, strict=True):
+        if pose.n_edges == 0:  # nothing joins it to the walk: its own label already weighs its GPS and compass
+            references.append(frame.labelled)
+            continue
         known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, pose.position_covariance)
         placed = label_at_pose(city_map, frame.photo, frame.labelled, known)
         placed.timings_ms["sequence"] = share_ms

@@ -126,6 +126,6 @@ def test_label_options_are_label_reference_defaults() -> None:
         for name, parameter in inspect.signature(label_reference).parameters.items()
         if parameter.kind is inspect.Parameter.KEYWORD_ONLY
     }
-    assert keywords == {"prior_yaw_deg": None, "heading_prior": None, "options": LabelOptions()}
+    assert keywords == {"prior_yaw_deg": None, "heading_prior": None, "options": LabelOptions(), "known_pose": None}
     assert ReferenceLabelOptions is LabelOptions
     assert dataclasses.asdict(LabelOptions())["gps_sigma_m"] == 8.0 and LabelOptions().n_modes == 3
