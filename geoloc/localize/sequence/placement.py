@@ -35,6 +35,9 @@ from geoloc.vision.features import Features
 
 DEFAULT_GPS_SIGMA_M = 8.0
 """GPS sigma (m) of a frame whose photo states no accuracy (a phone's typical stated 5-10 m)."""
+START_AGREEMENT_M = 3.0
+START_AGREEMENT_DEG = 10.0
+"""Two predictions of a frame's starting pose agree within these (m, deg) (:func:`_consensus_start`)."""
 LOOSE_SIGMA = 1e4
 """Sigma of a factor's components it does not constrain (a compass says nothing of position)."""
 
@@ -152,6 +155,43 @@ def relative_poses(frames: Sequence[SequenceFrame], options: PlacementOptions) -
     return edges
 
 
+def _consensus_start(
+    labels: list[gtsam.Pose2], edges: Sequence[RelativePose], options: PlacementOptions
+) -> list[gtsam.Pose2]:
+    """Each frame's starting pose for the optimiser: its label, or what its neighbours predict, by agreement.
+
+    The candidates are the frame's own label and what each neighbour's label and edge predict for it; the one
+    most others agree with starts (a tie keeps the label; agreement: within :data:`START_AGREEMENT_M` and
+    :data:`START_AGREEMENT_DEG`). Why: Levenberg-Marquardt only descends, and a frame started on the mirror
+    view across the street (heading 180 deg off) stays there however its neighbours pull.
+    """
+    predictions: list[list[gtsam.Pose2]] = [[label] for label in labels]
+    for edge in edges:
+        measured = _measured(edge)
+        predictions[edge.target].append(labels[edge.source].compose(measured))
+        predictions[edge.source].append(labels[edge.target].compose(measured.inverse()))
+    start = []
+    for candidates in predictions:
+        scores = [_support(pose, candidates) for pose in candidates]
+        best = max(range(len(candidates)), key=lambda i: (scores[i], i == 0))
+        start.append(candidates[best])
+    return start
+
+
+def _support(pose: gtsam.Pose2, candidates: list[gtsam.Pose2]) -> int:
+    """How many candidates agree with ``pose`` (within the START_AGREEMENT thresholds, itself included)."""
+    return sum(
+        math.hypot(pose.x() - other.x(), pose.y() - other.y()) < START_AGREEMENT_M
+        and abs(math.degrees(pose.between(other).theta())) < START_AGREEMENT_DEG
+        for other in candidates
+    )
+
+
+def _measured(edge: RelativePose) -> gtsam.Pose2:
+    """An edge as gtsam's relative pose (the target in the source's axes; theta counter-clockwise)."""
+    return gtsam.Pose2(edge.forward_m, edge.left_m, math.radians(-edge.turn_deg))
+
+
 def place_sequence(
     frames: Sequence[SequenceFrame],
     options: PlacementOptions = PlacementOptions(),
@@ -166,9 +206,11 @@ def place_sequence(
     graph = gtsam.NonlinearFactorGraph()
     initial = gtsam.Values()
     floor = options.label_position_floor_m**2 * np.eye(2)
+    labels = [_pose2(frame.x_m, frame.y_m, frame.yaw_deg) for frame in frames]
+    for k, start in enumerate(_consensus_start(labels, edges, options)):
+        initial.insert(k, start)
     for k, frame in enumerate(frames):
-        label = _pose2(frame.x_m, frame.y_m, frame.yaw_deg)
-        initial.insert(k, label)
+        label = labels[k]
         covariance = _local(frame.position_covariance + floor, frame.yaw_deg, options.label_yaw_sigma_deg)
         label_noise = _robust("cauchy", options.cauchy_k, noise.Gaussian.Covariance(covariance))
         graph.add(gtsam.PriorFactorPose2(k, label, label_noise))
@@ -184,7 +226,7 @@ def place_sequence(
     for edge in edges:
         sigma = options.edge_sigma_m + options.edge_sigma_per_m * edge.distance_m
         sigmas = np.array([sigma, sigma, math.radians(options.edge_yaw_sigma_deg)])
-        measured = gtsam.Pose2(edge.forward_m, edge.left_m, math.radians(-edge.turn_deg))
+        measured = _measured(edge)
         graph.add(
             gtsam.BetweenFactorPose2(
                 edge.source, edge.target, measured, _robust("cauchy", options.cauchy_k, noise.Diagonal.Sigmas(sigmas))

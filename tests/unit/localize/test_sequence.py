@@ -1,0 +1,141 @@
+"""Walks of references: grouping, and the joint placement's pose graph on hand-made frames and edges."""
+
+from __future__ import annotations
+
+import math
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pytest
+
+from geoloc.core.camera import Intrinsics
+from geoloc.localize.anchors import MapAnchors
+from geoloc.localize.sequence import PlacementOptions, SequenceFrame, SequenceMember, group_sequences, place_sequence
+from geoloc.localize.sequence.relative import RelativePose, pose_in_frame
+from geoloc.photos.capture import photo_device
+from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.vision.features import Features
+
+T0 = datetime(2025, 6, 1, 10, 0, 0)
+
+
+def _member(
+    rid: int, seconds: float, x: float, *, seq: str | None = None, device: str | None = "Phone"
+) -> SequenceMember:
+    return SequenceMember(rid, seq, T0 + timedelta(seconds=seconds), device, (x, 0.0), rid)
+
+
+def test_stated_sequence_ids_group_in_capture_order() -> None:
+    members = [
+        _member(1, 30, 0, seq="a"),
+        _member(2, 10, 500, seq="a"),  # far and early: a stated walk is a walk whatever its gaps
+        _member(3, 20, 0, seq="b"),
+        _member(4, 25, 5, seq="b"),
+        _member(5, 0, 0, seq="c"),  # alone: no sequence
+    ]
+    assert sorted(group_sequences(members)) == [[2, 1], [3, 4]]
+
+
+def test_one_devices_consecutive_captures_split_at_60_s_and_50_m() -> None:
+    members = [
+        _member(1, 0, 0),
+        _member(2, 20, 8),
+        _member(3, 75, 16),  # 55 s after the previous one: same walk
+        _member(4, 140, 24),  # 65 s later: a new walk
+        _member(5, 150, 30),
+        _member(6, 160, 90),  # 60 m away: a new walk, alone
+        _member(7, 20, 8, device="Other"),  # another camera at the same time and place
+        _member(8, 25, 9, device="Other"),
+    ]
+    assert sorted(group_sequences(members)) == [[1, 2, 3], [4, 5], [7, 8]]
+
+
+def test_photos_without_time_or_with_mixed_clocks_are_not_grouped() -> None:
+    aware = SequenceMember(2, None, (T0 + timedelta(seconds=5)).replace(tzinfo=UTC), "Phone", (1.0, 0.0), 2)
+    untimed = SequenceMember(3, None, None, "Phone", (2.0, 0.0), 3)
+    assert group_sequences([_member(1, 0, 0), aware, untimed]) == []
+    assert photo_device(" Apple ", "iPhone 12") == "Apple iPhone 12" and photo_device(None, " ") is None
+
+
+def _frame(x: float, y: float, yaw: float, gps: tuple[float, float], compass: float | None) -> SequenceFrame:
+    return SequenceFrame(
+        x,
+        y,
+        yaw,
+        np.diag([4.0, 0.25]),
+        gps,
+        8.0,
+        None if compass is None else HeadingPrior(compass, 20.0, 0.2),
+        Features.empty((480, 640)),
+        MapAnchors(np.zeros((0, 3)), np.zeros(0, int), np.zeros(0, int), np.zeros(0)),
+        Intrinsics(640, 480, 550.0, 320.0, 240.0),
+    )
+
+
+def _walk(n: int = 8, step_m: float = 7.0) -> list[tuple[float, float, float]]:
+    """A walk east along y = 0, looking along the street (yaw 90) and at the north facades (yaw 0) in turn."""
+    return [(step_m * i, 0.0, 90.0 if i % 2 == 0 else 0.0) for i in range(n)]
+
+
+def _edges(truth: list[tuple[float, float, float]], steps: tuple[int, ...] = (1, 2)) -> list[RelativePose]:
+    edges = []
+    for i in range(len(truth)):
+        for s in steps:
+            j = i + s
+            if j < len(truth):
+                for a, b in ((i, j), (j, i)):
+                    f, left, turn = pose_in_frame(truth[a][:2], truth[a][2], truth[b][:2], truth[b][2])
+                    edges.append(RelativePose(a, b, f, left, turn, 50))
+    return edges
+
+
+def _angle(a: float, b: float) -> float:
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def test_pose_in_frame_reads_forward_left_and_turn() -> None:
+    assert pose_in_frame((0.0, 0.0), 90.0, (5.0, 2.0), 80.0) == pytest.approx((5.0, 2.0, -10.0))
+    assert pose_in_frame((1.0, 1.0), 0.0, (1.0, 4.0), 350.0) == pytest.approx((3.0, 0.0, -10.0))
+
+
+def test_the_walk_overrules_a_mirrored_label_and_averages_the_labels_shift() -> None:
+    truth = _walk()
+    rng = np.random.default_rng(0)
+    shifts = rng.normal(0.0, 2.0, len(truth))  # each label off along the street, as facades allow
+    frames = []
+    for i, (x, y, yaw) in enumerate(truth):
+        label_yaw = (yaw + 180.0) % 360.0 if i == 3 else yaw + rng.normal(0, 0.3)  # frame 3: the mirror view
+        frames.append(_frame(x + shifts[i], y + (6.0 if i == 3 else 0.0), label_yaw, (x + 1.0, y - 1.0), yaw))
+    placed = place_sequence(frames, PlacementOptions(), _edges(truth))
+    headings = [_angle(p.yaw_deg, t[2]) for p, t in zip(placed, truth, strict=True)]
+    assert max(headings) < 1.0, headings  # the mirrored frame too
+    errors = [math.hypot(p.x_m - t[0], p.y_m - t[1]) for p, t in zip(placed, truth, strict=True)]
+    label_errors = [math.hypot(f.x_m - t[0], f.y_m - t[1]) for f, t in zip(frames, truth, strict=True)]
+    assert errors[3] < 2.5 < label_errors[3]
+    assert np.median(errors) < np.median(label_errors)
+    n = len(truth)
+    assert [p.n_edges for p in placed] == [2 * sum(0 < abs(i - j) <= 2 for j in range(n)) for i in range(n)]
+    # The covariances are the graph's: positive, and tighter than a label's own along-street variance.
+    for p in placed:
+        eig = np.linalg.eigvalsh(p.position_covariance)
+        assert eig.min() > 0 and eig.max() < 4.0
+
+
+def test_without_edges_each_frame_keeps_about_its_label() -> None:
+    truth = _walk(4)
+    frames = [_frame(x + 1.0, y, yaw, (x + 1.0, y), None) for x, y, yaw in truth]
+    placed = place_sequence(frames, PlacementOptions(), [])
+    assert all(p.n_edges == 0 for p in placed)
+    for p, f in zip(placed, frames, strict=True):
+        assert math.hypot(p.x_m - f.x_m, p.y_m - f.y_m) < 0.1 and _angle(p.yaw_deg, f.yaw_deg) < 0.1
+
+
+def test_a_wrong_edge_does_not_pull_the_walk_apart() -> None:
+    truth = _walk(6)
+    frames = [_frame(x, y, yaw, (x, y), yaw) for x, y, yaw in truth]
+    edges = _edges(truth)
+    bad = edges[0]
+    edges[0] = RelativePose(bad.source, bad.target, bad.forward_m + 12.0, bad.left_m - 9.0, bad.turn_deg + 40.0, 13)
+    placed = place_sequence(frames, PlacementOptions(), edges)
+    errors = [math.hypot(p.x_m - t[0], p.y_m - t[1]) for p, t in zip(placed, truth, strict=True)]
+    assert max(errors) < 0.5, errors
