@@ -34,8 +34,8 @@ LABEL_REFERENCE: Final = "label_reference"
 LOCALIZE_QUERY: Final = "localize_query"
 """Kind of the job the API enqueues for each new query (payload :class:`LocalizeQueryPayload`)."""
 PLACE_SEQUENCE: Final = "place_sequence"
-"""Kind of the job a labelled reference of a sequence enqueues (payload :class:`PlaceSequencePayload`): its walk
-placed jointly, in the background, while the references keep being served with their own labels."""
+"""Kind of the job a labelled reference of a sequence enqueues (payload :class:`PlaceSequencePayload`): the map's
+walks placed jointly, in the background, while the references keep being served with their own labels."""
 
 
 class JobPayload(BaseModel):
@@ -73,25 +73,25 @@ class LocalizeQueryPayload(JobPayload):
 
 
 class PlaceSequencePayload(JobPayload):
-    """Place the sequence that reference ``reference_id`` of map ``map_id`` belongs to."""
+    """Place the walks of map ``map_id`` that changed; ``reference_id``: the labelled reference that asked."""
 
     reference_id: int
     map_id: int
 
 
 class PlaceSequenceResult(JobResult):
-    """What placing a sequence reports on its job.
+    """What placing a map's walks reports on its job.
 
-    references: the sequence's size; placed: those re-labelled at a jointly placed pose; edges: relative poses
-    found; skipped: why nothing was placed (another reference of it still being labelled; no longer a
-    sequence), else None.
+    walks: the walks placed; references: their references; placed: those re-labelled at a jointly placed pose;
+    edges: relative poses found; waiting: walks left for later (a reference still being labelled).
     """
 
     reference_id: int
+    walks: int
     references: int
     placed: int
     edges: int
-    skipped: str | None = None
+    waiting: int
 
 
 class LabelReferenceResult(JobResult):

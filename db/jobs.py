@@ -89,6 +89,14 @@ def enqueue_job(
     )
 
 
+def has_queued_job(db: Database, kind: str, map_id: int) -> bool:
+    """Whether a job of ``kind`` for map ``map_id`` waits in the queue (not yet claimed)."""
+    row = db.execute(
+        "SELECT 1 FROM jobs WHERE kind = ? AND map_id = ? AND status = 'queued' LIMIT 1", (kind, map_id)
+    ).fetchone()
+    return row is not None
+
+
 def queue_depth(db: Database) -> int:
     """Jobs waiting to run (``queued``, including retries waiting for their delay)."""
     return int(db.execute("SELECT COUNT(*) FROM jobs WHERE status = 'queued'").fetchone()[0])

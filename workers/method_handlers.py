@@ -210,8 +210,8 @@ def save_labels(db: Database, reference_id: int, labelled: LabelledReference, la
 def label_reference(db: Database, payload: LabelReferencePayload) -> LabelReferenceResult:
     """Label a reference with the map, extract and index its features, store its pose and identities.
 
-    A reference that may belong to a walk (a sequence id or a capture time) then queues its walk's joint
-    placement (:mod:`workers.sequence_handlers`), which runs once every reference of the walk is labelled.
+    A reference that may belong to a walk (a sequence id or a capture time) then queues the map's sequence job
+    (:mod:`workers.sequence_handlers`) unless one already waits: it places each walk once all of it is labelled.
     """
     reference_id, map_id = payload.reference_id, payload.map_id
     ref = reference_store.get_reference(db, reference_id)
@@ -230,7 +230,10 @@ def label_reference(db: Database, payload: LabelReferencePayload) -> LabelRefere
         save_labels(db, reference_id, labelled, labels)
         reference_store.set_reference_placement(db, reference_id, "alone")
         sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
-        if ref["sequence_id"] is not None or ref["capture_time"] is not None:
+        # One waiting sequence job per map is enough: it places every walk of the map that changed.
+        may_be_walk = ref["sequence_id"] is not None or ref["capture_time"] is not None
+        db.lock(f"geoloc:place-sequence:{map_id}")
+        if may_be_walk and not job_store.has_queued_job(db, PLACE_SEQUENCE, map_id):
             job_store.enqueue_job(
                 db, PLACE_SEQUENCE, PlaceSequencePayload(reference_id=reference_id, map_id=map_id), map_id=map_id
             )

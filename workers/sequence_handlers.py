@@ -1,16 +1,15 @@
-"""The sequence job: a walk of references placed jointly on the map, in the background (issue 19).
+"""The sequence job: a map's walks of references placed jointly on the map, in the background (issue 19).
 
 Each reference of a walk is labelled alone first (:func:`workers.method_handlers.label_reference`, which then
-queues this job) and is served with that label meanwhile. The job finds the reference's walk among its map's
-references (:func:`geoloc.localize.sequence.group_sequences`) and, once every reference of the walk is labelled,
-re-labels each alone again (the same, deterministic label), places the walk
-(:func:`geoloc.localize.sequence.place_labelled_sequence`) and stores every frame the placement joined to the
-others with its new pose, identities and anchors (``placement`` = ``sequence``), in one transaction: queries see
-the old walk or the new one, never a mix. A reference added later resets its own placement to ``alone`` and
-queues the job again, which re-places the whole walk ("the part that changed" is the walk: walks are short).
-
-Several jobs for one walk (each reference queues one) do the work once: a job skips while a reference of the walk
-is still being labelled, and when every labelled reference of the walk is already placed.
+queues this job for its map unless one already waits) and is served with that label meanwhile. The job groups the
+map's references into walks (:func:`geoloc.localize.sequence.group_sequences`) and, for each walk that is wholly
+labelled and not yet placed as it stands, re-labels each reference alone again (the same, deterministic label),
+places the walk (:func:`geoloc.localize.sequence.place_labelled_sequence`) and stores every frame the placement
+joined to the others with its new pose, identities and anchors, in one transaction per walk: queries see the old
+walk or the new one, never a mix. Every reference of a placed walk gets ``placement`` = ``sequence`` (a frame no
+relative pose joined keeps its own label's pose). A reference added later is labelled ``alone`` and queues the
+job again, which re-places its whole walk (the part that changed is the walk: walks are short). A walk with a
+reference still being labelled waits for the job that reference's label job queues.
 """
 
 from __future__ import annotations
@@ -24,7 +23,8 @@ from db import references as reference_store
 from db.rows import ReferenceRow
 from geoloc.core.geo import LocalFrame
 from geoloc.localize.sequence import SequenceMember, group_sequences, place_labelled_sequence
-from geoloc.localize.sequence.stage import LabelledFrame
+from geoloc.localize.sequence.stage import LabelledFrame, PlacedSequence
+from geoloc.maps import CityMap
 from workers.handlers import register
 from workers.method_handlers import city_map_for, label_alone, reference_labels, save_labels
 
@@ -55,48 +55,54 @@ def _members(rows: list[ReferenceRow], frame: LocalFrame) -> list[SequenceMember
     return members
 
 
-@register(PLACE_SEQUENCE, PlaceSequencePayload)
-def place_sequence(db: Database, payload: PlaceSequencePayload) -> PlaceSequenceResult:
-    """Place the walk of ``payload.reference_id`` jointly, when all of it is labelled (module docstring)."""
-    reference_id, map_id = payload.reference_id, payload.map_id
-    city = city_map_for(db, map_id)
-    rows = reference_store.sequence_candidates(db, map_id)
-    by_id = {row["id"]: row for row in rows}
-    group = next((g for g in group_sequences(_members(rows, city.frame)) if reference_id in g), None)
-
-    def skipped(why: str, size: int = 0) -> PlaceSequenceResult:
-        return PlaceSequenceResult(reference_id=reference_id, references=size, placed=0, edges=0, skipped=why)
-
-    if group is None:
-        return skipped("not in a sequence")
-    members = [by_id[int(str(i))] for i in group]
-    if any(row["status"] in PENDING_STATUSES for row in members):
-        return skipped("a reference of the sequence is still being labelled", len(members))
-    done = [row for row in members if row["status"] == "done"]
-    if len(done) < 2:
-        return skipped("fewer than two labelled references", len(members))
-    if all(row["placement"] == "sequence" for row in done):
-        return skipped("already placed", len(members))
-
+def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> PlacedSequence:
+    """Place one wholly labelled walk and store it (module docstring)."""
     t0 = time.perf_counter()
-    alone = [label_alone(city, row) for row in done]
+    alone = [label_alone(city, row) for row in walk]
     frames = [LabelledFrame(a.photo, a.labelled, a.gps_xy, heading_prior=a.heading_prior) for a in alone]
     placed = place_labelled_sequence(city, frames)
-    total_ms = 1e3 * (time.perf_counter() - t0) / len(done)
+    total_ms = 1e3 * (time.perf_counter() - t0) / len(walk)
     # A frame no relative pose joined comes back as it went in: its stored label stands (and is marked placed).
     moved = {
         row["id"]: (ref, reference_labels(city, a.photo, ref, total_ms))
-        for row, a, ref in zip(done, alone, placed.references, strict=True)
+        for row, a, ref in zip(walk, alone, placed.references, strict=True)
         if ref is not a.labelled
     }
     with transaction(db):
-        for row in done:
+        for row in walk:
             current = reference_store.get_reference(db, row["id"])
             if current is None or current["status"] != "done":
                 continue  # deleted (or re-queued) while the walk was placed: leave it be
             if row["id"] in moved:
                 save_labels(db, row["id"], *moved[row["id"]])
             reference_store.set_reference_placement(db, row["id"], "sequence")
+    return placed
+
+
+@register(PLACE_SEQUENCE, PlaceSequencePayload)
+def place_sequences(db: Database, payload: PlaceSequencePayload) -> PlaceSequenceResult:
+    """Place every walk of ``payload.map_id`` that is wholly labelled and changed (module docstring)."""
+    city = city_map_for(db, payload.map_id)
+    rows = reference_store.sequence_candidates(db, payload.map_id)
+    by_id = {row["id"]: row for row in rows}
+    walks = references = placed = edges = waiting = 0
+    for group in group_sequences(_members(rows, city.frame)):
+        members = [by_id[int(str(i))] for i in group]
+        if any(row["status"] in PENDING_STATUSES for row in members):
+            waiting += 1
+            continue
+        walk = [row for row in members if row["status"] == "done"]
+        if len(walk) < 2 or all(row["placement"] == "sequence" for row in walk):
+            continue
+        result = _place_walk(db, city, walk)
+        walks, references = walks + 1, references + len(walk)
+        placed += sum(pose.n_edges > 0 for pose in result.poses)
+        edges += result.n_edges
     return PlaceSequenceResult(
-        reference_id=reference_id, references=len(members), placed=len(moved), edges=placed.n_edges
+        reference_id=payload.reference_id,
+        walks=walks,
+        references=references,
+        placed=placed,
+        edges=edges,
+        waiting=waiting,
     )

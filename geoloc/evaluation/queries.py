@@ -13,7 +13,7 @@ import numpy as np
 
 from geoloc.core.context import MethodContext
 from geoloc.evaluation.ground_truth import gt_identity_map
-from geoloc.evaluation.references import LabelledWorld
+from geoloc.evaluation.references import LabelledWorld, compass_prior
 from geoloc.evaluation.summaries import TOP_N, angle_error_deg, mean_or_none, run_summary
 from geoloc.localize.grid import DEFAULT_PRIOR_RADIUS_M, PositionPrior
 from geoloc.localize.identity import identity_accuracy
@@ -94,10 +94,12 @@ def answer_run(
     for i, image in enumerate(queries):
         photo, evidence = labelled.queries[image.name]
         gt = world.gt(image.name)
-        prior = None
+        prior, heading_prior = None, None
         if run.prior == "gps" and photo.gps is not None:
+            # What the service reads from the photo: its EXIF GPS and, when it has one, its compass.
             x, y = (float(v) for v in city.frame.to_local(*photo.gps))
             prior = PositionPrior.from_radius(x, y, DEFAULT_PRIOR_RADIUS_M)
+            heading_prior = compass_prior(photo, city, (x, y))
         override = None
         if run.identities == "gt":
             override = gt_identity_map(gt["building_id"], evidence.building_mask)
@@ -110,6 +112,7 @@ def answer_run(
             vocabulary,
             run.config,
             position_prior=prior,
+            heading_prior=heading_prior,
             top_n=TOP_N,
             identity_override=override,
             context=context,

@@ -52,7 +52,7 @@ def analyze(path: Path, labels: np.ndarray | None, context: MethodContext) -> tu
     return photo, analyze_photo(photo, labels, context=context)
 
 
-def _compass_prior(photo: Photo, city: CityMap, gps_xy: tuple[float, ...]) -> HeadingPrior | None:
+def compass_prior(photo: Photo, city: CityMap, gps_xy: tuple[float, ...]) -> HeadingPrior | None:
     """The photo's compass as the service's robust prior (None without one), at its GPS tag (local m)."""
     compass = photo.capture.compass
     return None if compass is None else heading_prior_from_compass(compass, city.frame, gps_xy[0], gps_xy[1])
@@ -87,7 +87,7 @@ def _place_sequences(
             photo = photos[str(name)]
             assert photo.gps is not None  # checked when labelled
             gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
-            prior = _compass_prior(photo, city, gps_xy)
+            prior = compass_prior(photo, city, gps_xy)
             frames.append(LabelledFrame(photo, labelled[str(name)], (gps_xy[0], gps_xy[1]), heading_prior=prior))
         placed = place_labelled_sequence(city, frames)
         for name, ref in zip(names, placed.references, strict=True):
@@ -118,7 +118,7 @@ def label_references(
         if photo.gps is None:
             raise ValueError(f"reference {image.name} has no EXIF GPS")
         gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
-        prior = _compass_prior(photo, city, gps_xy)
+        prior = compass_prior(photo, city, gps_xy)
         labelled[image.name] = label_reference_photo(
             city, photo, (gps_xy[0], gps_xy[1]), heading_prior=prior, evidence=evidence, context=context
         )

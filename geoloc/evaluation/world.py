@@ -1,7 +1,8 @@
 """Evaluation of the whole method on a simulated world (``geoloc eval world DIR --json OUT``).
 
 It runs exactly what the service runs: references are labelled with
-:func:`geoloc.localize.reference.label_reference_photo` (EXIF GPS and focal length read from the JPEG) and kept as
+:func:`geoloc.localize.reference.label_reference_photo` (EXIF GPS, compass and focal length read from the JPEG),
+their walks placed jointly as the workers' sequence job does (:mod:`geoloc.localize.sequence`), and kept as
 :class:`geoloc.localize.store.StoredReference`; queries go through :func:`geoloc.localize.query.geolocate` with one
 :class:`geoloc.localize.query.QueryConfig`, recorded in the output. Only the reference store differs from the
 service's (memory instead of the database; both rank with the same SBoW formula).
@@ -9,8 +10,9 @@ service's (memory instead of the database; both rank with the same SBoW formula)
 Runs (each query is answered once per run; :func:`default_runs`):
 
 - ``ours/gps``: the service's default: the query's EXIF GPS as the position prior (radius
-  :data:`geoloc.localize.grid.DEFAULT_PRIOR_RADIUS_M`), network segmentation, transferred identities;
-- ``ours/none``: the same without any prior;
+  :data:`geoloc.localize.grid.DEFAULT_PRIOR_RADIUS_M`) and its compass, when it has one, as the heading prior
+  (as the API reads a photo), network segmentation, transferred identities;
+- ``ours/none``: the same without any prior (neither position nor heading);
 - ablation ladder under the GPS prior: ``gt_identities/gps`` (perfect transfer: the query's identities
   from the renderer), ``gt_segmentation/gps`` (ground-truth labels for references and queries);
 - the paper's method without the map anchors, no prior: ``paper_identity/none`` and
