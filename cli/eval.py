@@ -267,18 +267,25 @@ def photos(
     compass_prior: bool = typer.Option(
         False, "--compass-prior", help="Use each photo's compass as the robust heading prior (as the service does)."
     ),
+    walks: bool = typer.Option(
+        False, "--walks", help="Then place the photos' walks jointly (as the service's sequence job does)."
+    ),
 ) -> None:
     """Label real photos with their EXIF GPS on a map (as the service labels references); compare headings.
 
     For each photo: the estimated compass heading and position, the buildings named, and with --truth the
     heading error against the recorded compass heading. Without --compass-prior the labelling uses no heading
     prior (the map alone, as this command always did); with it, the photo's compass as the service weights it.
+    With --walks, photos of one walk (a Mapillary sequence id, or one camera's captures within 60 s and 50 m)
+    are then placed jointly; --compass-prior --walks is what the service does with references.
     """
     # The method loads numpy and OpenCV: imported per command, for CLI start-up time.
     from geoloc.evaluation.world import evaluate_photos  # lazy: CLI start-up
     from workers.context import method_context
 
-    result = evaluate_photos(photos_dir, map_path, truth_csv, compass_prior=compass_prior, context=method_context())
+    result = evaluate_photos(
+        photos_dir, map_path, truth_csv, compass_prior=compass_prior, place_walks=walks, context=method_context()
+    )
     result["command"] = " ".join(["geoloc", *sys.argv[1:]])
     for row in result["photos"]:
         error = "" if row.get("heading_error_deg") is None else f", error {row['heading_error_deg']:.1f} deg"

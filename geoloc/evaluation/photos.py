@@ -11,10 +11,10 @@ import numpy as np
 
 from geoloc.core.context import MethodContext
 from geoloc.evaluation.summaries import angle_error_deg, mean_or_none
-from geoloc.localize.reference import label_reference_photo
+from geoloc.localize.reference import LabelledReference, label_reference_photo
+from geoloc.localize.sequence.stage import compass_prior_at, place_photo_walks
 from geoloc.maps import load_map
-from geoloc.photos.heading_prior import heading_prior_from_compass
-from geoloc.photos.photo import load_photo
+from geoloc.photos.photo import Photo, load_photo
 
 
 def evaluate_photos(
@@ -23,13 +23,16 @@ def evaluate_photos(
     truth_csv: str | Path | None = None,
     *,
     compass_prior: bool = False,
+    place_walks: bool = False,
     context: MethodContext,
 ) -> dict[str, Any]:
     """Label real geo-tagged photos on a map with their EXIF GPS (the service's reference labelling).
 
     compass_prior: weight the headings with the photo's compass (``Photo.capture.compass``) as the robust
     prior the service uses (:func:`geoloc.photos.heading_prior.heading_prior_from_compass`); off by default,
-    the map alone (as before). context: the models and threads the labelling runs with.
+    the map alone (as before). place_walks: then place the photos' walks jointly as the workers' sequence job
+    does (:func:`geoloc.localize.sequence.stage.place_photo_walks`; the service's labelling is both options).
+    context: the models and threads the labelling runs with.
 
     truth_csv: optional CSV with ``name`` and ``true_heading_deg`` columns (e.g. the phone's compass). Returns
     per photo the estimated compass heading and position, how far labelling moved it from the GPS tag,
@@ -40,7 +43,8 @@ def evaluate_photos(
     if truth_csv is not None:
         with open(truth_csv, newline="") as handle:
             truth = {row["name"]: row for row in csv.DictReader(handle)}
-    rows = []
+    photos: dict[str, Photo] = {}
+    labelled: dict[str, LabelledReference] = {}
     for path in sorted(Path(photos_dir).iterdir()):
         if path.suffix.lower() not in (".jpg", ".jpeg", ".png"):
             continue
@@ -48,18 +52,23 @@ def evaluate_photos(
         if photo.gps is None:
             continue
         gps_x, gps_y = (float(v) for v in city.frame.to_local(*photo.gps))
-        reading = photo.capture.compass if compass_prior else None
-        prior = None if reading is None else heading_prior_from_compass(reading, city.frame, gps_x, gps_y)
-        labelled = label_reference_photo(city, photo, (gps_x, gps_y), heading_prior=prior, context=context)
-        label = labelled.label
+        prior = compass_prior_at(photo, city, (gps_x, gps_y)) if compass_prior else None
+        labelled[path.name] = label_reference_photo(city, photo, (gps_x, gps_y), heading_prior=prior, context=context)
+        photos[path.name] = photo
+    walks = place_photo_walks(city, photos, labelled) if place_walks else []
+    rows = []
+    for name, photo in photos.items():
+        assert photo.gps is not None
+        gps_x, gps_y = (float(v) for v in city.frame.to_local(*photo.gps))
+        label = labelled[name].label
         heading = float(city.frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m)) % 360.0
         lat, lon = (float(v) for v in city.frame.to_wgs84(label.x_m, label.y_m))
         names = []
-        for entry in labelled.identity.building_extents():
+        for entry in labelled[name].identity.building_extents():
             building = city.buildings[entry["building_id"]]
             names.append(building.name or building.osm_id)
         row: dict[str, Any] = {
-            "name": path.name,
+            "name": name,
             "heading_deg": round(heading, 2),
             "lat": round(lat, 7),
             "lon": round(lon, 7),
@@ -67,8 +76,8 @@ def evaluate_photos(
             "buildings": names,
             "vanishing_point_bins": label.vp_bins,
         }
-        if path.name in truth:
-            compass = float(truth[path.name]["true_heading_deg"])
+        if name in truth:
+            compass = float(truth[name]["true_heading_deg"])
             row["compass_heading_deg"] = compass
             row["heading_error_deg"] = round(angle_error_deg(heading, compass), 2)
         rows.append(row)
@@ -79,4 +88,5 @@ def evaluate_photos(
         "photos": rows,
         "heading_within_10deg": mean_or_none([float(e <= 10.0) for e in errors]),
         "heading_error_median_deg": round(float(np.median(errors)), 2) if errors else None,
+        "walks": [len(walk.references) for walk in walks],
     }

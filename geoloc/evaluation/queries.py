@@ -13,12 +13,13 @@ import numpy as np
 
 from geoloc.core.context import MethodContext
 from geoloc.evaluation.ground_truth import gt_identity_map
-from geoloc.evaluation.references import LabelledWorld, compass_prior
+from geoloc.evaluation.references import LabelledWorld
 from geoloc.evaluation.summaries import TOP_N, angle_error_deg, mean_or_none, run_summary
 from geoloc.localize.grid import DEFAULT_PRIOR_RADIUS_M, PositionPrior
 from geoloc.localize.identity import identity_accuracy
 from geoloc.localize.query import QueryConfig, geolocate, retrieve, transfer
 from geoloc.localize.retrieval import Vocabulary
+from geoloc.localize.sequence.stage import compass_prior_at
 from geoloc.maps import CityMap
 from geoloc.sim.world import World
 
@@ -99,7 +100,7 @@ def answer_run(
             # What the service reads from the photo: its EXIF GPS and, when it has one, its compass.
             x, y = (float(v) for v in city.frame.to_local(*photo.gps))
             prior = PositionPrior.from_radius(x, y, DEFAULT_PRIOR_RADIUS_M)
-            heading_prior = compass_prior(photo, city, (x, y))
+            heading_prior = compass_prior_at(photo, city, (x, y))
         override = None
         if run.identities == "gt":
             override = gt_identity_map(gt["building_id"], evidence.building_mask)

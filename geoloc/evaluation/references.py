@@ -25,11 +25,8 @@ from geoloc.evaluation.summaries import (
 from geoloc.localize.identity import identity_accuracy
 from geoloc.localize.reference import LabelledReference, label_reference_photo, stored_reference
 from geoloc.localize.retrieval import Vocabulary
-from geoloc.localize.sequence import SequenceMember, group_sequences, place_labelled_sequence
-from geoloc.localize.sequence.stage import LabelledFrame
+from geoloc.localize.sequence.stage import compass_prior_at, place_photo_walks
 from geoloc.maps import CityMap
-from geoloc.photos.capture import photo_device
-from geoloc.photos.heading_prior import HeadingPrior, heading_prior_from_compass
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.sim.world import World
 from geoloc.vision.evidence import PhotoEvidence, analyze_photo
@@ -50,50 +47,6 @@ def analyze(path: Path, labels: np.ndarray | None, context: MethodContext) -> tu
     """The photo at ``path`` and its evidence (segmentation from ``labels`` when given, e.g. ground truth)."""
     photo = load_photo(path)
     return photo, analyze_photo(photo, labels, context=context)
-
-
-def compass_prior(photo: Photo, city: CityMap, gps_xy: tuple[float, ...]) -> HeadingPrior | None:
-    """The photo's compass as the service's robust prior (None without one), at its GPS tag (local m)."""
-    compass = photo.capture.compass
-    return None if compass is None else heading_prior_from_compass(compass, city.frame, gps_xy[0], gps_xy[1])
-
-
-def _place_sequences(
-    world: World,
-    city: CityMap,
-    photos: dict[str, Photo],
-    labelled: dict[str, LabelledReference],
-    say: Callable[[str], None],
-) -> int:
-    """Place the world's sequences jointly as the workers do; returns how many sequences there were.
-
-    Groups (:func:`geoloc.localize.sequence.group_sequences`) and places (:mod:`geoloc.localize.sequence`) the
-    references, replacing their frames' labels in ``labelled``.
-    """
-    members = []
-    for order, image in enumerate(world.references):
-        photo = photos[image.name]
-        gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps)) if photo.gps else (0.0, 0.0)
-        device = photo_device(photo.exif.make, photo.exif.model)
-        members.append(
-            SequenceMember(
-                image.name, photo.capture.sequence_id, photo.capture.time, device, (gps_xy[0], gps_xy[1]), order
-            )
-        )
-    groups = group_sequences(members)
-    for names in groups:
-        frames = []
-        for name in names:
-            photo = photos[str(name)]
-            assert photo.gps is not None  # checked when labelled
-            gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
-            prior = compass_prior(photo, city, gps_xy)
-            frames.append(LabelledFrame(photo, labelled[str(name)], (gps_xy[0], gps_xy[1]), heading_prior=prior))
-        placed = place_labelled_sequence(city, frames)
-        for name, ref in zip(names, placed.references, strict=True):
-            labelled[str(name)] = ref
-        say(f"sequence of {len(names)} references placed ({placed.n_edges} relative poses)")
-    return len(groups)
 
 
 def label_references(
@@ -118,13 +71,15 @@ def label_references(
         if photo.gps is None:
             raise ValueError(f"reference {image.name} has no EXIF GPS")
         gps_xy = tuple(float(v) for v in city.frame.to_local(*photo.gps))
-        prior = compass_prior(photo, city, gps_xy)
+        prior = compass_prior_at(photo, city, (gps_xy[0], gps_xy[1]))
         labelled[image.name] = label_reference_photo(
             city, photo, (gps_xy[0], gps_xy[1]), heading_prior=prior, evidence=evidence, context=context
         )
         photos[image.name] = photo
         say(f"[{segmentation}] reference {i + 1}/{len(world.references)} {image.name} labelled")
-    n_sequences = _place_sequences(world, city, photos, labelled, say)
+    walks = place_photo_walks(city, photos, labelled)  # the workers' sequence job, on the same photos
+    for walk in walks:
+        say(f"walk of {len(walk.references)} references placed ({walk.n_edges} relative poses)")
     for image in world.references:
         gt = world.gt(image.name)
         ref, photo = labelled[image.name], photos[image.name]
@@ -164,7 +119,7 @@ def label_references(
             "coverage": mean_or_none([o.coverage for o in orientation]),
         },
         "timing_ms": {k: round(float(np.median(v)), 1) for k, v in sorted(timings.items())},
-        "sequences": n_sequences,
+        "sequences": len(walks),
     }
     if any(w is not None for w in walk_ids):
         summary["per_walk"] = per_walk_summary(walk_ids, position_errors, heading_errors)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from geoloc.localize.labeling import KnownPose
 from geoloc.localize.reference import LabelledReference, label_at_pose
+from geoloc.localize.sequence.grouping import SequenceMember, group_sequences
 from geoloc.localize.sequence.placement import (
     DEFAULT_GPS_SIGMA_M,
     PlacedPose,
@@ -25,7 +26,8 @@ from geoloc.localize.sequence.placement import (
     relative_poses,
 )
 from geoloc.maps import CityMap
-from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.photos.capture import photo_device
+from geoloc.photos.heading_prior import HeadingPrior, heading_prior_from_compass
 from geoloc.photos.photo import Photo
 
 
@@ -96,3 +98,55 @@ def place_labelled_sequence(
         placed.timings_ms["sequence"] = share_ms
         references.append(placed)
     return PlacedSequence(references, poses, len(edges))
+
+
+def compass_prior_at(photo: Photo, city_map: CityMap, xy: tuple[float, float]) -> HeadingPrior | None:
+    """The photo's compass as the service's robust prior at a local point (m), None without a compass."""
+    compass = photo.capture.compass
+    return None if compass is None else heading_prior_from_compass(compass, city_map.frame, xy[0], xy[1])
+
+
+def place_photo_walks(
+    city_map: CityMap, photos: dict[str, Photo], labelled: dict[str, LabelledReference]
+) -> list[PlacedSequence]:
+    """Group geo-tagged photos labelled alone into walks by what they carry and place each walk, as the workers do.
+
+    photos, labelled: by name, in upload order (the grouping's tie-breaker), every photo with EXIF GPS.
+    ``labelled`` is updated in place with each walk's re-labelled frames; returns the placed walks.
+    """
+    xy_of = {name: _local_gps(city_map, photo) for name, photo in photos.items()}
+    members = [
+        SequenceMember(
+            name,
+            photo.capture.sequence_id,
+            photo.capture.time,
+            photo_device(photo.exif.make, photo.exif.model),
+            xy_of[name],
+            order,
+        )
+        for order, (name, photo) in enumerate(photos.items())
+    ]
+    walks = []
+    for group in group_sequences(members):
+        names = [str(name) for name in group]
+        frames = [
+            LabelledFrame(
+                photos[name],
+                labelled[name],
+                xy_of[name],
+                heading_prior=compass_prior_at(photos[name], city_map, xy_of[name]),
+            )
+            for name in names
+        ]
+        placed = place_labelled_sequence(city_map, frames)
+        labelled.update(zip(names, placed.references, strict=True))
+        walks.append(placed)
+    return walks
+
+
+def _local_gps(city_map: CityMap, photo: Photo) -> tuple[float, float]:
+    """A photo's EXIF GPS in the map's local metres (ValueError without one)."""
+    if photo.gps is None:
+        raise ValueError("a photo of a walk needs its EXIF GPS")
+    x, y = (float(v) for v in city_map.frame.to_local(*photo.gps))
+    return x, y

@@ -14,11 +14,21 @@ from workers.context import method_context
 pytestmark = pytest.mark.slow  # the segmentation network on three 8 MP photos
 
 
-def test_berlin_photos_get_their_compass_heading_and_the_building(built_models: Path) -> None:
+@pytest.mark.parametrize("as_the_service", [False, True], ids=["map-alone", "compass-and-walk"])
+def test_berlin_photos_get_their_compass_heading_and_the_building(built_models: Path, as_the_service: bool) -> None:
+    """The map alone, and as the service labels references: the compass as a prior, the walk placed jointly."""
     berlin = shared_path("data", "berlin")
     with data_dir_environment(built_models.parent.parent):
         osm, truth = berlin / "berlin_mitte.osm.gz", berlin / "exif_gps_heading.csv"
-        result = evaluate_photos(berlin / "images", osm, truth, context=method_context())
+        result = evaluate_photos(
+            berlin / "images",
+            osm,
+            truth,
+            compass_prior=as_the_service,
+            place_walks=as_the_service,
+            context=method_context(),
+        )
+    assert result["walks"] == ([3] if as_the_service else [])  # one Mapillary sequence
     rows = {row["name"]: row for row in result["photos"]}
     assert sorted(rows) == ["01.jpg", "02.jpg", "03.jpg"]
     for row in rows.values():

@@ -8,12 +8,14 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 import pytest
 
+from contracts.settings import shared_path
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.sequence import PlacementOptions, SequenceFrame, SequenceMember, group_sequences, place_sequence
 from geoloc.localize.sequence.relative import RelativePose, pose_in_frame
 from geoloc.photos.capture import photo_device
 from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.photos.photo import load_photo
 from geoloc.vision.features import Features
 
 T0 = datetime(2025, 6, 1, 10, 0, 0)
@@ -55,6 +57,23 @@ def test_photos_without_time_or_with_mixed_clocks_are_not_grouped() -> None:
     untimed = SequenceMember(3, None, None, "Phone", (2.0, 0.0), 3)
     assert group_sequences([_member(1, 0, 0), aware, untimed]) == []
     assert photo_device(" Apple ", "iPhone 12") == "Apple iPhone 12" and photo_device(None, " ") is None
+
+
+def test_the_lund_photos_group_into_one_walk_in_capture_order() -> None:
+    """29 phone photos of one walk (one Mapillary sequence id, a compass each): one walk, in capture order."""
+    paths = sorted(shared_path("data", "lund", "images").glob("*.jpg"))
+    photos = [load_photo(path) for path in paths]
+    assert len(photos) == 29 and all(p.capture.compass is not None for p in photos)
+    times = [p.capture.time for p in photos]
+    assert None not in times and times == sorted(t for t in times if t is not None)
+    members = [
+        SequenceMember(path.name, p.capture.sequence_id, p.capture.time, None, (0.0, 0.0), i)
+        for i, (path, p) in enumerate(zip(paths, photos, strict=True))
+    ]
+    assert group_sequences(members) == [[path.name for path in paths]]
+    # Without their sequence id they are still one walk: one camera, seconds and metres apart.
+    unstated = [SequenceMember(m.reference_id, None, m.capture_time, "iPhone", m.gps_xy, m.order) for m in members]
+    assert group_sequences(unstated) == [[path.name for path in paths]]
 
 
 def _frame(x: float, y: float, yaw: float, gps: tuple[float, float], compass: float | None) -> SequenceFrame:
