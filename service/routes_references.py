@@ -160,6 +160,18 @@ class ReferenceForm:
     sequence_id: str | None = None
 
 
+SequenceField = Annotated[
+    str | None,
+    Form(
+        max_length=200,
+        description="The walk this photo belongs to (any id the client chooses; overrides the photo's "
+        "Mapillary sequence id). A walk's references are placed jointly once labelled (docs/method.md); "
+        "without one, one camera's captures within 60 s and 50 m of each other form a walk",
+    ),
+]
+"""The reference upload's ``sequence`` form field."""
+
+
 @router.post(
     "/v1/maps/{map_id}/references",
     response_model=ReferenceAccepted,
@@ -182,15 +194,7 @@ async def upload_reference(
     focal_length_35mm: Annotated[
         float | None, bounded_form("focal_length_35mm", "35 mm-equivalent focal length; overrides EXIF")
     ] = None,
-    sequence: Annotated[
-        str | None,
-        Form(
-            max_length=200,
-            description="The walk this photo belongs to (any id the client chooses; overrides the photo's "
-            "Mapillary sequence id). A walk's references are placed jointly once labelled (docs/method.md); "
-            "without one, one camera's captures within 60 s and 50 m of each other form a walk",
-        ),
-    ] = None,
+    sequence: SequenceField = None,
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
