@@ -47,7 +47,10 @@ class PlacementOptions:
     """The placement's tuning (defaults measured on Helsinki seed 1's walk world; docs/measurements.md).
 
     steps: edges join each frame to the frames this many further along the walk. ratio, min_anchored: the
-    relative poses' matching (:func:`geoloc.localize.sequence.relative.relative_pose`). edge_sigma_m,
+    relative poses' matching (:func:`geoloc.localize.sequence.relative.relative_pose`); min_inliers,
+    max_disagreement_m: which of them are kept (:func:`relative_poses`; on seed 1's walks a third of the edges
+    are more than 2 m off, yet gating them by 20-40 inliers or a 1-2 m two-way disagreement placed the
+    references no better, 0.50-0.52 within 2 m against 0.52, or worse: the robust loss already sets them aside). edge_sigma_m,
     edge_sigma_per_m, edge_yaw_sigma_deg: an edge's sigmas. label_yaw_sigma_deg, label_position_floor_m: a
     label's heading sigma and the floor of its position sigma. cauchy_k, huber_k: the robust losses' scales
     (in sigmas). max_iterations: Levenberg-Marquardt's.
@@ -56,6 +59,8 @@ class PlacementOptions:
     steps: tuple[int, ...] = (1, 2, 3)
     ratio: float = DEFAULT_RATIO
     min_anchored: int = DEFAULT_MIN_ANCHORED
+    min_inliers: int = 12
+    max_disagreement_m: float = math.inf
     edge_sigma_m: float = 0.3
     edge_sigma_per_m: float = 0.03
     edge_yaw_sigma_deg: float = 0.5
@@ -130,29 +135,45 @@ def _robust(loss: str, k: float, base: gtsam.noiseModel.Base) -> gtsam.noiseMode
 
 
 def relative_poses(frames: Sequence[SequenceFrame], options: PlacementOptions) -> list[RelativePose]:
-    """Every edge of the graph: frame i to i + s for s in ``options.steps``, both ways, where PnP finds one."""
+    """Every edge of the graph: frame i to i + s for s in ``options.steps``, both ways, where PnP finds one.
+
+    An edge needs ``options.min_inliers`` PnP inliers, and when both ways were found, the two must agree
+    (within ``options.max_disagreement_m``, the source's centre as seen through the two): two PnPs on two
+    frames' anchors that disagree mean one label's anchors are wrong, and neither way is kept.
+    """
     edges = []
     for i in range(len(frames)):
         for step in options.steps:
             j = i + step
             if j >= len(frames):
                 continue
-            for source, target in ((i, j), (j, i)):
-                a, b = frames[source], frames[target]
-                edge = relative_pose(
-                    source,
-                    target,
-                    (a.x_m, a.y_m, a.yaw_deg),
-                    a.features,
-                    a.anchors,
-                    b.features,
-                    b.intrinsics,
-                    ratio=options.ratio,
-                    min_anchored=options.min_anchored,
-                )
-                if edge is not None:
-                    edges.append(edge)
+            pair = [_edge(frames, source, target, options) for source, target in ((i, j), (j, i))]
+            found = [edge for edge in pair if edge is not None and edge.n_inliers >= options.min_inliers]
+            if len(found) == 2 and _disagreement_m(found[0], found[1]) > options.max_disagreement_m:
+                continue
+            edges.extend(found)
     return edges
+
+
+def _edge(frames: Sequence[SequenceFrame], source: int, target: int, options: PlacementOptions) -> RelativePose | None:
+    a, b = frames[source], frames[target]
+    return relative_pose(
+        source,
+        target,
+        (a.x_m, a.y_m, a.yaw_deg),
+        a.features,
+        a.anchors,
+        b.features,
+        b.intrinsics,
+        ratio=options.ratio,
+        min_anchored=options.min_anchored,
+    )
+
+
+def _disagreement_m(forward: RelativePose, backward: RelativePose) -> float:
+    """How far apart (m) the source lands, seen through an edge and through its reverse's inverse."""
+    inverse = _measured(backward).inverse()
+    return math.hypot(inverse.x() - forward.forward_m, inverse.y() - forward.left_m)
 
 
 def _consensus_start(
