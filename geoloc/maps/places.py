@@ -11,19 +11,22 @@ Matching is accent- and case-insensitive (Unicode NFKD without combining marks, 
 ß -> ss; ``str.`` -> ``strasse``), by tokens, fuzzy (difflib's ratio, stdlib): every query token is matched
 to its best token of the place's name (numbers only exactly; the last token also as a prefix, for
 autocompletion); the score is the mean of those matches, lowered a little for name tokens the query
-left out (so "Aleksanterinkatu" is the street rather than one of its addresses).
+left out (so "Aleksanterinkatu" is the street rather than one of its addresses); a house number the map
+does not hold falls back to the street, scored :data:`STREET_FALLBACK`.
 
 Each place carries the prior it gives on the camera position, a disc (centre, ``radius_m``, about 2 sigma
 as everywhere): a building or an address is the footprint's centroid with a radius reaching its farthest
 corner plus :data:`VIEW_MARGIN_M` (photos of a building are taken from its street); a street is the
 centroid of its centreline with a radius covering all of it (the query stage's Gaussian prior cannot
 express a line, so a long street gives a wide, honest disc); a landmark point gets :data:`POINT_RADIUS_M`.
+Areas (squares, parks as polygons) are not read yet: a square is found through its buildings and streets.
 """
 
 from __future__ import annotations
 
 import bisect
 import difflib
+import math
 import re
 import unicodedata
 from collections import defaultdict
@@ -33,6 +36,7 @@ from typing import Literal
 
 import numpy as np
 import shapely
+from shapely.geometry import LineString
 
 from geoloc.maps.model import CityMap
 
@@ -43,6 +47,8 @@ POINT_RADIUS_M = 60.0
 """The prior radius of a landmark known only as a point."""
 MIN_SCORE = 0.75
 """Below this a place does not match a text at all."""
+STREET_FALLBACK = 0.9
+"""A street's score for a text naming one of its addresses that the map lacks ("Mannerheimintie 9999")."""
 AMBIGUITY_MARGIN = 0.05
 """Places scoring within this of the best one are as good a match (then ambiguous if elsewhere)."""
 SAME_PLACE_M = 50.0
@@ -133,7 +139,7 @@ class PlaceIndex:
         return out
 
     def _close_tokens(self, token: str, prefix: bool) -> set[str]:
-        if any(c.isdigit() for c in token):
+        if _is_number(token):
             return {token} if token in self.by_token else set()
         found = set(difflib.get_close_matches(token, self.vocabulary, n=20, cutoff=_MIN_TOKEN_RATIO))
         if prefix and len(token) >= 2:
@@ -146,7 +152,7 @@ class PlaceIndex:
 
     def _candidates(self, query: list[str], prefix: bool) -> set[int]:
         """Places sharing a (close) word with the query: its words' if any are not numbers, else its numbers'."""
-        words = [t for t in query if not any(c.isdigit() for c in t)] or query
+        words = [t for t in query if not _is_number(t)] or query
         out: set[int] = set()
         for n, token in enumerate(words):
             for word in self._close_tokens(token, prefix and n == len(words) - 1 and token == query[-1]):
@@ -155,6 +161,13 @@ class PlaceIndex:
 
     def _score(self, query: list[str], index: int, prefix: bool) -> float:
         names = self.tokens[index]
+        factor = 1.0
+        if self.places[index].kind == "street" and any(not _is_number(t) for t in query):
+            # A street has no house numbers: an address the map lacks falls back to its street, below any
+            # address that matches.
+            if any(_is_number(t) for t in query):
+                factor = STREET_FALLBACK
+            query = [t for t in query if not _is_number(t)]
         matched: set[int] = set()
         total = 0.0
         for n, token in enumerate(query):
@@ -167,14 +180,18 @@ class PlaceIndex:
                 matched.add(best_j)
             total += best
         coverage = len(matched) / len(names)
-        return (total / len(query)) * (0.8 + 0.2 * coverage)
+        return factor * (total / len(query)) * (0.8 + 0.2 * coverage)
+
+
+def _is_number(token: str) -> bool:
+    return any(c.isdigit() for c in token)
 
 
 def _similarity(token: str, word: str, prefix: bool) -> float:
     """How well a query token matches a name token (0-1): numbers exactly, words fuzzily (and as prefix)."""
     if token == word:
         return 1.0
-    if any(c.isdigit() for c in token) or any(c.isdigit() for c in word):
+    if _is_number(token) or _is_number(word):
         return 0.0
     if prefix and len(token) >= 2 and word.startswith(token):
         return 0.9 + 0.1 * len(token) / len(word)
@@ -185,7 +202,9 @@ def _similarity(token: str, word: str, prefix: bool) -> float:
 def _building_entries(city_map: CityMap) -> list[_Entry]:
     entries = []
     for b in city_map.buildings:
-        names = {b.tags[k] for k in b.tags if k in _NAME_KEYS or k.startswith("name:")} | ({b.name} if b.name else set())
+        names = {b.tags[k] for k in b.tags if k in _NAME_KEYS or k.startswith("name:")} | (
+            {b.name} if b.name else set()
+        )
         entries += [_Entry(name, "building", b.polygon, b.building_id) for name in sorted(names) if name.strip()]
         street, number = b.tags.get("addr:street") or b.tags.get("addr:place"), b.tags.get("addr:housenumber")
         if street and number:
@@ -197,7 +216,7 @@ def _building_entries(city_map: CityMap) -> list[_Entry]:
 
 def _street_entries(city_map: CityMap) -> list[_Entry]:
     return [
-        _Entry(name, "street", shapely.linestrings(line), None)
+        _Entry(name, "street", LineString(line), None)
         for name, line in zip(city_map.street_names, city_map.streets, strict=True)
         if name.strip() and len(line) >= 2
     ]
@@ -210,7 +229,9 @@ def _landmark_entries(city_map: CityMap) -> list[_Entry]:
     x, y = city_map.frame.to_local(lonlat[:, 1], lonlat[:, 0])
     return [
         _Entry(name, "landmark", shapely.points(px, py), None)
-        for name, px, py in zip(city_map.landmark_names, np.atleast_1d(x).tolist(), np.atleast_1d(y).tolist(), strict=True)
+        for name, px, py in zip(
+            city_map.landmark_names, np.atleast_1d(x).tolist(), np.atleast_1d(y).tolist(), strict=True
+        )
         if name.strip()
     ]
 
@@ -251,8 +272,9 @@ def _place(city_map: CityMap, group: list[_Entry]) -> Place:
     else:
         radius = reach + VIEW_MARGIN_M
     lat, lon = city_map.frame.to_wgs84(cx, cy)
+    radius = math.ceil(radius * 10) / 10  # rounded up: the disc still covers the place
     building_id = first.building_id if len({e.building_id for e in group}) == 1 else None
-    return Place(first.name, first.kind, round(float(lat), 7), round(float(lon), 7), round(radius, 1), cx, cy, building_id)
+    return Place(first.name, first.kind, round(float(lat), 7), round(float(lon), 7), radius, cx, cy, building_id)
 
 
 def place_index(city_map: CityMap) -> PlaceIndex:

@@ -2,8 +2,8 @@
 
 The file is an uncompressed ``.npz`` (no pickle): the facade, tree, street and landmark arrays as they
 are, the footprints as concatenated WKB, and the rest (frame origin, names, street and landmark names, ids,
-tags, heights, report) as JSON. Reading it back takes a fraction of a second for a 100,000-building map, where parsing the
-OSM extract takes tens of seconds. :func:`load_map_cached` keeps such a file per (source checksum,
+tags, heights, report) as JSON. Reading it back takes a fraction of a second for a 100,000-building map,
+where parsing the OSM extract takes tens of seconds. :func:`load_map_cached` keeps such a file per (source checksum,
 read options, :data:`CACHE_VERSION`) in a cache folder; the name changes whenever the loader's
 output could, so a stale file is never read.
 """
