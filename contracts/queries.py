@@ -23,8 +23,12 @@ class PriorPosition(BaseModel):
     lat: float
     lon: float
     radius_m: float
-    source: Literal["request", "exif"] | None = None
-    """Where it came from: the request's lat/lon, or the photo's EXIF GPS."""
+    source: Literal["request", "exif", "place"] | None = None
+    """Where it came from: the request's lat/lon, the request's place (a name in the map), or the photo's EXIF GPS."""
+    place: str | None = None
+    """With source ``place``: the place's name as the map holds it (e.g. "Mannerheimintie 5")."""
+    place_kind: str | None = None
+    """With source ``place``: address, building, street or landmark."""
 
 
 class QueryParams(BaseModel):

@@ -20,7 +20,7 @@ from db import connect, migrate
 from db.files import open_store
 from db.jobs import QueueFullError
 from db.stats import stored_file_paths
-from service import routes_maps, routes_queries, routes_references, routes_system
+from service import places, routes_maps, routes_queries, routes_references, routes_system
 from service.errors import error_body, error_response, install_error_handlers
 from service.limits import queue_full, rate_limiter_for
 from service.routes_viewer import install_viewer
@@ -201,6 +201,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(routes_system.router)
     app.include_router(routes_maps.router)
+    app.include_router(places.router)
     app.include_router(routes_references.router)
     app.include_router(routes_queries.router)
     install_viewer(app)

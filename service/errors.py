@@ -44,9 +44,11 @@ ERROR_CODES: tuple[tuple[int, str], ...] = (
     (422, "corrupt_image"),
     (422, "empty_file"),
     (422, "image_too_small"),
+    (422, "ambiguous_place"),
     (422, "invalid_map"),
     (422, "no_position"),
     (422, "outside_map"),
+    (422, "unknown_place"),
     (429, "queue_full"),
     (429, "rate_limited"),
     (503, "not_ready"),
@@ -103,8 +105,7 @@ DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
 NEARLY_FULL_BYTES = 1024 * 1024
 """Below this much free space an I/O error from SQLite is taken for a full disk."""
 DISK_FULL_MESSAGE = (
-    "the server's storage is full: nothing was stored; retry once space has been freed "
-    "(reads keep working meanwhile)"
+    "the server's storage is full: nothing was stored; retry once space has been freed (reads keep working meanwhile)"
 )
 
 

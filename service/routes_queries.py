@@ -50,6 +50,7 @@ from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distan
 from service.intake import READ_ERRORS, PhotoIntake, work_status
 from service.limits import require_queue_capacity
 from service.models import QueryOut, error_responses, timestamp
+from service.places import resolve_form_place
 from service.spec import QUEUE_FULL_RESPONSE
 from service.uploads import ReceivedFile
 from service.waiting import JobWaiter
@@ -93,6 +94,7 @@ class QueryForm:
     radius_m: float | None
     heading_deg: float | None
     use_exif_gps: bool
+    place: str | None
     focal_length_35mm: float | None
     top_n: int
     k: int
@@ -117,6 +119,8 @@ class QueryIntake(PhotoIntake):
             check_bounds(name, getattr(form, name))
         if (form.lat is None) != (form.lon is None):
             raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
+        if form.lat is not None and form.place is not None:
+            raise ApiError(422, "invalid_request", "give lat/lon or a place for the prior position, not both")
 
     def check_photo(self, map_row: MapRow, info: ImageInfo) -> None:
         """The prior position, which must lie within the map's margin."""
@@ -124,6 +128,16 @@ class QueryIntake(PhotoIntake):
         radius_m = form.radius_m or DEFAULT_PRIOR_RADIUS_M
         if form.lat is not None and form.lon is not None:
             prior = PriorPosition(lat=form.lat, lon=form.lon, radius_m=radius_m, source="request")
+        elif form.place is not None:  # a named place overrides EXIF GPS (service.places)
+            place = resolve_form_place(self.settings, map_row, form.place)
+            prior = PriorPosition(
+                lat=place.lat,
+                lon=place.lon,
+                radius_m=form.radius_m or place.radius_m,
+                source="place",
+                place=place.name,
+                place_kind=place.kind,
+            )
         elif form.use_exif_gps and info.gps_lat is not None and info.gps_lon is not None:
             prior = PriorPosition(lat=info.gps_lat, lon=info.gps_lon, radius_m=radius_m, source="exif")
         if prior is not None:
@@ -208,6 +222,14 @@ async def create_query(
     radius_m: Annotated[float | None, bounded_form("radius_m", "Prior position radius (m, about 2 sigma)")] = None,
     heading_deg: Annotated[float | None, bounded_form("heading_deg", "Prior heading, deg clockwise from north")] = None,
     use_exif_gps: Annotated[bool, Form(description="Use the photo's EXIF GPS as the prior position")] = True,
+    place: Annotated[
+        str | None,
+        Form(
+            description="A place of the map as the prior position: a building's name, an address, a street "
+            "(GET /v1/maps/{id}/places); overrides EXIF GPS, not with lat/lon",
+            max_length=200,
+        ),
+    ] = None,
     focal_length_35mm: Annotated[
         float | None, bounded_form("focal_length_35mm", "35 mm-equivalent focal length")
     ] = None,
@@ -220,13 +242,14 @@ async def create_query(
 ) -> QueryOut | JSONResponse:
     """Geolocate a photo on a map: ranked locations with headings, the heatmap, the buildings in the photo.
 
-    A prior position (``lat``/``lon`` with ``radius_m``, or the photo's EXIF GPS unless
-    ``use_exif_gps`` is false) and a prior heading (``heading_deg``, else the photo's compass with its accuracy
-    as a robust prior: Mapillary's JSON, else EXIF GPSImgDirection) are used as priors and reported in
-    ``result.search``. 200 with the answer, or 202 if it took longer than ``wait_s``;
-    429 while the job queue is full (retry after ``Retry-After`` seconds).
+    A prior position (``lat``/``lon`` with ``radius_m``; else a ``place`` named in the map, its radius the
+    place's unless ``radius_m`` is given, 422 ``ambiguous_place`` with candidates or ``unknown_place``; else
+    the photo's EXIF GPS unless ``use_exif_gps`` is false) and a prior heading (``heading_deg``, else the
+    photo's compass with its accuracy as a robust prior: Mapillary's JSON, else EXIF GPSImgDirection) are
+    used as priors and reported in ``result.search``. 200 with the answer, or 202 if it took longer than
+    ``wait_s``; 429 while the job queue is full (retry after ``Retry-After`` seconds).
     """
-    form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, focal_length_35mm, top_n, k, wait_s)
+    form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm, top_n, k, wait_s)
     accepted = await run_in_threadpool(QueryIntake(settings, store, publisher, form).accept, map_id, image)
     assert accepted.job_id is not None  # a query is never a duplicate
     waiter: JobWaiter = request.app.state.job_waiter

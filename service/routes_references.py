@@ -38,6 +38,7 @@ from service.models import (
     error_responses,
     timestamp,
 )
+from service.places import resolve_form_place
 from service.rendering import identity_overlay_png
 from service.spec import QUEUE_FULL_RESPONSE
 from service.uploads import ReceivedFile
@@ -85,13 +86,20 @@ class ReferenceIntake(PhotoIntake):
         self.duplicate: ReferenceRow | None = None
 
     def check_form(self) -> None:
-        """Check the heading and focal length's bounds."""
+        """Check the heading and focal length's bounds, and that lat/lon and a place do not come together."""
         check_bounds("heading_deg", self.form.heading_deg)
         check_bounds("focal_length_35mm", self.form.focal_length_35mm)
+        if self.form.place is not None and (self.form.lat is not None or self.form.lon is not None):
+            raise ApiError(422, "invalid_request", "give lat/lon or a place for the position, not both")
 
     def check_photo(self, map_row: MapRow, info: ImageInfo) -> None:
-        """The reference's position, which must lie within the map's margin."""
-        ref_lat, ref_lon, source = resolve_position(self.form.lat, self.form.lon, info.gps_lat, info.gps_lon)
+        """The reference's position (lat/lon, else the place, else EXIF GPS), which must lie within the map's margin."""
+        form = self.form
+        if form.place is not None:  # a named place overrides EXIF GPS (service.places); stored as "request"
+            place = resolve_form_place(self.settings, map_row, form.place)
+            ref_lat, ref_lon, source = place.lat, place.lon, "request"
+        else:
+            ref_lat, ref_lon, source = resolve_position(form.lat, form.lon, info.gps_lat, info.gps_lon)
         distance = distance_outside_bbox_m(ref_lat, ref_lon, map_row["bbox_wgs84"])
         margin_m = self.settings.position_margin_m
         if distance > margin_m:
@@ -158,6 +166,7 @@ class ReferenceForm:
     heading_deg: float | None
     focal_length_35mm: float | None
     sequence_id: str | None = None
+    place: str | None = None
 
 
 SequenceField = Annotated[
@@ -195,6 +204,14 @@ async def upload_reference(
         float | None, bounded_form("focal_length_35mm", "35 mm-equivalent focal length; overrides EXIF")
     ] = None,
     sequence: SequenceField = None,
+    place: Annotated[
+        str | None,
+        Form(
+            max_length=200,
+            description="A place of the map as the position when there is no lat/lon: a building's name, an "
+            "address, a street (GET /v1/maps/{id}/places); overrides EXIF GPS",
+        ),
+    ] = None,
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
@@ -204,11 +221,12 @@ async def upload_reference(
     202 with the reference and its job; 200 with the existing reference when the same photo
     (sha256) is already a reference of this map (``duplicate: true``, nothing queued).
     Errors: 404 unknown map, 413 too large (bytes or pixels), 415 not an image, 422 corrupt or
-    truncated image, no position, or a position outside the map (with the distance), 429 while the
+    truncated image, no position, or a position outside the map (with the distance), a ``place`` that is
+    ambiguous (``ambiguous_place``, with candidates) or unknown (``unknown_place``), 429 while the
     job queue is full (retry after ``Retry-After`` seconds).
     """
     stated_sequence = sequence.strip() if sequence and sequence.strip() else None
-    form = ReferenceForm(lat, lon, heading_deg, focal_length_35mm, stated_sequence)
+    form = ReferenceForm(lat, lon, heading_deg, focal_length_35mm, stated_sequence, place)
     intake = ReferenceIntake(settings, store, publisher, form)
     accepted = await run_in_threadpool(intake.accept, map_id, image)
     if intake.duplicate is not None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import time
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,8 +30,8 @@ KS = (1, 4, 8)
 class EvalRun:
     """One way of answering the queries.
 
-    Prior ("gps" or "none"), segmentation ("model" or "gt"), identities ("transferred" or "gt") and
-    the query configuration.
+    Prior ("gps", "none", or "given": the caller's per-query priors, e.g. a named place's), segmentation
+    ("model" or "gt"), identities ("transferred" or "gt") and the query configuration.
     """
 
     name: str
@@ -88,8 +88,12 @@ def answer_run(
     shown: dict[str, dict[str, Any]],
     say: Callable[[str], None],
     context: MethodContext,
+    given_priors: Mapping[str, PositionPrior] | None = None,
 ) -> dict[str, Any]:
-    """Answer every query once as ``run`` says; the run's summary (:func:`run_summary`) with a per-query table."""
+    """Answer every query once as ``run`` says; the run's summary (:func:`run_summary`) with a per-query table.
+
+    given_priors: the position prior of each query (by name) for a run with prior "given" (none if missing).
+    """
     rows = []
     timings: dict[str, list[float]] = defaultdict(list)
     for i, image in enumerate(queries):
@@ -101,6 +105,9 @@ def answer_run(
             x, y = (float(v) for v in city.frame.to_local(*photo.gps))
             prior = PositionPrior.from_radius(x, y, DEFAULT_PRIOR_RADIUS_M)
             heading_prior = compass_prior_at(photo, city, (x, y))
+        elif run.prior == "given" and given_priors and image.name in given_priors:
+            prior = given_priors[image.name]  # the compass still counts: the service reads it without GPS
+            heading_prior = compass_prior_at(photo, city, (prior.x_m, prior.y_m))
         override = None
         if run.identities == "gt":
             override = gt_identity_map(gt["building_id"], evidence.building_mask)

@@ -44,6 +44,8 @@ MIN_AREA_M2 = 1.0
 MIN_FACADE_LENGTH_M = 0.1
 _CLOSED_TOLERANCE_M = 1e-3
 _KEPT_TAGS = {"building", "name", "height", "building:levels", "addr:street", "addr:housenumber", "amenity"}
+_KEPT_PREFIXES = ("addr:", "name:", "alt_name", "official_name", "short_name", "old_name")
+"""Also kept: every address tag and the building's other names (the place search reads them)."""
 _NUMBER = re.compile(r"^\s*([0-9]+(?:[.,][0-9]+)?)\s*(m|meters|metres)?\s*$")
 _POLYGON = shapely.GeometryType.POLYGON
 
@@ -64,7 +66,8 @@ class RawMap:
 
     Buildings come in three kinds, numbered in this order: ``relations``; ways (one ring each:
     ``way_coords`` (N, 2) split by ``way_offsets`` (W + 1,)); GIS ``features`` (shapely polygons).
-    trees: (T, 2); streets: ``street_lonlat`` split by ``street_offsets``.
+    trees: (T, 2); streets: ``street_lonlat`` split by ``street_offsets``, their ``street_names`` ("" when
+    unnamed); landmarks: named points (``landmark_lonlat`` (L, 2), ``landmark_names``).
     """
 
     format: str
@@ -80,6 +83,9 @@ class RawMap:
     trees: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     street_lonlat: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     street_offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))
+    street_names: list[str] = field(default_factory=list)
+    landmark_lonlat: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    landmark_names: list[str] = field(default_factory=list)
 
 
 def build_city_map(
@@ -117,8 +123,21 @@ def build_city_map(
     extent = np.concatenate([building_lonlat, raw.trees]) if len(raw.trees) else building_lonlat
     bbox = (float(extent[:, 1].min()), float(extent[:, 0].min()), float(extent[:, 1].max()), float(extent[:, 0].max()))
     heights = np.array([b.height_m for b in buildings])
+    street_names = raw.street_names or [""] * (len(raw.street_offsets) - 1)
     return CityMap(
-        frame, buildings, facades, heights, trees, raw.street_lonlat, raw.street_offsets, bbox, report, source
+        frame,
+        buildings,
+        facades,
+        heights,
+        trees,
+        raw.street_lonlat,
+        raw.street_offsets,
+        bbox,
+        report,
+        source,
+        street_names=list(street_names),
+        landmark_lonlat=np.asarray(raw.landmark_lonlat, dtype=float).reshape(-1, 2),
+        landmark_names=list(raw.landmark_names),
     )
 
 
@@ -313,7 +332,7 @@ def _buildings(
                 height_m,
                 height_source,
                 polygon,
-                {k: v for k, v in attributes.items() if k in kept_tags},
+                {k: v for k, v in attributes.items() if k in kept_tags or k.startswith(_KEPT_PREFIXES)},
             )
         )
     return buildings

@@ -143,6 +143,9 @@ class Facades:
 class CityMap:
     """A loaded map: its local frame, buildings, facades and street furniture (all local metres).
 
+    Street names and landmarks (named points: sights, stations, shops...) feed the place search
+    (:mod:`geoloc.maps.places`).
+
     The indexes below (:attr:`footprints`, :attr:`footprint_tree`, :attr:`facade_index`,
     :attr:`bounds_m`) are built on first use and kept with the map.
     """
@@ -157,6 +160,9 @@ class CityMap:
     bbox_wgs84: tuple[float, float, float, float]  # min_lat, min_lon, max_lat, max_lon
     report: LoadReport
     source: str = ""
+    street_names: list[str] = field(default_factory=list)  # (S,) a street's name tag, "" when unnamed
+    landmark_lonlat: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (L, 2) named points, lon/lat
+    landmark_names: list[str] = field(default_factory=list)  # (L,) their names
 
     @cached_property
     def streets(self) -> list[np.ndarray]:

@@ -2,7 +2,8 @@
 
 What counts as a building: ways and ``type=multipolygon`` relations tagged ``building=*`` (not
 ``building=no``); ``building:part`` ways are counted but not used (parts overlap their building).
-Also read: ``natural=tree`` nodes and ``highway=*`` ways (street furniture of the simulator).
+Also read: ``natural=tree`` nodes, ``highway=*`` ways with their names (street furniture of the simulator,
+streets of the place search) and landmarks: named nodes tagged as one of :data:`LANDMARK_KEYS`.
 
 Two passes keep a city extract cheap: the first reads only relations (to learn which ways are
 members of building relations); the second reads nodes and ways with node locations cached in
@@ -25,6 +26,9 @@ from geoloc.maps.model import LoadReport, MapLoadError
 from geoloc.maps.sniff import check_compressed_stream
 
 _OSMIUM_FORMATS = {"osm": "osm", "osm.bz2": "osm.bz2", "osm.gz": "osm.gz", "pbf": "pbf"}
+LANDMARK_KEYS = ("tourism", "historic", "amenity", "leisure", "shop", "office", "place")
+"""A named node with one of these keys is a landmark (a sight, a shop, a square), or a station (railway or
+public_transport ``station``); stops and platforms, named after their street, are not."""
 
 
 def read_osm(path: Path, kind: str) -> RawMap:
@@ -66,20 +70,31 @@ def _read(path: Path, kind: str) -> RawMap:
 
     factory = osmium.geom.WKBFactory()
     trees: list[tuple[float, float]] = []
+    landmarks: list[tuple[float, float]] = []
+    landmark_names: list[str] = []
+    street_names: list[str] = []
     building_ways: list[tuple[int, dict[str, str]]] = []
     building_geoms: list[Any] = []
     street_geoms: list[Any] = []
     member_geoms: dict[int, Any] = {}
     # Only tagged nodes reach Python (node locations are cached in C++ for all). Ways all do: a relation's
     # member ways are often untagged, and a filter by id costs memory in the id range on large extracts.
-    natural_nodes = osmium.filter.KeyFilter("natural")
+    natural_nodes = osmium.filter.KeyFilter("natural", "name")
     natural_nodes.enable_for(osmium.osm.NODE)  # ways all pass
     processor = osmium.FileProcessor(osm_file, osmium.osm.NODE | osmium.osm.WAY).with_locations()
     obj: Any
     for obj in processor.with_filter(natural_nodes):
         if obj.is_node():
-            if obj.tags.get("natural") == "tree" and obj.location.valid():
+            node_tags = obj.tags
+            if not obj.location.valid():
+                continue
+            if node_tags.get("natural") == "tree":
                 trees.append((obj.location.lon, obj.location.lat))
+            name = node_tags.get("name")
+            station = "station" in (node_tags.get("railway"), node_tags.get("public_transport"))
+            if name and (station or any(key in node_tags for key in LANDMARK_KEYS)):
+                landmarks.append((obj.location.lon, obj.location.lat))
+                landmark_names.append(name)
             continue
         way_tags = obj.tags
         building = way_tags.get("building")
@@ -93,6 +108,7 @@ def _read(path: Path, kind: str) -> RawMap:
         elif "highway" in way_tags:
             geometry = _way_geometry(factory, obj, report)
             street_geoms.append(geometry)
+            street_names.append(way_tags.get("name", ""))
         if obj.id in member_ids:
             member_geoms[obj.id] = geometry if geometry is not None else _way_geometry(factory, obj, report)
 
@@ -107,7 +123,10 @@ def _read(path: Path, kind: str) -> RawMap:
     street_lonlat, street_offsets = _ragged(street_geoms)
     long_enough = np.flatnonzero(np.diff(street_offsets) >= 2)
     raw.street_lonlat, raw.street_offsets = _reorder(street_lonlat, street_offsets, long_enough)
+    raw.street_names = [street_names[i] for i in long_enough.tolist()]
     raw.trees = np.asarray(trees, dtype=float).reshape(-1, 2)
+    raw.landmark_lonlat = np.asarray(landmarks, dtype=float).reshape(-1, 2)
+    raw.landmark_names = landmark_names
     return raw
 
 

@@ -1,9 +1,9 @@
 """A loaded :class:`CityMap` as one binary file, so a process that needs a map does not parse its source again.
 
-The file is an uncompressed ``.npz`` (no pickle): the facade, tree and street arrays as they are,
-the footprints as concatenated WKB, and the rest (frame origin, names, ids, tags, heights, report)
-as JSON. Reading it back takes a fraction of a second for a 100,000-building map, where parsing the
-OSM extract takes tens of seconds. :func:`load_map_cached` keeps such a file per (source checksum,
+The file is an uncompressed ``.npz`` (no pickle): the facade, tree, street and landmark arrays as they
+are, the footprints as concatenated WKB, and the rest (frame origin, names, street and landmark names, ids,
+tags, heights, report) as JSON. Reading it back takes a fraction of a second for a 100,000-building map,
+where parsing the OSM extract takes tens of seconds. :func:`load_map_cached` keeps such a file per (source checksum,
 read options, :data:`CACHE_VERSION`) in a cache folder; the name changes whenever the loader's
 output could, so a stale file is never read.
 """
@@ -25,8 +25,9 @@ import shapely
 from geoloc.core.geo import LocalFrame
 from geoloc.maps.model import Building, CityMap, Facades, LoadReport, MapReadOptions
 
-CACHE_VERSION = 1
-"""Bumped whenever loading could give a different map for the same file and options."""
+CACHE_VERSION = 2
+"""Bumped whenever loading could give a different map for the same file and options (2: street names,
+landmarks, all address tags)."""
 
 
 def map_cache_dir(data_dir: Path) -> Path:
@@ -58,6 +59,8 @@ def save_city_map(city_map: CityMap, path: Path) -> None:
         "names": [b.name for b in buildings],
         "height_sources": [b.height_source for b in buildings],
         "tags": [b.tags for b in buildings],
+        "street_names": city_map.street_names,
+        "landmark_names": city_map.landmark_names,
     }
     arrays = {
         "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
@@ -67,6 +70,7 @@ def save_city_map(city_map: CityMap, path: Path) -> None:
         "trees": city_map.trees,
         "street_lonlat": city_map.street_lonlat,
         "street_offsets": city_map.street_offsets,
+        "landmark_lonlat": np.asarray(city_map.landmark_lonlat, dtype=float).reshape(-1, 2),
         **{f"facades_{f.name}": getattr(city_map.facades, f.name) for f in fields(Facades)},
     }
     temp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
@@ -117,6 +121,9 @@ def read_city_map(path: Path) -> CityMap:
         tuple(meta["bbox_wgs84"]),
         LoadReport(**meta["report"]),
         meta["source"],
+        street_names=meta["street_names"],
+        landmark_lonlat=arrays["landmark_lonlat"],
+        landmark_names=meta["landmark_names"],
     )
 
 

@@ -4,6 +4,7 @@
 import { ApiError, apiUrl, getJson, hasApiKey, objectUrl, postForm, setApiKey } from "./api.js";
 import { LocalPlane, angleDiffDeg, buildingColor, formatDistance } from "./geo.js";
 import { MapView } from "./mapview.js";
+import { installPlaceSearch } from "./places.js";
 
 const REFERENCE_POLL_MS = 1500;
 const JOB_POLL_MS = 700;
@@ -18,6 +19,7 @@ const state = {
   references: [],
   counts: { queued: 0, processing: 0, done: 0, failed: 0 },
   query: null,
+  place: null,
   queryJob: null,
   selectedReference: null,
   selectedRank: 1,
@@ -190,6 +192,8 @@ async function loadMaps(selectId = null) {
 
 async function selectMap(mapId) {
   setStatus(`Loading map ${mapId}…`);
+  state.place = null; // a place belongs to its map
+  $("prior-place").value = "";
   let map;
   let buildings;
   try {
@@ -423,6 +427,10 @@ function closeReference() {
 // --- queries ------------------------------------------------------------------------------------
 
 function priorFromForm() {
+  if (state.place && !$("prior-lat").value) {
+    const radius = parseFloat($("prior-radius").value);
+    return { lat: state.place.lat, lon: state.place.lon, radius_m: Number.isFinite(radius) ? radius : state.place.radius_m };
+  }
   const lat = parseFloat($("prior-lat").value);
   const lon = parseFloat($("prior-lon").value);
   const radius = parseFloat($("prior-radius").value);
@@ -461,9 +469,14 @@ async function submitQuery(event) {
   const form = new FormData();
   form.append("image", file);
   const prior = priorFromForm();
-  if (prior) {
-    form.append("lat", prior.lat);
-    form.append("lon", prior.lon);
+  const place = $("prior-place").value.trim();
+  if ($("prior-lat").value || !place) {
+    if (prior) {
+      form.append("lat", prior.lat);
+      form.append("lon", prior.lon);
+    }
+  } else {
+    form.append("place", place); // the service resolves it (422 when ambiguous or unknown)
   }
   if ($("prior-radius").value) form.append("radius_m", $("prior-radius").value);
   form.append("use_exif_gps", $("use-exif").checked ? "true" : "false");
@@ -742,6 +755,15 @@ function installForms() {
   $("ref-show-photo").addEventListener("click", () => state.selectedReference && showReferencePhoto(state.selectedReference, false));
   $("ref-show-labels").addEventListener("click", () => state.selectedReference && showReferencePhoto(state.selectedReference, true));
   $("prior-pick").addEventListener("click", () => setPicking(!state.picking));
+  installPlaceSearch($("prior-place"), $("place-options"), () => state.map?.id ?? null, (place) => {
+    state.place = place;
+    if (place) {
+      $("prior-lat").value = "";
+      $("prior-lon").value = "";
+      setStatus(`Prior: ${place.name} (${place.kind}, ${Math.round(place.radius_m)} m).`);
+    }
+    if (!state.query) view.setPrior(priorFromForm());
+  });
   for (const id of ["prior-lat", "prior-lon", "prior-radius"]) {
     $(id).addEventListener("input", () => {
       if (!state.query) view.setPrior(priorFromForm());
