@@ -32,8 +32,8 @@ class AsyncClient(ClientBase):
     """An asyncio client of one service (``base_url``), with an optional API key (``X-API-Key``).
 
     ``timeout_s``: one request's timeout (s); ``retry``: when to try again; ``transport``: an httpx
-    transport (tests); ``sleep``: how to wait (tests). Thread-safe (one connection pool); close it, or
-    use it as a context manager.
+    transport (tests); ``limits``: httpx's connection-pool limits; ``sleep``: how to wait (tests).
+    Thread-safe (one connection pool); close it, or use it as a context manager.
     """
 
     def __init__(
@@ -44,12 +44,17 @@ class AsyncClient(ClientBase):
         timeout_s: float = DEFAULT_TIMEOUT_S,
         retry: RetryPolicy | None = None,
         transport: httpx.AsyncBaseTransport | None = None,
+        limits: httpx.Limits | None = None,
         sleep: Callable[[float], Awaitable[None]] = asyncio.sleep,
     ) -> None:
         super().__init__(base_url, api_key, timeout_s, retry)
         self.sleep = sleep
         self.http = httpx.AsyncClient(
-            base_url=self.base_url, headers=self._headers, timeout=self._timeout, transport=transport
+            base_url=self.base_url,
+            headers=self._headers,
+            timeout=self._timeout,
+            transport=transport,
+            limits=limits or httpx.Limits(),
         )
 
     async def __aenter__(self) -> AsyncClient:
@@ -66,20 +71,21 @@ class AsyncClient(ClientBase):
         """Close the connection pool."""
         await self.http.aclose()
 
-    async def call(self, call: Call[T]) -> Sent[T]:
-        """Send ``call`` with retries; its answer read, with the status and the number of tries."""
+    async def call(self, call: Call[T], *, retry: RetryPolicy | None = None) -> Sent[T]:
+        """Send ``call`` with retries (``retry``, else the client's policy); its answer, status and tries."""
+        policy = retry or self.retry
         attempt = 0
         while True:
             attempt += 1
             try:
                 response = await self.http.request(call.method, call.path, **self._request_args(call))
             except httpx.TransportError as exc:
-                delay = self.retry.delay_after(attempt, exc)
+                delay = policy.delay_after(attempt, exc)
                 if delay is None:
                     raise ServiceUnreachableError(f"{type(exc).__name__}: {exc}") from exc
                 await self.sleep(delay)
                 continue
-            delay = self.retry.delay_after(attempt, response)
+            delay = policy.delay_after(attempt, response)
             if delay is None:
                 return finish(call, response, attempt)
             await self.sleep(delay)

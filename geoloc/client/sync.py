@@ -35,8 +35,8 @@ class Client(ClientBase):
     """A synchronous client of one service (``base_url``), with an optional API key (``X-API-Key``).
 
     ``timeout_s``: one request's timeout (s); ``retry``: when to try again; ``transport``: an httpx
-    transport (tests); ``sleep``: how to wait (tests). Thread-safe (one connection pool); close it, or
-    use it as a context manager.
+    transport (tests); ``limits``: httpx's connection-pool limits; ``sleep``: how to wait (tests).
+    Thread-safe (one connection pool); close it, or use it as a context manager.
     """
 
     def __init__(
@@ -47,12 +47,17 @@ class Client(ClientBase):
         timeout_s: float = DEFAULT_TIMEOUT_S,
         retry: RetryPolicy | None = None,
         transport: httpx.BaseTransport | None = None,
+        limits: httpx.Limits | None = None,
         sleep: Callable[[float], None] = time.sleep,
     ) -> None:
         super().__init__(base_url, api_key, timeout_s, retry)
         self.sleep = sleep
         self.http = httpx.Client(
-            base_url=self.base_url, headers=self._headers, timeout=self._timeout, transport=transport
+            base_url=self.base_url,
+            headers=self._headers,
+            timeout=self._timeout,
+            transport=transport,
+            limits=limits or httpx.Limits(),
         )
 
     def __enter__(self) -> Client:
@@ -67,20 +72,21 @@ class Client(ClientBase):
         """Close the connection pool."""
         self.http.close()
 
-    def call(self, call: Call[T]) -> Sent[T]:
-        """Send ``call`` with retries; its answer read, with the status and the number of tries."""
+    def call(self, call: Call[T], *, retry: RetryPolicy | None = None) -> Sent[T]:
+        """Send ``call`` with retries (``retry``, else the client's policy); its answer, status and tries."""
+        policy = retry or self.retry
         attempt = 0
         while True:
             attempt += 1
             try:
                 response = self.http.request(call.method, call.path, **self._request_args(call))
             except httpx.TransportError as exc:
-                delay = self.retry.delay_after(attempt, exc)
+                delay = policy.delay_after(attempt, exc)
                 if delay is None:
                     raise ServiceUnreachableError(f"{type(exc).__name__}: {exc}") from exc
                 self.sleep(delay)
                 continue
-            delay = self.retry.delay_after(attempt, response)
+            delay = policy.delay_after(attempt, response)
             if delay is None:
                 return finish(call, response, attempt)
             self.sleep(delay)
