@@ -1,7 +1,9 @@
-"""The client against a real ``geoloc serve`` on loopback (SQLite, API keys, a small rate limit, no workers).
+"""The client (:mod:`geoloc.client`) against a real ``geoloc serve`` on loopback (SQLite, API keys).
 
-Without workers nothing is labelled or answered, which is what the waits' time-outs need; the same
-client with the real method is ``tests/e2e/test_client.py``.
+Most tests run a service without workers and with a small rate limit: nothing is labelled or answered,
+which is what the waits' time-outs need, and a key soon runs out of requests. The last one runs the real
+method (one worker, a small simulated world): references labelled, a query answered, read as the client
+types them.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -24,7 +27,10 @@ from geoloc.client import (
     ServerError,
     WaitTimeoutError,
 )
+from geoloc.sim.world import WorldOptions, generate_world, load_world
 from tests.service_fixtures import READ_KEY, WRITE_KEY, RunningProcess, jpeg_bytes, running_service
+
+pytestmark = pytest.mark.slow  # a real server (tests/e2e/ is the slow suite); the method test takes a minute
 
 INSIDE = (60.1716, 24.9443)
 """A position inside the Helsinki map (lat, lon degrees)."""
@@ -160,3 +166,29 @@ def test_the_async_client(service: RunningProcess) -> None:
 
     count, status, code = asyncio.run(run())
     assert count >= 1 and status == "queued" and code == "not_found"
+
+
+def test_the_real_method_through_the_client(tmp_path: Path, built_models: Path) -> None:
+    """References labelled and a query answered by the method, waited for and read through the client."""
+    osm = shared_path("data", "osm", "helsinki.osm.pbf")
+    options = WorldOptions(n_references=6, n_queries=1, seed=3, radius_m=60.0, query_gps_noise_m=10.0)
+    generate_world(osm, tmp_path / "world", options)
+    world = load_world(tmp_path / "world")
+    with running_service(tmp_path / "data", workers=1, models=built_models) as running:
+        assert running.base_url is not None
+        with Client(running.base_url, api_key=WRITE_KEY) as client:
+            helsinki = client.upload_map(osm, "helsinki")
+            accepted = [client.upload_reference(helsinki.id, image.path) for image in world.references]
+            labelled = [client.wait_for_reference(a.id, timeout_s=300) for a in accepted]
+            assert all(r.status == "done" for r in labelled), [r.error for r in labelled]
+            assert all(r.estimated is not None and r.estimated.heading_deg is not None for r in labelled)
+            assert client.get_job(accepted[0].job_id or 0).status == "done"
+            query = client.upload_query(helsinki.id, world.queries[0].path, wait_s=0)
+            answered = client.wait_for_query(query.id, timeout_s=300)
+            assert answered.status == "done" and answered.result is not None, answered.error
+            best = answered.result.locations[0]
+            bbox = helsinki.bbox
+            assert bbox.min_lat <= best.lat <= bbox.max_lat and bbox.min_lon <= best.lon <= bbox.max_lon
+            collection = client.get_query_geojson(query.id)
+            points = [f for f in collection.features if (f.geometry or {}).get("type") == "Point"]
+            assert len(points) == len(answered.result.locations) and collection.member("attribution")

@@ -1,7 +1,6 @@
 """The client's retries, errors, waiting and models, against mock transports and ``openapi.json``.
 
-The client against a real service is in ``test_client_service.py`` (and with the real method in
-``tests/e2e/test_client.py``).
+The client against a real service (and the real method) is ``tests/e2e/test_client.py``.
 """
 
 from __future__ import annotations
