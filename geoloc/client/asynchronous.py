@@ -14,48 +14,35 @@ import asyncio
 import time
 from collections.abc import Awaitable, Callable
 from types import TracebackType
-from typing import TypeVar, Unpack
+from typing import TypeVar, Unpack, cast
 
 import httpx
 
 import geoloc.client.calls as calls  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
 import geoloc.client.models as models  # noqa: PLR0402 (as above)
-from geoloc.client.base import DEFAULT_TIMEOUT_S, ClientBase, finish, is_final, timed_out
+from geoloc.client.base import ClientBase, ClientOptions, finish, is_final
 from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, Upload
 from geoloc.client.errors import RateLimitedError, ServiceUnreachableError
-from geoloc.client.retry import RetryPolicy, Waiting
+from geoloc.client.retry import RetryPolicy, WaitLoop
 
 T = TypeVar("T")
 
 
 class AsyncClient(ClientBase):
-    """An asyncio client of one service (``base_url``), with an optional API key (``X-API-Key``).
-
-    ``timeout_s``: one request's timeout (s); ``retry``: when to try again; ``transport``: an httpx
-    transport (tests); ``limits``: httpx's connection-pool limits; ``sleep``: how to wait (tests).
-    Thread-safe (one connection pool); close it, or use it as a context manager.
-    """
+    """An asyncio client (on one event loop); an async context manager. Options: :class:`ClientBase`."""
 
     def __init__(
         self,
         base_url: str,
         api_key: str | None = None,
         *,
-        timeout_s: float = DEFAULT_TIMEOUT_S,
-        retry: RetryPolicy | None = None,
         transport: httpx.AsyncBaseTransport | None = None,
-        limits: httpx.Limits | None = None,
         sleep: Callable[[float], Awaitable[None]] = asyncio.sleep,
+        **options: Unpack[ClientOptions],
     ) -> None:
-        super().__init__(base_url, api_key, timeout_s, retry)
+        super().__init__(base_url, api_key, **options)
         self.sleep = sleep
-        self.http = httpx.AsyncClient(
-            base_url=self.base_url,
-            headers=self._headers,
-            timeout=self._timeout,
-            transport=transport,
-            limits=limits or httpx.Limits(),
-        )
+        self.http = httpx.AsyncClient(transport=transport, **self._http_args())
 
     async def __aenter__(self) -> AsyncClient:
         """The client itself; closed on leaving the block."""
@@ -194,25 +181,14 @@ class AsyncClient(ClientBase):
         done: Callable[[T], bool] = is_final,
         what: str = "the job",
     ) -> T:
-        """Call ``fetch(pause_s)`` until ``done`` of its value, pausing with exponential backoff between calls.
-
-        ``fetch`` may spend the pause itself (a long poll, as :meth:`wait_for_query` does); whatever it
-        did not spend is slept. A 429 left after the retries is waited out (its ``Retry-After``);
-        :class:`~geoloc.client.errors.WaitTimeoutError` after ``timeout_s`` (s).
-        """
-        waiting = Waiting(timeout_s, time.monotonic)
-        last: T | None = None
-        pause = waiting.next_pause_s()
+        """As :meth:`geoloc.client.sync.Client.wait` (exponential backoff, long polls, 429s waited out), awaited."""
+        loop: WaitLoop[T] = WaitLoop(timeout_s, done, what, time.monotonic)
         while True:
-            started = time.monotonic()
-            retry_after = 0.0
+            pause_s = loop.begin()
             try:
-                last = await fetch(pause)
-                if done(last):
-                    return last
+                sleep_s = loop.after(await fetch(pause_s))
             except RateLimitedError as exc:
-                retry_after = exc.retry_after_s or pause
-            if waiting.remaining_s() <= 0:
-                raise timed_out(what, timeout_s, last)
-            await self.sleep(min(max(pause - (time.monotonic() - started), retry_after), waiting.remaining_s()))
-            pause = waiting.next_pause_s()
+                sleep_s = loop.after(None, exc)
+            if sleep_s is None:
+                return cast(T, loop.last)
+            await self.sleep(sleep_s)

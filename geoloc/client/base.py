@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+from typing import Any, TypedDict, TypeVar, Unpack
 
 import httpx
 
 from geoloc.client.calls import Call, Sent
-from geoloc.client.errors import WaitTimeoutError, api_error
+from geoloc.client.errors import api_error
 from geoloc.client.models import FINAL_STATUSES
 from geoloc.client.retry import RetryPolicy
 
@@ -18,15 +18,33 @@ POLL_SLACK_S = 15.0
 """Extra read time for a long poll, on top of its ``wait_s``."""
 
 
-class ClientBase:
-    """Configuration of a client: base URL, ``X-API-Key``, timeouts and the retry policy."""
+class ClientOptions(TypedDict, total=False):
+    """A client's options: ``timeout_s`` (one request, s), ``retry`` (when to try again), ``limits`` (httpx's pool)."""
 
-    def __init__(self, base_url: str, api_key: str | None, timeout_s: float, retry: RetryPolicy | None) -> None:
+    timeout_s: float
+    retry: RetryPolicy
+    limits: httpx.Limits
+
+
+class ClientBase:
+    """A client of one service (``base_url``), with an optional API key (sent as ``X-API-Key``).
+
+    Options (:class:`ClientOptions`): ``timeout_s`` for one request (default 120 s), ``retry`` (default
+    ``RetryPolicy()``), ``limits`` (httpx's connection-pool limits). The sync and the async client add
+    ``transport`` (an httpx transport, for tests) and ``sleep`` (how to wait, for tests).
+    """
+
+    def __init__(self, base_url: str, api_key: str | None, **options: Unpack[ClientOptions]) -> None:
         self.base_url = base_url.rstrip("/")
-        self.retry = retry or RetryPolicy()
-        self._timeout_s = timeout_s
-        self._timeout = httpx.Timeout(timeout_s, connect=10.0)
+        self.retry = options.get("retry") or RetryPolicy()
+        self._timeout_s = options.get("timeout_s", DEFAULT_TIMEOUT_S)
+        self._timeout = httpx.Timeout(self._timeout_s, connect=10.0)
         self._headers = {"X-API-Key": api_key} if api_key else {}
+        self._limits = options.get("limits") or httpx.Limits()
+
+    def _http_args(self) -> dict[str, Any]:
+        """The httpx client's arguments: base URL, headers, timeout, pool limits."""
+        return {"base_url": self.base_url, "headers": self._headers, "timeout": self._timeout, "limits": self._limits}
 
     def _request_args(self, call: Call[Any]) -> dict[str, Any]:
         """``httpx`` arguments of one try of ``call`` (a long poll gets its ``wait_s`` on top of the timeout)."""
@@ -51,9 +69,3 @@ def finish(call: Call[T], response: httpx.Response, attempts: int) -> Sent[T]:
 def is_final(value: Any) -> bool:
     """Whether a reference or a query (anything with ``status``) is ``done`` or ``failed``."""
     return getattr(value, "status", None) in FINAL_STATUSES
-
-
-def timed_out(what: str, timeout_s: float, last: Any) -> WaitTimeoutError:
-    """The :class:`WaitTimeoutError` of a wait for ``what`` that ran out, with its last state."""
-    status = getattr(last, "status", None)
-    return WaitTimeoutError(f"{what} not final after {timeout_s:g} s (last status: {status})", last)

@@ -10,10 +10,13 @@ from __future__ import annotations
 import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, Generic, TypeVar
 
 import httpx
 
-from geoloc.client.errors import retry_after_s
+from geoloc.client.errors import RateLimitedError, WaitTimeoutError, retry_after_s
+
+T = TypeVar("T")
 
 DEFAULT_RETRY_STATUSES = frozenset({429, 503})
 """Answers the client tries again: rate limited or queue full (429), not available now (503)."""
@@ -81,3 +84,44 @@ class Waiting:
         pause = self.pause_s
         self.pause_s = min(self.pause_s * 2.0, self.most_s)
         return pause
+
+
+class WaitLoop(Generic[T]):
+    """The steps of a wait that both clients run: the pause to spend, then done, a sleep, or a time-out.
+
+    Each round: :meth:`begin` gives the pause (s) the fetch may spend as a long poll; :meth:`after` takes
+    the value read (or the :class:`RateLimitedError` left after the retries) and says how long to sleep
+    before the next round (the pause the fetch did not spend, or the ``Retry-After``), or None when
+    ``done(value)``. Past ``timeout_s`` it raises :class:`WaitTimeoutError` with the last value read.
+    """
+
+    def __init__(self, timeout_s: float, done: Callable[[T], bool], what: str, clock: Callable[[], float]) -> None:
+        self.timeout_s, self.done, self.what, self.clock = timeout_s, done, what, clock
+        self.waiting = Waiting(timeout_s, clock)
+        self.last: T | None = None
+        self.pause_s = self.waiting.next_pause_s()
+        self.started = 0.0
+
+    def begin(self) -> float:
+        """Start a round: the pause (s) its fetch may spend."""
+        self.started = self.clock()
+        return self.pause_s
+
+    def after(self, value: T | None, limited: RateLimitedError | None = None) -> float | None:
+        """End a round: None when ``value`` is final, else the seconds to sleep; WaitTimeoutError past the deadline."""
+        retry_after = 0.0
+        if limited is not None:
+            retry_after = limited.retry_after_s or self.pause_s
+        else:
+            self.last = value
+            if value is not None and self.done(value):
+                return None
+        remaining = self.waiting.remaining_s()
+        if remaining <= 0:
+            status: Any = getattr(self.last, "status", None)
+            raise WaitTimeoutError(
+                f"{self.what} not final after {self.timeout_s:g} s (last status: {status})", self.last
+            )
+        sleep_s = min(max(self.pause_s - (self.clock() - self.started), retry_after), remaining)
+        self.pause_s = self.waiting.next_pause_s()
+        return sleep_s

@@ -17,48 +17,35 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from types import TracebackType
-from typing import TypeVar, Unpack
+from typing import TypeVar, Unpack, cast
 
 import httpx
 
 import geoloc.client.calls as calls  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
 import geoloc.client.models as models  # noqa: PLR0402 (as above)
-from geoloc.client.base import DEFAULT_TIMEOUT_S, ClientBase, finish, is_final, timed_out
+from geoloc.client.base import ClientBase, ClientOptions, finish, is_final
 from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, Upload
 from geoloc.client.errors import RateLimitedError, ServiceUnreachableError
-from geoloc.client.retry import RetryPolicy, Waiting
+from geoloc.client.retry import RetryPolicy, WaitLoop
 
 T = TypeVar("T")
 
 
 class Client(ClientBase):
-    """A synchronous client of one service (``base_url``), with an optional API key (``X-API-Key``).
-
-    ``timeout_s``: one request's timeout (s); ``retry``: when to try again; ``transport``: an httpx
-    transport (tests); ``limits``: httpx's connection-pool limits; ``sleep``: how to wait (tests).
-    Thread-safe (one connection pool); close it, or use it as a context manager.
-    """
+    """A synchronous client, thread-safe (one connection pool); a context manager. Options: :class:`ClientBase`."""
 
     def __init__(
         self,
         base_url: str,
         api_key: str | None = None,
         *,
-        timeout_s: float = DEFAULT_TIMEOUT_S,
-        retry: RetryPolicy | None = None,
         transport: httpx.BaseTransport | None = None,
-        limits: httpx.Limits | None = None,
         sleep: Callable[[float], None] = time.sleep,
+        **options: Unpack[ClientOptions],
     ) -> None:
-        super().__init__(base_url, api_key, timeout_s, retry)
+        super().__init__(base_url, api_key, **options)
         self.sleep = sleep
-        self.http = httpx.Client(
-            base_url=self.base_url,
-            headers=self._headers,
-            timeout=self._timeout,
-            transport=transport,
-            limits=limits or httpx.Limits(),
-        )
+        self.http = httpx.Client(transport=transport, **self._http_args())
 
     def __enter__(self) -> Client:
         """The client itself; closed on leaving the block."""
@@ -201,19 +188,13 @@ class Client(ClientBase):
         did not spend is slept. A 429 left after the retries is waited out (its ``Retry-After``);
         :class:`~geoloc.client.errors.WaitTimeoutError` after ``timeout_s`` (s).
         """
-        waiting = Waiting(timeout_s, time.monotonic)
-        last: T | None = None
-        pause = waiting.next_pause_s()
+        loop: WaitLoop[T] = WaitLoop(timeout_s, done, what, time.monotonic)
         while True:
-            started = time.monotonic()
-            retry_after = 0.0
+            pause_s = loop.begin()
             try:
-                last = fetch(pause)
-                if done(last):
-                    return last
+                sleep_s = loop.after(fetch(pause_s))
             except RateLimitedError as exc:
-                retry_after = exc.retry_after_s or pause
-            if waiting.remaining_s() <= 0:
-                raise timed_out(what, timeout_s, last)
-            self.sleep(min(max(pause - (time.monotonic() - started), retry_after), waiting.remaining_s()))
-            pause = waiting.next_pause_s()
+                sleep_s = loop.after(None, exc)
+            if sleep_s is None:
+                return cast(T, loop.last)
+            self.sleep(sleep_s)
