@@ -47,6 +47,7 @@ import osmium
 from local_service import LocalService, status_mb
 
 from contracts.settings import shared_path
+from geoloc.client import ApiError, calls
 from geoloc.core.geo import frame_for_bbox
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
@@ -155,21 +156,23 @@ def db_file_bytes(db_path: Path) -> int:
 
 def upload_map(service: LocalService, path: Path, name: str) -> dict[str, Any]:
     t0 = time.perf_counter()
-    with path.open("rb") as f:
-        response = service.client.post("/v1/maps", files={"file": (path.name, f)}, data={"name": name})
+    try:
+        sent = service.client.call(calls.upload_map(path, name, {}))
+    except ApiError as exc:
+        raise SystemExit(f"upload of {path.name} failed: {exc}") from exc
     seconds = time.perf_counter() - t0
-    if response.status_code != 201:
-        raise SystemExit(f"upload of {path.name} failed: {response.status_code} {response.text[:500]}")
-    body = response.json()
-    cache = next((service.data_dir / "cache" / "maps").glob(f"{body['sha256']}-*.citymap.npz"))
+    if sent.status != 201:
+        raise SystemExit(f"upload of {path.name} failed: {sent.status} (already uploaded)")
+    body = sent.value
+    cache = next((service.data_dir / "cache" / "maps").glob(f"{body.sha256}-*.citymap.npz"))
     worker_load = load_in_fresh_process(cache, "read_city_map")
     return {
-        "map_id": body["id"],
+        "map_id": body.id,
         "upload_s": round(seconds, 2),
-        "buildings": body["building_count"],
-        "facades": body["facade_count"],
+        "buildings": body.building_count,
+        "facades": body.facade_count,
         "file_mb": round(path.stat().st_size / 2**20, 1),
-        "database_mb": round(map_bytes(service.database_path, body["id"]) / 2**20, 1),
+        "database_mb": round(map_bytes(service.database_path, body.id) / 2**20, 1),
         "cached_copy_mb": round(cache.stat().st_size / 2**20, 1),
         "cached_copy_load_s": worker_load["load_s"],
         "index_build_s": worker_load["index_s"],
@@ -184,24 +187,22 @@ def ingest(service: LocalService, map_ids: dict[str, int], photos: list[Path]) -
     ids: dict[str, list[int]] = {name: [] for name in map_ids}
     for photo in photos:
         for name, map_id in map_ids.items():
-            response = service.client.post(
-                f"/v1/maps/{map_id}/references", files={"image": (photo.name, photo.read_bytes())}
-            )
-            if response.status_code not in (200, 202):
-                raise SystemExit(f"reference {photo.name} refused: {response.text[:300]}")
-            ids[name].append(response.json()["id"])
+            try:
+                ids[name].append(service.client.upload_reference(map_id, photo).id)
+            except ApiError as exc:
+                raise SystemExit(f"reference {photo.name} refused: {exc}") from exc
     while True:
-        get = service.client.get
-        rows = {name: [get(f"/v1/references/{rid}").json() for rid in refs] for name, refs in ids.items()}
-        if all(r["status"] in ("done", "failed") for found in rows.values() for r in found):
+        get = service.client.get_reference
+        rows = {name: [get(rid) for rid in refs] for name, refs in ids.items()}
+        if all(r.status in ("done", "failed") for found in rows.values() for r in found):
             break
         time.sleep(1.0)
     out = {}
     for name, found in rows.items():
-        totals = [r["timings"]["total"] for r in found if r.get("timings")]
+        totals = [r.timings["total"] for r in found if r.timings]
         out[name] = {
             "references": len(found),
-            "done": sum(r["status"] == "done" for r in found),
+            "done": sum(r.status == "done" for r in found),
             "label_ms_median": round(statistics.median(totals), 1) if totals else None,
         }
     return out
@@ -209,16 +210,16 @@ def ingest(service: LocalService, map_ids: dict[str, int], photos: list[Path]) -
 
 def query(service: LocalService, map_id: int, photo: Path) -> dict[str, Any]:
     t0 = time.perf_counter()
-    response = service.client.post(
-        f"/v1/maps/{map_id}/queries", files={"image": (photo.name, photo.read_bytes())}, data={"wait_s": "300"}
-    )
+    try:
+        sent = service.client.call(calls.upload_query(map_id, photo, {"wait_s": 300}))
+    except ApiError as exc:
+        raise SystemExit(f"query {photo.name} on map {map_id}: {exc}") from exc
     wall_ms = 1e3 * (time.perf_counter() - t0)
-    body = response.json()
-    if response.status_code != 200 or body.get("status") != "done":
-        raise SystemExit(f"query {photo.name} on map {map_id}: {response.status_code} {json.dumps(body)[:500]}")
-    result = body["result"]
-    best = result["locations"][0]
-    return {"wall_ms": wall_ms, "timings_ms": result["timings_ms"], "best": (best["lat"], best["lon"])}
+    if sent.status != 200 or sent.value.result is None:
+        raise SystemExit(f"query {photo.name} on map {map_id}: {sent.status} {sent.value.model_dump_json()[:500]}")
+    result = sent.value.result
+    best = result.locations[0]
+    return {"wall_ms": wall_ms, "timings_ms": result.timings_ms, "best": (best.lat, best.lon)}
 
 
 def _distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:

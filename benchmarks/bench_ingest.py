@@ -27,33 +27,28 @@ import time
 from pathlib import Path
 from typing import Any
 
-import httpx
 import numpy as np
 from local_service import LocalService
 from servers import PostgresServer, RedisServer
 
 from contracts.settings import shared_path
+from geoloc.client import Client
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 TARGET_RATIO = 0.8
 """Distributed throughput per worker must be at least this share of the embedded one."""
 
 
-def upload_all(client: httpx.Client, map_id: int, photos: list[Path]) -> list[int]:
+def upload_all(client: Client, map_id: int, photos: list[Path]) -> list[int]:
     """Upload photos as references; returns their ids."""
-    ids = []
-    for photo in photos:
-        response = client.post(f"/v1/maps/{map_id}/references", files={"image": (photo.name, photo.read_bytes())})
-        response.raise_for_status()
-        ids.append(int(response.json()["id"]))
-    return ids
+    return [client.upload_reference(map_id, photo).id for photo in photos]
 
 
-def wait_done(client: httpx.Client, map_id: int, count: int, timeout_s: float = 1800.0) -> None:
+def wait_done(client: Client, map_id: int, count: int, timeout_s: float = 1800.0) -> None:
     """Wait until ``count`` references of the map are done (fail on a failed one)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        counts = client.get(f"/v1/maps/{map_id}/references", params={"limit": 1}).json()["counts"]
+        counts = client.list_references(map_id, limit=1).counts
         if counts["failed"]:
             raise SystemExit(f"a reference failed: {counts}")
         if counts["done"] >= count:
@@ -74,12 +69,8 @@ def run_one(profile: str, workers: int, photos: list[Path], warmup: int, servers
         # A queue deep enough for every upload at once.
         service = LocalService(Path(tmp) / "data", workers=workers, env={"GEOLOC_MAX_QUEUED_JOBS": "10000", **env})
         try:
-            with httpx.Client(base_url=service.url, timeout=120) as client:
-                osm = shared_path("data", "osm", "helsinki.osm.pbf")
-                files = {"file": (osm.name, osm.read_bytes())}
-                created = client.post("/v1/maps", files=files, data={"name": "helsinki"})
-                created.raise_for_status()
-                map_id = int(created.json()["id"])
+            with Client(service.url, timeout_s=120) as client:
+                map_id = client.upload_map(shared_path("data", "osm", "helsinki.osm.pbf"), "helsinki").id
                 upload_all(client, map_id, photos[:warmup])
                 wait_done(client, map_id, warmup)
                 measured = photos[warmup:]
@@ -87,7 +78,7 @@ def run_one(profile: str, workers: int, photos: list[Path], warmup: int, servers
                 ids = upload_all(client, map_id, measured)
                 wait_done(client, map_id, warmup + len(measured))
                 elapsed_s = time.perf_counter() - start
-                totals_ms = [client.get(f"/v1/references/{i}").json()["timings"]["total"] for i in ids]
+                totals_ms = [(client.get_reference(i).timings or {})["total"] for i in ids]
         finally:
             service.stop()
     rate = len(measured) / elapsed_s

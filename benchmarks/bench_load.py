@@ -5,8 +5,8 @@
 
 Starts ``geoloc serve --workers 2`` (the README's first command) on a free loopback port with a fresh data
 folder (the built models linked from ``GEOLOC_DATA_DIR/cache/models``), uploads the Helsinki map, then runs
-``--clients`` asyncio clients (httpx) for ``--duration-s``. Each client repeats: think 0.5-1.5 s, then one
-action, drawn as
+``--clients`` asyncio clients (``geoloc.client.AsyncClient``, each request tried once: every answer counts)
+for ``--duration-s``. Each client repeats: think 0.5-1.5 s, then one action, drawn as
 
 - a read (70 %): ``GET /v1/maps/{id}``, ``/v1/maps``, ``/v1/references/{id}``, ``/v1/jobs/{id}`` or
   ``/v1/queries/{id}`` of something it made;
@@ -35,18 +35,23 @@ import sys
 import tempfile
 import time
 from collections import Counter, defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import httpx
 import numpy as np
 from local_service import LocalService
 
 from contracts.settings import shared_path
+from geoloc.client import ApiError, AsyncClient, Query, RetryPolicy, Sent, ServiceUnreachableError, calls
+from geoloc.client.calls import Call
 
 READ_SHARE, UPLOAD_SHARE = 0.70, 0.15
 """The rest (15 %) are queries."""
+T = TypeVar("T")
+NO_RETRY = RetryPolicy(retries=0)
+"""Each request tried once: a 429 or an error is what the figures count."""
 THINK_S = (0.5, 1.5)
 QUERY_WAIT_S = 30.0
 READ_P99_TARGET_S = 0.100
@@ -79,10 +84,14 @@ def percentiles(values: list[float]) -> dict[str, float | int]:
     }
 
 
+def _unread(_response: httpx.Response) -> None:
+    """A read's answer is only timed and counted, never parsed (as before the client)."""
+
+
 class Client:
     """One simulated user."""
 
-    def __init__(self, http: httpx.AsyncClient, map_id: int, world: Path, stats: Stats, rng: random.Random) -> None:
+    def __init__(self, http: AsyncClient, map_id: int, world: Path, stats: Stats, rng: random.Random) -> None:
         self.http, self.map_id, self.stats, self.rng = http, map_id, stats, rng
         self.references = sorted((world / "references").glob("*.jpg"))
         self.queries = sorted((world / "queries").glob("*.jpg"))
@@ -102,47 +111,48 @@ class Client:
                 await self.ask()
         await asyncio.gather(*self.pollers)
 
-    async def _request(self, method: str, url: str, endpoint: str, **kwargs: Any) -> httpx.Response | None:
+    async def _request(self, call: Call[T], endpoint: str) -> Sent[T] | None:
+        """One try of ``call`` (no retry: each answer is counted), None when it was not a 2xx."""
         try:
-            response = await self.http.request(method, url, **kwargs)
-        except httpx.HTTPError as exc:
-            self.stats.errors.append(f"{method} {endpoint}: {type(exc).__name__}: {exc}")
+            sent = await self.http.call(call, retry=NO_RETRY)
+        except ServiceUnreachableError as exc:
+            self.stats.errors.append(f"{call.method} {endpoint}: {exc}")
             return None
-        self.stats.statuses[f"{method} {endpoint} {response.status_code}"] += 1
-        if response.status_code == 429:
-            self.busy_until = time.monotonic() + float(response.headers.get("Retry-After", "5"))
-        elif response.status_code >= 400:
-            self.stats.errors.append(f"{method} {endpoint}: {response.status_code} {response.text[:200]}")
-        return response
+        except ApiError as exc:
+            self.stats.statuses[f"{call.method} {endpoint} {exc.status}"] += 1
+            if exc.status == 429:
+                self.busy_until = time.monotonic() + (exc.retry_after_s if exc.retry_after_s is not None else 5.0)
+            else:
+                self.stats.errors.append(f"{call.method} {endpoint}: {exc.status} {exc.code}: {exc.message}"[:240])
+            return None
+        self.stats.statuses[f"{call.method} {endpoint} {sent.status}"] += 1
+        return sent
 
     async def read(self) -> None:
-        choices = [(f"/v1/maps/{self.map_id}", "/v1/maps/{id}"), ("/v1/maps", "/v1/maps")]
-        for kind, template in (("reference", "/v1/references/{id}"), ("job", "/v1/jobs/{id}"),
-                               ("query", "/v1/queries/{id}")):  # fmt: skip
+        choices: list[tuple[Call[Any], str]] = [(calls.get_map(self.map_id), "/v1/maps/{id}")]
+        choices.append((calls.list_maps(), "/v1/maps"))
+        for kind, template, make in (("reference", "/v1/references/{id}", calls.get_reference),
+                                     ("job", "/v1/jobs/{id}", calls.get_job),
+                                     ("query", "/v1/queries/{id}", calls.get_query)):  # fmt: skip
             if self.mine[kind]:
-                choices.append((template.replace("{id}", str(self.rng.choice(self.mine[kind]))), template))
-        url, endpoint = self.rng.choice(choices)
-        await self._timed_read(url, endpoint)
+                choices.append((make(self.rng.choice(self.mine[kind])), template))
+        call, endpoint = self.rng.choice(choices)
+        await self._timed_read(call, endpoint)
 
-    async def _timed_read(self, url: str, endpoint: str) -> httpx.Response | None:
+    async def _timed_read(self, call: Call[Any], endpoint: str) -> None:
         started = time.monotonic()
-        response = await self._request("GET", url, endpoint)
-        if response is not None and response.status_code == 200:
+        sent = await self._request(replace(call, read=_unread), endpoint)  # the answer timed, not parsed
+        if sent is not None and sent.status == 200:
             self.stats.reads.append((started, endpoint, time.monotonic() - started))
-        return response
 
     async def upload_reference(self) -> None:
         path = self.rng.choice(self.references)
-        response = await self._request(
-            "POST", f"/v1/maps/{self.map_id}/references", "/v1/maps/{id}/references",
-            files={"image": (path.name, path.read_bytes())},
-        )  # fmt: skip
-        if response is not None and response.status_code in (200, 202):
-            body = response.json()
-            self.mine["reference"].append(body["id"])
-            if response.status_code == 202:
-                self.stats.accepted_jobs.add(body["job_id"])
-                self.mine["job"].append(body["job_id"])
+        sent = await self._request(calls.upload_reference(self.map_id, path, {}), "/v1/maps/{id}/references")
+        if sent is not None and sent.status in (200, 202):
+            self.mine["reference"].append(sent.value.id)
+            if sent.status == 202 and sent.value.job_id is not None:
+                self.stats.accepted_jobs.add(sent.value.job_id)
+                self.mine["job"].append(sent.value.job_id)
 
     async def ask(self) -> None:
         """Post a query and wait up to ``wait_s`` for its answer.
@@ -152,35 +162,32 @@ class Client:
         """
         path = self.rng.choice(self.queries)
         started = time.monotonic()
-        response = await self._request(
-            "POST", f"/v1/maps/{self.map_id}/queries", "/v1/maps/{id}/queries",
-            files={"image": (path.name, path.read_bytes())}, data={"wait_s": str(QUERY_WAIT_S)},
-        )  # fmt: skip
-        if response is None or response.status_code not in (200, 202):
+        upload = calls.upload_query(self.map_id, path, {"wait_s": QUERY_WAIT_S})
+        sent = await self._request(upload, "/v1/maps/{id}/queries")
+        if sent is None or sent.status not in (200, 202):
             return
-        body = response.json()
-        self.stats.accepted_jobs.add(body["job_id"])
-        self.mine["query"].append(body["id"])
-        self.mine["job"].append(body["job_id"])
-        if body["status"] in ("done", "failed"):
-            self._answered(body, started)
+        query = sent.value
+        if query.job_id is not None:
+            self.stats.accepted_jobs.add(query.job_id)
+            self.mine["job"].append(query.job_id)
+        self.mine["query"].append(query.id)
+        if query.status in ("done", "failed"):
+            self._answered(query, started)
         else:
-            self.pollers.append(asyncio.create_task(self._poll(body["id"], started)))
+            self.pollers.append(asyncio.create_task(self._poll(query.id, started)))
 
     async def _poll(self, query_id: int, started: float) -> None:
         """Long-poll the query (``wait_s``) until it is answered: a wait, not a read, in the figures."""
         while True:
-            polled = await self._request(
-                "GET", f"/v1/queries/{query_id}", "/v1/queries/{id}?wait_s", params={"wait_s": QUERY_WAIT_S}
-            )
-            if polled is None or polled.status_code != 200:
+            polled = await self._request(calls.get_query(query_id, QUERY_WAIT_S), "/v1/queries/{id}?wait_s")
+            if polled is None or polled.status != 200:
                 return
-            if polled.json()["status"] in ("done", "failed"):
-                self._answered(polled.json(), started)
+            if polled.value.status in ("done", "failed"):
+                self._answered(polled.value, started)
                 return
 
-    def _answered(self, query: dict[str, Any], started: float) -> None:
-        if query["status"] == "done":
+    def _answered(self, query: Query, started: float) -> None:
+        if query.status == "done":
             self.stats.answers_s.append(time.monotonic() - started)
 
 
@@ -209,16 +216,20 @@ async def watch_saturation(db_path: Path | None, workers: int, stats: Stats, sto
         conn.close()
 
 
-async def drain(http: httpx.AsyncClient, job_ids: set[int]) -> tuple[dict[str, int], list[str]]:
+async def drain(http: AsyncClient, job_ids: set[int]) -> tuple[dict[str, int], list[str]]:
     """Wait until every accepted job has ended: the count per final status, and the errors of failed jobs."""
     deadline = time.monotonic() + DRAIN_TIMEOUT_S
     final: dict[int, str] = {}
     errors: list[str] = []
     while time.monotonic() < deadline:
         for job_id in sorted(job_ids - set(final)):
-            response = await http.get(f"/v1/jobs/{job_id}")
-            body = response.json()
-            status = body.get("status") if response.status_code == 200 else f"http {response.status_code}"
+            body: dict[str, Any] = {}
+            status: str
+            try:
+                job = (await http.call(calls.get_job(job_id), retry=NO_RETRY)).value
+                body, status = job.model_dump(), job.status
+            except ApiError as exc:
+                status = f"http {exc.status}"
             if status in ("done", "failed", "cancelled") or status.startswith("http"):
                 final[job_id] = status
                 if status != "done":
@@ -236,11 +247,8 @@ async def run(args: argparse.Namespace, url: str, db_path: Path | None) -> dict[
     # No pool limit: answers awaited in the background hold a connection each (up to wait_s), and a read
     # queued behind them in the client's pool would measure the pool, not the service.
     limits = httpx.Limits(max_connections=None, max_keepalive_connections=None)
-    async with httpx.AsyncClient(base_url=url, timeout=httpx.Timeout(120.0), limits=limits) as http:
-        with shared_path("data", "osm", "helsinki.osm.pbf").open("rb") as f:
-            uploaded = await http.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)}, data={"name": "helsinki"})
-        uploaded.raise_for_status()
-        map_id = int(uploaded.json()["id"])
+    async with AsyncClient(url, timeout_s=120.0, limits=limits) as http:
+        map_id = (await http.upload_map(shared_path("data", "osm", "helsinki.osm.pbf"), "helsinki")).id
         rngs = [random.Random(args.seed * 1000 + i) for i in range(args.clients)]
         clients = [Client(http, map_id, args.world, stats, rng) for rng in rngs]
         stop = asyncio.Event()

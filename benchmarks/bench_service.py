@@ -43,14 +43,15 @@ import sys
 import tarfile
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import httpx
 import numpy as np
 from local_service import REPO_ROOT, LocalService, cpu_seconds, status_mb
 
 from contracts.settings import shared_path
+from geoloc.client import ApiError, Call, Sent, calls
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 TARGET_P50_MS = 400.0
@@ -100,12 +101,22 @@ def export_commit(ref: str, target: Path) -> str:
     return commit
 
 
+def as_json(call: Call[Any]) -> Call[dict[str, Any]]:
+    """``call`` with its answer read as plain JSON: a baseline commit's answers may predate the client's models."""
+    return replace(call, read=lambda response: dict(response.json()))
+
+
+def send(service: Service, call: Call[Any], what: str) -> Sent[dict[str, Any]]:
+    """``call`` sent through the client (retries included), its JSON answer; an error answer ends the run."""
+    try:
+        return service.client.call(as_json(call))
+    except ApiError as exc:
+        raise SystemExit(f"{service.name}: {what}: {exc}") from exc
+
+
 def upload_map(service: Service) -> None:
-    with shared_path("data", "osm", "helsinki.osm.pbf").open("rb") as f:
-        response = service.client.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)}, data={"name": "helsinki"})
-    if response.status_code not in (200, 201):
-        raise SystemExit(f"{service.name}: map upload failed: {response.text[:300]}")
-    service.map_id = int(response.json()["id"])
+    osm = shared_path("data", "osm", "helsinki.osm.pbf")
+    service.map_id = int(send(service, calls.upload_map(osm, "helsinki", {}), "map upload failed").value["id"])
 
 
 def label_references(service: Service, photos: list[Path]) -> dict[str, Any]:
@@ -114,20 +125,16 @@ def label_references(service: Service, photos: list[Path]) -> dict[str, Any]:
     cpu0, load0, t0 = service.worker_cpu_s(), load_average(), time.perf_counter()
     ids = []
     for photo in photos:
-        response = service.client.post(
-            f"/v1/maps/{service.map_id}/references", files={"image": (photo.name, photo.read_bytes())}
-        )
-        if response.status_code not in (200, 202):
-            raise SystemExit(f"{service.name}: reference {photo.name} refused: {response.text[:300]}")
-        ids.append(response.json()["id"])
+        upload = calls.upload_reference(service.map_id, photo, {})
+        ids.append(send(service, upload, f"reference {photo.name} refused").value["id"])
     while True:
-        counts = service.client.get(f"/v1/maps/{service.map_id}/references", params={"limit": 1}).json()["counts"]
+        counts = send(service, calls.list_references(service.map_id, 0, 1), "references").value["counts"]
         if counts.get("queued", 0) + counts.get("processing", 0) == 0:
             break
         time.sleep(0.2)
     wall_s = time.perf_counter() - t0
     cpu_s = service.worker_cpu_s() - cpu0
-    rows = [service.client.get(f"/v1/references/{rid}").json() for rid in ids]
+    rows = [send(service, calls.get_reference(rid), "reference").value for rid in ids]
     totals = [r["timings"]["total"] for r in rows if r.get("timings")]
     return {
         "references": len(ids),
@@ -142,22 +149,18 @@ def label_references(service: Service, photos: list[Path]) -> dict[str, Any]:
     }
 
 
-def post_query(service: Service, photo: Path, wait_s: float = 300.0) -> httpx.Response:
-    return service.client.post(
-        f"/v1/maps/{service.map_id}/queries",
-        files={"image": (photo.name, photo.read_bytes())},
-        data={"wait_s": str(wait_s)},
-    )
+def post_query(service: Service, photo: Path, wait_s: float = 300.0) -> Sent[dict[str, Any]]:
+    return send(service, calls.upload_query(service.map_id, photo, {"wait_s": wait_s}), f"query {photo.name}")
 
 
 def query_once(service: Service, photo: Path) -> dict[str, Any]:
     cpu0 = service.worker_cpu_s()
     t0 = time.perf_counter()
-    response = post_query(service, photo)
+    sent = post_query(service, photo)
     wall_ms = 1e3 * (time.perf_counter() - t0)
-    body = response.json()
-    if response.status_code != 200 or body.get("status") != "done":
-        raise SystemExit(f"{service.name}: query {photo.name}: {response.status_code} {json.dumps(body)[:300]}")
+    body = sent.value
+    if sent.status != 200 or body.get("status") != "done":
+        raise SystemExit(f"{service.name}: query {photo.name}: {sent.status} {json.dumps(body)[:300]}")
     result = body["result"]
     locations = [(loc["lat"], loc["lon"], loc["heading_deg"]) for loc in result["locations"]]
     return {
@@ -172,11 +175,11 @@ def query_once(service: Service, photo: Path) -> dict[str, Any]:
 def concurrent_queries(service: Service, photos: list[Path]) -> dict[str, Any]:
     """Every photo posted without waiting; the pool answers them together."""
     cpu0, load0, t0 = service.worker_cpu_s(), load_average(), time.perf_counter()
-    ids = [post_query(service, photo, wait_s=0.0).json()["id"] for photo in photos]
+    ids = [post_query(service, photo, wait_s=0.0).value["id"] for photo in photos]
     pending = set(ids)
     while pending:
         for query_id in list(pending):
-            if service.client.get(f"/v1/queries/{query_id}").json()["status"] in ("done", "failed"):
+            if send(service, calls.get_query(query_id), "query").value["status"] in ("done", "failed"):
                 pending.discard(query_id)
         time.sleep(0.1)
     wall_s = time.perf_counter() - t0

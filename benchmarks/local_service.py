@@ -18,12 +18,11 @@ import sys
 import time
 from pathlib import Path
 
-import httpx
-
 REPO_ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO_ROOT))
 
 from contracts.settings import cache_dir  # noqa: E402
+from geoloc.client import ApiError, Client, RetryPolicy, ServiceUnreachableError, calls  # noqa: E402
 from workers.context import model_problems  # noqa: E402
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
@@ -109,17 +108,17 @@ class LocalService:
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
             )
-        self.client = httpx.Client(base_url=self.url, timeout=600.0)
+        self.client = Client(self.url, timeout_s=600.0)
         deadline = time.monotonic() + ready_timeout_s
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
                 self.client.close()
                 raise SystemExit(f"{name} exited ({self.process.returncode}); see {self.log_path}")
             try:
-                if self.client.get("/readyz", timeout=2).status_code == 200:
-                    return
-            except httpx.HTTPError:
-                pass
+                self.client.call(calls.ready(), retry=RetryPolicy(retries=0))
+                return
+            except (ApiError, ServiceUnreachableError):
+                pass  # not ready (503) or not listening yet
             time.sleep(0.5)
         self.stop()
         raise SystemExit(f"{name} did not become ready in {ready_timeout_s:.0f} s; see {self.log_path}")

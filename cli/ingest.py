@@ -11,29 +11,31 @@ Exit codes: 0 nothing failed (rejected photos are not failures), 1 some photos f
 retries (or, with ``--wait``, failed labelling or the wait timed out), 2 nothing could be done
 (service unreachable, bad API key, unknown map).
 
-This module runs the steps; :mod:`cli.photo_files` picks the files, :mod:`cli.http_retry` talks to
-the service, :mod:`cli.ingest_report` prints the summary.
+This module runs the steps; :mod:`cli.photo_files` picks the files, the client :mod:`geoloc.client`
+talks to the service (with :data:`~geoloc.client.retry.TRANSIENT_STATUSES` retried), :mod:`cli.ingest_report`
+prints the summary.
 """
 
 from __future__ import annotations
 
 import json
 import sys
+import threading
 import time
 from collections import Counter
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
-from typing import Any
 
 import httpx
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-from cli.http_retry import RETRY_STATUSES, RetryingClient, ServiceUnreachableError, error_fields
 from cli.ingest_report import IngestReport, print_summary
 from cli.photo_files import Candidate, FileResult, path_order, scan_folder
+from geoloc.client import ApiError, Client, Map, RetryPolicy, ServiceUnreachableError, calls
+from geoloc.client.retry import TRANSIENT_STATUSES as RETRY_STATUSES
 
 NOT_THE_PHOTOS_FAULT = frozenset({401, 403, 404})
 """4xx answers that are failures (key, scope, map gone), not a rejection of the photo."""
@@ -44,26 +46,36 @@ class IngestAbortError(Exception):
     """The run cannot start (unknown map, bad API key, service unreachable)."""
 
 
-def fetch_map(client: RetryingClient, map_id: int) -> dict[str, Any]:
+NO_RETRY = RetryPolicy(retries=0)
+"""One try: whether the service answers now."""
+
+
+def fetch_map(client: Client, map_id: int) -> Map:
     """The map (checks reachability, the API key and the map id before anything is uploaded)."""
     try:
-        response, _ = client.request("GET", f"/v1/maps/{map_id}")
+        return client.get_map(map_id)
     except ServiceUnreachableError as exc:
-        raise IngestAbortError(f"cannot reach the service at {client.http.base_url}: {exc}") from exc
-    if response.status_code == 200:
-        return dict(response.json())
-    code, message, _ = error_fields(response)
-    raise IngestAbortError(
-        f"GET /v1/maps/{map_id} answered {response.status_code} {code or ''}: {message}".replace("  ", " ")
-    )
+        raise IngestAbortError(f"cannot reach the service at {client.base_url}: {exc}") from exc
+    except ApiError as exc:
+        raise IngestAbortError(
+            f"GET /v1/maps/{map_id} answered {exc.status} {exc.code or ''}: {exc.message}".replace("  ", " ")
+        ) from exc
 
 
-def upload_one(client: RetryingClient, map_id: int, photo: Candidate) -> FileResult:
-    """Post one photo; classify the answer."""
+def _alive(client: Client) -> bool:
+    """Whether ``/healthz`` answers now (one try)."""
+    try:
+        return client.call(calls.health(), retry=NO_RETRY).status == 200
+    except (ApiError, ServiceUnreachableError):
+        return False
+
+
+def upload_one(client: Client, stop: threading.Event, map_id: int, photo: Candidate) -> FileResult:
+    """Post one photo; classify the answer (``stop`` set: the service is gone, nothing more is tried)."""
     result = FileResult(
         photo.relative, "failed", sha256=photo.sha256, size_bytes=photo.size_bytes, mime_type=photo.mime_type
     )
-    if client.stop.is_set():
+    if stop.is_set():
         result.reason = "not attempted: the service stopped answering"
         return result
     try:
@@ -72,34 +84,38 @@ def upload_one(client: RetryingClient, map_id: int, photo: Candidate) -> FileRes
         result.reason = f"cannot read the file: {exc.strerror or exc}"
         return result
     try:
-        response, result.attempts = client.request(
-            "POST", f"/v1/maps/{map_id}/references", files={"image": (photo.path.name, data, photo.mime_type)}
-        )
+        sent = client.call(calls.upload_reference(map_id, (photo.path.name, data, photo.mime_type), {}))
     except ServiceUnreachableError as exc:
-        if not client.alive():
-            client.stop.set()  # the rest would only wait for the same dead service
-        result.attempts = client.retries + 1
+        if not _alive(client):
+            stop.set()  # the rest would only wait for the same dead service
+        result.attempts = client.retry.retries + 1
         result.reason = f"service unreachable after {result.attempts} attempts: {exc}"
         return result
-    result.http_status = response.status_code
-    if response.status_code in (200, 201, 202):
-        body = response.json()
-        result.reference_id, result.job_id = body.get("id"), body.get("job_id")
-        if body.get("duplicate"):
-            result.outcome = "present"
-            result.reason = f"already reference {result.reference_id} of map {map_id} (status {body.get('status')})"
-        else:
-            result.outcome = "accepted"
-        return result
-    result.error_code, message, result.details = error_fields(response)
+    except ApiError as exc:
+        return _refused(result, exc)
+    accepted = sent.value
+    result.http_status, result.attempts = sent.status, sent.attempts
+    result.reference_id, result.job_id = accepted.id, accepted.job_id
+    if accepted.duplicate:
+        result.outcome = "present"
+        result.reason = f"already reference {result.reference_id} of map {map_id} (status {accepted.status})"
+    else:
+        result.outcome = "accepted"
+    return result
+
+
+def _refused(result: FileResult, exc: ApiError) -> FileResult:
+    """``result`` for an upload answered with an error: rejected (the photo's fault) or failed."""
+    result.http_status, result.attempts = exc.status, exc.attempts
+    result.error_code, message, result.details = exc.code, exc.message, exc.details
     distance = (result.details or {}).get("distance_m")
     if isinstance(distance, int | float) and distance >= 10_000:
         message += f" (about {distance / 1000:,.0f} km)"
-    result.reason = f"{response.status_code} {result.error_code or 'error'}: {message}"
-    if response.status_code in RETRY_STATUSES:
+    result.reason = f"{exc.status} {result.error_code or 'error'}: {message}"
+    if exc.status in RETRY_STATUSES:
         result.reason = f"{result.reason} (gave up after {result.attempts} attempts)"
-    photo_refused = 400 <= response.status_code < 500 and response.status_code not in RETRY_STATUSES
-    result.outcome = "rejected" if photo_refused and response.status_code not in NOT_THE_PHOTOS_FAULT else "failed"
+    photo_refused = 400 <= exc.status < 500 and exc.status not in RETRY_STATUSES
+    result.outcome = "rejected" if photo_refused and exc.status not in NOT_THE_PHOTOS_FAULT else "failed"
     return result
 
 
@@ -122,26 +138,26 @@ def _count_text(results: Iterable[FileResult]) -> str:
 
 
 def upload_all(
-    client: RetryingClient, map_id: int, photos: list[Candidate], *, concurrency: int, console: Console
+    client: Client, stop: threading.Event, map_id: int, photos: list[Candidate], *, concurrency: int, console: Console
 ) -> list[FileResult]:
     """Upload ``photos`` with ``concurrency`` threads and a progress bar; results in ``photos`` order."""
     results: dict[int, FileResult] = {}
     with _progress(console) as progress, ThreadPoolExecutor(max_workers=concurrency) as pool:
         task = progress.add_task("uploading", total=len(photos), status="")
-        futures = {pool.submit(upload_one, client, map_id, photo): i for i, photo in enumerate(photos)}
+        futures = {pool.submit(upload_one, client, stop, map_id, photo): i for i, photo in enumerate(photos)}
         try:
             for future in as_completed(futures):
                 results[futures[future]] = future.result()
                 progress.update(task, advance=1, status=_count_text(results.values()))
         except KeyboardInterrupt:
-            client.stop.set()
+            stop.set()
             pool.shutdown(wait=True, cancel_futures=True)
             raise
     return [results[i] for i in range(len(photos))]
 
 
 def wait_for_labelling(
-    client: RetryingClient, results: list[FileResult], *, timeout_s: float, poll_s: float, console: Console
+    client: Client, results: list[FileResult], *, timeout_s: float, poll_s: float, console: Console
 ) -> bool:
     """Poll the new references until each is ``done`` or ``failed``; False when ``timeout_s`` (> 0) ran out."""
     pending = {r.reference_id: r for r in results if r.outcome == "accepted" and r.reference_id is not None}
@@ -151,16 +167,16 @@ def wait_for_labelling(
         while pending:
             for reference_id, result in list(pending.items()):
                 try:
-                    response, _ = client.request("GET", f"/v1/references/{reference_id}")
+                    reference = client.get_reference(reference_id)
+                    result.final_status, result.final_error = reference.status, reference.error
                 except ServiceUnreachableError:
                     continue  # keep waiting: the service may come back
-                if response.status_code == 200:
-                    body = response.json()
-                    result.final_status, result.final_error = body.get("status"), body.get("error")
-                elif response.status_code < 500 and response.status_code not in RETRY_STATUSES:
-                    code, message, _ = error_fields(response)  # deleted meanwhile, or the key cannot read
-                    result.final_status = "failed"
-                    result.final_error = f"cannot read the reference: {response.status_code} {code}: {message}"
+                except ApiError as exc:
+                    if (
+                        exc.status < 500 and exc.status not in RETRY_STATUSES
+                    ):  # deleted meanwhile, or the key cannot read
+                        result.final_status = "failed"
+                        result.final_error = f"cannot read the reference: {exc.status} {exc.code}: {exc.message}"
                 if result.final_status in FINAL_REFERENCE_STATES:
                     del pending[reference_id]
                     progress.update(task, advance=1)
@@ -193,18 +209,18 @@ def ingest_folder(
 ) -> IngestReport:
     """Scan, upload and (optionally) wait; raises :class:`IngestAbortError` when nothing can be done."""
     console = console or Console(stderr=True)
-    client = RetryingClient(
-        url, api_key, retries=retries, backoff_s=backoff_s, timeout_s=timeout_s, transport=transport
-    )
+    stop = threading.Event()
+    policy = RetryPolicy(retries=retries, backoff_s=backoff_s, statuses=RETRY_STATUSES, stop=stop.is_set)
+    client = Client(url, api_key, timeout_s=timeout_s, retry=policy, transport=transport)
     try:
         map_row = fetch_map(client, map_id)
-        report = IngestReport(url=url, map_id=map_id, map_name=map_row.get("name"))
+        report = IngestReport(url=url, map_id=map_id, map_name=map_row.name)
         photos, others = scan_folder(folder, recursive=recursive)
         console.print(
-            f"map {map_id} ({map_row.get('name')}) at {url}: {len(photos)} photo(s) to upload from {folder}"
+            f"map {map_id} ({map_row.name}) at {url}: {len(photos)} photo(s) to upload from {folder}"
             + (f", {len(others)} other file(s) not uploaded" if others else "")
         )
-        uploaded = upload_all(client, map_id, photos, concurrency=concurrency, console=console) if photos else []
+        uploaded = upload_all(client, stop, map_id, photos, concurrency=concurrency, console=console) if photos else []
         report.files = sorted([*uploaded, *others], key=lambda r: path_order(r.path))
         if wait:
             report.waited = True

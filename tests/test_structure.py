@@ -23,9 +23,12 @@ PACKAGES = ("contracts", "geoloc", "db", "workers", "service", "cli", "benchmark
 LAYERS = {name: rank for rank, name in enumerate(PACKAGES)}
 """Each top-level package's layer: a module may import only its own layer or lower ones."""
 GEOLOC_LAYERS = {"core": 0, "photos": 1, "maps": 1, "vision": 2, "localize": 3, "sim": 4, "evaluation": 5}
+# The HTTP client (issue 21: ``geoloc.client.Client``) sits above every stage: no stage imports it.
+GEOLOC_LAYERS["client"] = 6
 """The method's packages: the runtime stages (up to ``localize``) below the simulator and the evaluation."""
-OFF_RUNTIME = ("geoloc.sim", "geoloc.evaluation", "geoloc.export")
-"""What the runtime method never imports: the simulator, the evaluation and the model export (PyTorch)."""
+OFF_RUNTIME = ("geoloc.sim", "geoloc.evaluation", "geoloc.export", "geoloc.client")
+"""What the runtime never imports: the simulator, the evaluation, the model export (PyTorch) and the HTTP client
+(httpx; it talks to the service, for the CLI, the benchmarks and users' scripts)."""
 MAX_MODULE_LINES = 450
 
 

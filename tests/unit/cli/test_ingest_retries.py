@@ -17,6 +17,21 @@ from cli.ingest import IngestAbortError, ingest_folder
 from geoloc.photos.exif import write_jpeg
 from tests.service_fixtures import WRITE_KEY
 
+MOCK_MAP = {
+    "id": 1,
+    "name": "mock",
+    "source_filename": "mock.osm",
+    "source_format": "osm",
+    "sha256": "00",
+    "bbox": {"min_lat": 60.16, "min_lon": 24.93, "max_lat": 60.18, "max_lon": 24.96},
+    "origin": {"lat": 60.17, "lon": 24.94},
+    "building_count": 1,
+    "facade_count": 4,
+    "repair_report": {},
+    "attribution": "© OpenStreetMap contributors",
+    "created_at": "2025-01-01T12:00:00Z",
+}
+"""``GET /v1/maps/1``'s answer, as the service's ``MapOut`` has it (the client reads it into a ``Map``)."""
 INSIDE_HELSINKI = [(60.1716, 24.9443), (60.1700, 24.9450), (60.1690, 24.9420)]
 """Positions inside the Helsinki map (lat, lon degrees)."""
 
@@ -38,7 +53,7 @@ def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -
 
     def handler(request: httpx.Request) -> httpx.Response:
         if request.method == "GET":
-            return httpx.Response(200, json={"id": 1, "name": "mock"})
+            return httpx.Response(200, json=MOCK_MAP)
         name = "busy" if b'filename="busy.jpg"' in request.content else "ok"
         calls[name] = calls.get(name, 0) + 1
         if name == "busy":
@@ -47,7 +62,8 @@ def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -
             return httpx.Response(503, json={"error": {"code": "unavailable", "message": "busy"}})
         if calls[name] == 2:
             raise httpx.ConnectError("connection refused", request=request)
-        return httpx.Response(202, json={"id": 9, "job_id": 10, "status": "queued", "duplicate": False})
+        accepted = {"id": 9, "map_id": 1, "job_id": 10, "status": "queued", "sha256": "ab", "duplicate": False}
+        return httpx.Response(202, json=accepted)
 
     report = ingest_folder(
         tmp_path,

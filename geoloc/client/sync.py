@@ -1,0 +1,200 @@
+"""``Client``: the service's API from Python, synchronously (httpx).
+
+    with Client("http://127.0.0.1:8000", api_key="KEY") as client:
+        helsinki = client.upload_map("helsinki.osm.pbf", "helsinki")
+        ref = client.upload_reference(helsinki.id, "IMG_0042.jpg", heading_deg=84.0)
+        client.wait_for_reference(ref.id)
+        answer = client.wait_for_query(client.upload_query(helsinki.id, "photo.jpg", wait_s=0).id)
+
+Every method returns a typed model (:mod:`geoloc.client.models`) and raises
+:class:`~geoloc.client.errors.ApiError` (a subclass per kind) on an error answer; 429 and 503 are retried
+after their ``Retry-After`` (:class:`~geoloc.client.retry.RetryPolicy`). ``call`` sends any
+:class:`~geoloc.client.calls.Call` and also says how many tries it took.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from types import TracebackType
+from typing import TypeVar, Unpack, cast
+
+import httpx
+
+import geoloc.client.calls as calls  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
+import geoloc.client.models as models  # noqa: PLR0402 (as above)
+from geoloc.client.base import ClientBase, ClientOptions, finish, is_final
+from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, Upload
+from geoloc.client.errors import RateLimitedError, ServiceUnreachableError
+from geoloc.client.retry import RetryPolicy, WaitLoop
+
+T = TypeVar("T")
+
+
+class Client(ClientBase):
+    """A synchronous client, thread-safe (one connection pool); a context manager. Options: :class:`ClientBase`."""
+
+    def __init__(
+        self,
+        base_url: str,
+        api_key: str | None = None,
+        *,
+        transport: httpx.BaseTransport | None = None,
+        sleep: Callable[[float], None] = time.sleep,
+        **options: Unpack[ClientOptions],
+    ) -> None:
+        super().__init__(base_url, api_key, **options)
+        self.sleep = sleep
+        self.http = httpx.Client(transport=transport, **self._http_args())
+
+    def __enter__(self) -> Client:
+        """The client itself; closed on leaving the block."""
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        """Close the connection pool."""
+        self.close()
+
+    def close(self) -> None:
+        """Close the connection pool."""
+        self.http.close()
+
+    def call(self, call: Call[T], *, retry: RetryPolicy | None = None) -> Sent[T]:
+        """Send ``call`` with retries (``retry``, else the client's policy); its answer, status and tries."""
+        policy = retry or self.retry
+        attempt = 0
+        while True:
+            attempt += 1
+            try:
+                response = self.http.request(call.method, call.path, **self._request_args(call))
+            except httpx.TransportError as exc:
+                delay = policy.delay_after(attempt, exc)
+                if delay is None:
+                    raise ServiceUnreachableError(f"{type(exc).__name__}: {exc}") from exc
+                self.sleep(delay)
+                continue
+            delay = policy.delay_after(attempt, response)
+            if delay is None:
+                return finish(call, response, attempt)
+            self.sleep(delay)
+
+    # --- maps ---------------------------------------------------------------------------------
+
+    def upload_map(self, file: Upload, name: str, **fields: Unpack[MapFields]) -> models.Map:
+        """Upload a map file (OSM, GeoJSON, GeoPackage, ...) with its read options and ``attribution``."""
+        return self.call(calls.upload_map(file, name, fields)).value
+
+    def get_map(self, map_id: int) -> models.Map:
+        """One map (``GET /v1/maps/{id}``)."""
+        return self.call(calls.get_map(map_id)).value
+
+    def list_maps(self) -> list[models.Map]:
+        """All maps, oldest first."""
+        return self.call(calls.list_maps()).value
+
+    def delete_map(self, map_id: int) -> None:
+        """Delete a map with everything on it."""
+        self.call(calls.delete("maps", map_id))
+
+    def buildings(self, map_id: int) -> models.FeatureCollection:
+        """The map's buildings as GeoJSON (WGS84), with ``attribution``."""
+        return self.call(calls.buildings(map_id)).value
+
+    # --- references ---------------------------------------------------------------------------
+
+    def upload_reference(
+        self, map_id: int, image: Upload, **fields: Unpack[ReferenceFields]
+    ) -> models.ReferenceAccepted:
+        """Add a geo-tagged photo (``lat``/``lon`` override its EXIF GPS) and queue its labelling."""
+        return self.call(calls.upload_reference(map_id, image, fields)).value
+
+    def get_reference(self, reference_id: int) -> models.Reference:
+        """A reference: its status and, once labelled, what labelling found."""
+        return self.call(calls.get_reference(reference_id)).value
+
+    def list_references(self, map_id: int, *, after_id: int = 0, limit: int = 100) -> models.ReferenceList:
+        """One page of the map's references (ids above ``after_id``)."""
+        return self.call(calls.list_references(map_id, after_id, limit)).value
+
+    def delete_reference(self, reference_id: int) -> None:
+        """Delete a reference with its labels (its queued job is cancelled)."""
+        self.call(calls.delete("references", reference_id))
+
+    def wait_for_reference(self, reference_id: int, *, timeout_s: float = 600.0) -> models.Reference:
+        """Poll until the reference is ``done`` or ``failed`` (returned either way), at most ``timeout_s``."""
+        return self.wait(
+            lambda _: self.get_reference(reference_id), timeout_s=timeout_s, what=f"reference {reference_id}"
+        )
+
+    # --- queries and jobs ---------------------------------------------------------------------
+
+    def upload_query(self, map_id: int, image: Upload, **fields: Unpack[QueryFields]) -> models.Query:
+        """Geolocate a photo: the answer if ready within ``wait_s`` (default 60 s), else the queued query."""
+        return self.call(calls.upload_query(map_id, image, fields)).value
+
+    def get_query(self, query_id: int, *, wait_s: float = 0.0) -> models.Query:
+        """The query; with ``wait_s`` the service holds the request until the answer is ready (a long poll)."""
+        return self.call(calls.get_query(query_id, wait_s)).value
+
+    def get_query_geojson(self, query_id: int, *, wait_s: float = 0.0) -> models.FeatureCollection:
+        """The answer as GeoJSON (``format=geojson``): poses, view cones, buildings; ``attribution``."""
+        return self.call(calls.query_geojson(query_id, wait_s)).value
+
+    def delete_query(self, query_id: int) -> None:
+        """Delete a query and its stored photo."""
+        self.call(calls.delete("queries", query_id))
+
+    def wait_for_query(self, query_id: int, *, timeout_s: float = 600.0) -> models.Query:
+        """Until the query is ``done`` or ``failed`` (returned either way), by long polls that grow like a backoff."""
+        return self.wait(
+            lambda pause: self.get_query(query_id, wait_s=pause), timeout_s=timeout_s, what=f"query {query_id}"
+        )
+
+    def get_job(self, job_id: int) -> models.Job:
+        """A background job: status, attempts, result or last error."""
+        return self.call(calls.get_job(job_id)).value
+
+    def get_file(self, call: Call[bytes]) -> bytes:
+        """A stored file: ``calls.file_of("references", id, "labels.png")``, ``("queries", id, "heatmap.png")``, ..."""
+        return self.call(call).value
+
+    # --- system -------------------------------------------------------------------------------
+
+    def health(self) -> models.Health:
+        """``/healthz``: the process answers."""
+        return self.call(calls.health()).value
+
+    def ready(self) -> models.Readiness:
+        """``/readyz``; a service not ready raises ServerError 503 ``not_ready`` (``details`` say why)."""
+        return self.call(calls.ready()).value
+
+    def about(self) -> models.About:
+        """The service's version and licence table (``/v1/about``)."""
+        return self.call(calls.about()).value
+
+    # --- waiting ------------------------------------------------------------------------------
+
+    def wait(
+        self,
+        fetch: Callable[[float], T],
+        *,
+        timeout_s: float,
+        done: Callable[[T], bool] = is_final,
+        what: str = "the job",
+    ) -> T:
+        """Call ``fetch(pause_s)`` until ``done`` of its value, pausing with exponential backoff between calls.
+
+        ``fetch`` may spend the pause itself (a long poll, as :meth:`wait_for_query` does); whatever it
+        did not spend is slept. A 429 left after the retries is waited out (its ``Retry-After``);
+        :class:`~geoloc.client.errors.WaitTimeoutError` after ``timeout_s`` (s).
+        """
+        loop: WaitLoop[T] = WaitLoop(timeout_s, done, what, time.monotonic)
+        while True:
+            pause_s = loop.begin()
+            try:
+                sleep_s = loop.after(fetch(pause_s))
+            except RateLimitedError as exc:
+                sleep_s = loop.after(None, exc)
+            if sleep_s is None:
+                return cast(T, loop.last)
+            self.sleep(sleep_s)

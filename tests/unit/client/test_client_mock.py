@@ -1,0 +1,150 @@
+"""The client's retries, errors, waiting and models, against mock transports and ``openapi.json``.
+
+The client against a real service (and the real method) is ``tests/e2e/test_client.py``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from pydantic import BaseModel
+
+from geoloc.client import (
+    ApiError,
+    AsyncClient,
+    Client,
+    NotFoundError,
+    RateLimitedError,
+    RetryPolicy,
+    ServerError,
+    ServiceUnreachableError,
+    WaitTimeoutError,
+    models,
+)
+
+ROOT = Path(__file__).resolve().parents[3]
+QUEUED_QUERY = {"id": 5, "map_id": 1, "status": "queued", "params": {}, "attribution": "© OSM"}
+
+
+def _rate_limited(retry_after: str = "2") -> httpx.Response:
+    body = {"error": {"code": "rate_limited", "message": "slow down", "details": {"limit_per_min": 5}}}
+    return httpx.Response(429, json=body, headers={"Retry-After": retry_after})
+
+
+def test_a_429_is_retried_after_its_retry_after_and_gives_up_at_the_limit() -> None:
+    answers = [_rate_limited("2"), _rate_limited("3"), httpx.Response(200, json={"status": "ok"})]
+    slept: list[float] = []
+    with Client("http://mock", transport=httpx.MockTransport(lambda _: answers.pop(0)), sleep=slept.append) as client:
+        assert client.health().status == "ok"
+        assert slept == [2.0, 3.0]  # Retry-After, not the backoff
+
+    def always(_request: httpx.Request) -> httpx.Response:
+        return _rate_limited("1")
+
+    transport = httpx.MockTransport(always)
+    with (
+        Client("http://mock", retry=RetryPolicy(retries=2), transport=transport, sleep=slept.append) as client,
+        pytest.raises(RateLimitedError) as caught,
+    ):
+        client.list_maps()
+    error = caught.value
+    assert (error.status, error.code, error.message, error.attempts) == (429, "rate_limited", "slow down", 3)
+    assert error.retry_after_s == 1.0 and error.details == {"limit_per_min": 5}
+
+
+def test_errors_carry_status_code_and_message_and_other_bodies_too() -> None:
+    def handler(request: httpx.Request) -> httpx.Response:
+        if request.url.path == "/v1/maps/7":
+            return httpx.Response(404, json={"error": {"code": "not_found", "message": "map 7 not found"}})
+        return httpx.Response(502, text="<html>Bad gateway</html>")
+
+    with Client("http://mock", retry=RetryPolicy(retries=0), transport=httpx.MockTransport(handler)) as client:
+        with pytest.raises(NotFoundError) as missing:
+            client.get_map(7)
+        with pytest.raises(ServerError) as proxy:
+            client.about()
+    assert (missing.value.status, missing.value.code, missing.value.message) == (404, "not_found", "map 7 not found")
+    assert isinstance(missing.value, ApiError) and str(missing.value) == "404 not_found: map 7 not found"
+    assert (proxy.value.status, proxy.value.code, proxy.value.message) == (502, None, "<html>Bad gateway</html>")
+
+
+def test_connection_errors_are_retried_then_raised() -> None:
+    calls = 0
+
+    def down(request: httpx.Request) -> httpx.Response:
+        nonlocal calls
+        calls += 1
+        raise httpx.ConnectError("connection refused", request=request)
+
+    slept: list[float] = []
+    policy = RetryPolicy(retries=2, backoff_s=1.0)
+    with (
+        Client("http://mock", retry=policy, transport=httpx.MockTransport(down), sleep=slept.append) as client,
+        pytest.raises(ServiceUnreachableError, match="ConnectError"),
+    ):
+        client.health()
+    assert calls == 3 and len(slept) == 2 and 0.75 <= slept[0] <= 1.25 and 1.5 <= slept[1] <= 2.5
+
+
+def test_waiting_backs_off_and_times_out_with_the_last_state() -> None:
+    seen: list[str] = []
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        seen.append(request.url.params["wait_s"])
+        return httpx.Response(200, json=QUEUED_QUERY)
+
+    with (
+        Client("http://mock", transport=httpx.MockTransport(handler)) as client,
+        pytest.raises(WaitTimeoutError) as caught,
+    ):
+        client.wait_for_query(5, timeout_s=1.2)
+    assert isinstance(caught.value.last, models.Query) and caught.value.last.status == "queued"
+    waits = [float(w) for w in seen]
+    assert waits[:3] == [0.25, 0.5, 1.0] and len(waits) <= 6  # long polls that grow like a backoff (mock: no wait)
+
+
+def test_the_async_client_sends_the_same_requests() -> None:
+    requests: list[httpx.Request] = []
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        requests.append(request)
+        return httpx.Response(202, json=QUEUED_QUERY)
+
+    async def run() -> models.Query:
+        async with AsyncClient("http://mock", api_key="k", transport=httpx.MockTransport(handler)) as client:
+            return await client.upload_query(1, ("q.jpg", b"jpeg"), lat=60.17, lon=24.94, use_exif_gps=False, wait_s=0)
+
+    query = asyncio.run(run())
+    assert query.status == "queued" and requests[0].headers["X-API-Key"] == "k"
+    body = requests[0].content
+    assert b'name="use_exif_gps"\r\n\r\nfalse' in body and b'name="lat"\r\n\r\n60.17' in body
+    assert b'name="wait_s"\r\n\r\n0' in body and b'filename="q.jpg"' in body
+
+
+@pytest.mark.parametrize(
+    ("model", "schema"),
+    [
+        (models.Map, "MapOut"),
+        (models.ReferenceAccepted, "ReferenceAccepted"),
+        (models.Reference, "ReferenceOut"),
+        (models.ReferenceList, "ReferenceList"),
+        (models.Position, "Position"),
+        (models.Query, "QueryOut"),
+        (models.Job, "JobOut"),
+        (models.Health, "Health"),
+        (models.Readiness, "Readiness"),
+        (models.About, "About"),
+        (models.License, "LicenseOut"),
+    ],
+)
+def test_the_models_have_the_api_s_fields(model: type[BaseModel], schema: str) -> None:
+    """Each client model has its OpenAPI schema's fields, the required ones required (the API changed: follow it)."""
+    component: dict[str, Any] = json.loads((ROOT / "openapi.json").read_text())["components"]["schemas"][schema]
+    assert set(model.model_fields) == set(component["properties"])
+    required = {name for name, info in model.model_fields.items() if info.is_required()}
+    assert required == set(component.get("required", []))
