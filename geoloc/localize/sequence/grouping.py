@@ -5,8 +5,11 @@ A sequence is, in this order of precedence:
 1. the references that share a stated sequence id (the upload's ``sequence`` form field, or Mapillary's
    ``MAPSequenceUUID`` read from the photo), ordered by capture time (then by upload order);
 2. otherwise, one device's consecutive captures: references without a sequence id, with a capture time and the
-   same device (EXIF make and model; None counts as one device), sorted by capture time, where each photo follows
-   the previous one within :data:`MAX_GAP_S` seconds and :data:`MAX_STEP_M` metres (GPS).
+   same device (EXIF make and model), sorted by capture time, where each photo follows the previous one within
+   :data:`MAX_GAP_S` seconds and :data:`MAX_STEP_M` metres (GPS). A photo that names no camera is grouped by
+   nothing but a sequence id: without a device, "one device's captures" cannot be told from several people's
+   photos that happen to be close (phones write their make and model; simulated scattered worlds do not, and stay
+   as they were).
 
 A group of one photo is no sequence; its reference is labelled alone, as before.
 """
@@ -64,11 +67,11 @@ def group_sequences(
     Groups of one are left out; every reference appears in at most one group.
     """
     stated: dict[str, list[SequenceMember]] = {}
-    by_device: dict[str | None, list[SequenceMember]] = {}
+    by_device: dict[str, list[SequenceMember]] = {}
     for member in members:
         if member.sequence_id:
             stated.setdefault(member.sequence_id, []).append(member)
-        elif member.capture_time is not None:
+        elif member.capture_time is not None and member.device is not None:
             by_device.setdefault(member.device, []).append(member)
     groups = [sorted(group, key=_time_key) for group in stated.values()]
     for captures in by_device.values():

@@ -56,6 +56,9 @@ def test_photos_without_time_or_with_mixed_clocks_are_not_grouped() -> None:
     aware = SequenceMember(2, None, (T0 + timedelta(seconds=5)).replace(tzinfo=UTC), "Phone", (1.0, 0.0), 2)
     untimed = SequenceMember(3, None, None, "Phone", (2.0, 0.0), 3)
     assert group_sequences([_member(1, 0, 0), aware, untimed]) == []
+    # No camera named: grouped by nothing but a sequence id.
+    assert group_sequences([_member(1, 0, 0, device=None), _member(2, 5, 1, device=None)]) == []
+    assert group_sequences([_member(1, 0, 0, seq="s", device=None), _member(2, 5, 1, seq="s", device=None)]) == [[1, 2]]
     assert photo_device(" Apple ", "iPhone 12") == "Apple iPhone 12" and photo_device(None, " ") is None
 
 
@@ -71,7 +74,7 @@ def test_the_lund_photos_group_into_one_walk_in_capture_order() -> None:
         for i, (path, p) in enumerate(zip(paths, photos, strict=True))
     ]
     assert group_sequences(members) == [[path.name for path in paths]]
-    # Without their sequence id they are still one walk: one camera, seconds and metres apart.
+    # Without their sequence id (and with a camera named) they are still one walk: seconds and metres apart.
     unstated = [SequenceMember(m.reference_id, None, m.capture_time, "iPhone", m.gps_xy, m.order) for m in members]
     assert group_sequences(unstated) == [[path.name for path in paths]]
 
