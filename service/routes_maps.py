@@ -103,7 +103,8 @@ def upload_map(
         Form(
             max_length=200,
             description="GIS files: the layer to read (a GeoPackage table, a shapefile's name in the zip); "
-            "needed only when the file has several polygon layers",
+            "needed only when the file has several polygon layers and not exactly one is named buildings "
+            "(else has a building attribute)",
         ),
     ] = None,
     name_attribute: Annotated[

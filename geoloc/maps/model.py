@@ -79,12 +79,14 @@ class LoadReport:
 
     format: the detected format (``osm``, ``osm.bz2``, ``osm.gz``, ``pbf``, ``geojson``, ``geojson.gz``,
     ``gpkg``, ``shapefile.zip``, ``fgb``). layer, crs: the GIS layer read and the CRS its coordinates
-    were converted from (empty for OSM, which is always WGS84). features_not_polygons: GIS features
+    were converted from (empty for OSM, which is always WGS84). layer_choice: why that layer was read when the
+    file has several polygon layers and none was named (empty otherwise). features_not_polygons: GIS features
     skipped because their geometry is not a polygon (or is empty).
     """
 
     format: str = ""
     layer: str = ""
+    layer_choice: str = ""
     crs: str = ""
     building_ways: int = 0
     building_relations: int = 0

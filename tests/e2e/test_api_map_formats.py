@@ -61,7 +61,18 @@ def snapshot(service: RunningProcess) -> tuple[dict[str, int], list[str]]:
     return table_counts(service.database), stored_files(service.data_dir)
 
 
-GOOD = ["geojson", "geojson.gz", "geojson_3857", "geojson_3857_crs_option", "gpkg", "shapefile.zip", "fgb", "osm.gz"]
+GOOD = [
+    "geojson",
+    "geojson.gz",
+    "geojson_3857",
+    "geojson_3857_crs_option",
+    "gpkg",
+    "gpkg_buildings_layer",
+    "gpkg_building_attribute",
+    "shapefile.zip",
+    "fgb",
+    "osm.gz",
+]
 
 
 @pytest.mark.parametrize("name", GOOD)
@@ -82,6 +93,18 @@ def test_each_format_uploads_with_its_buildings(
     assert cached.is_file(), "the API cached the loaded map for the workers"
     again = upload(client, good.path, f"{name} again", good.options)
     assert again.status_code == 200 and again.json()["id"] == created["id"] and again.json()["duplicate"]
+
+
+def test_of_several_polygon_layers_the_buildings_layer_is_read_and_the_map_says_so(
+    client: httpx.Client, files: MapFiles
+) -> None:
+    response = upload(client, files.good["gpkg_buildings_layer"].path, "several layers")
+    assert response.status_code in (200, 201), response.text
+    report = response.json()["repair_report"]
+    assert report["layer"] == "buildings"
+    assert report["layer_choice"].endswith("read 'buildings', the only one named 'buildings'")
+    refused = upload(client, files.good["gpkg"].path, "several layers, none says buildings")
+    assert refused.status_code == 422 and refused.json()["error"]["code"] == "layer_required"
 
 
 def test_mercator_geojson_without_crs_is_refused_with_the_way_out(
