@@ -17,10 +17,7 @@ Pillow and numpy draw it (no plotting library in the service's runtime).
 from __future__ import annotations
 
 import io
-import json
 from dataclasses import dataclass
-from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 import shapely
@@ -28,10 +25,7 @@ from PIL import Image, ImageDraw, ImageFont
 from shapely.geometry import MultiPolygon, Polygon
 
 from contracts.answers import QueryResult
-from contracts.settings import Settings
-from db.files import FileStore
-from db.rows import MapRow
-from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
+from geoloc.maps import CityMap
 
 SIZE_PX = 800
 """Width and height of the map panel (pixels); the PNG is this wide and :data:`FOOTER_PX` taller."""
@@ -250,19 +244,3 @@ def heatmap_png(city_map: CityMap, result: QueryResult, attribution: str, size_p
     out = io.BytesIO()
     image.convert("RGB").save(out, format="PNG", optimize=False)
     return out.getvalue()
-
-
-@lru_cache(maxsize=2)
-def _cached_map(source: str, cache_dir: str, read_options: str, sha256: str) -> CityMap:
-    options = MapReadOptions.from_dict(json.loads(read_options))
-    return load_map_cached(source, Path(cache_dir), options, sha256=sha256)
-
-
-def map_of(settings: Settings, store: FileStore, row: MapRow) -> CityMap:
-    """The loaded map of a map row, from the copy cached at upload (kept for the last two maps drawn)."""
-    return _cached_map(
-        str(store.local_path(row["source_path"])),
-        str(map_cache_dir(settings.data_dir)),
-        json.dumps(row["read_options"], sort_keys=True),
-        row["sha256"],
-    )

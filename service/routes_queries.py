@@ -44,9 +44,9 @@ from service.geojson import (
     query_collection,
     wants_geojson,
 )
-from service.heatmap_png import heatmap_png, map_of
+from service.heatmap_png import heatmap_png
 from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
-from service.intake import READ_ERRORS, PhotoIntake, require_map, work_status
+from service.intake import READ_ERRORS, PhotoIntake, loaded_map, require_map, work_status
 from service.limits import require_queue_capacity
 from service.models import QueryOut, error_responses, timestamp
 from service.spec import QUEUE_FULL_RESPONSE
@@ -298,7 +298,7 @@ def get_heatmap_png(
     result = QueryResult.model_validate(_done_result(db, query_id))
     row, _ = _load(db, query_id)
     map_row = require_map(db, row["map_id"])
-    png = heatmap_png(map_of(settings, store, map_row), result, map_attribution(map_row["attribution"]))
+    png = heatmap_png(loaded_map(settings, store, map_row), result, map_attribution(map_row["attribution"]))
     return Response(png, media_type="image/png")
 
 

@@ -64,7 +64,7 @@ class RawMap:
 
     Buildings come in three kinds, numbered in this order: ``relations``; ways (one ring each:
     ``way_coords`` (N, 2) split by ``way_offsets`` (W + 1,)); GIS ``features`` (shapely polygons).
-    trees: (T, 2); streets: ``street_lonlat`` split by ``street_offsets``.
+    trees: (T, 2); streets: ``street_lonlat`` split by ``street_offsets``, their ``name`` tags in ``street_names``.
     """
 
     format: str
@@ -80,6 +80,7 @@ class RawMap:
     trees: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     street_lonlat: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     street_offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))
+    street_names: list[str | None] = field(default_factory=list)
 
 
 def build_city_map(
@@ -117,8 +118,19 @@ def build_city_map(
     extent = np.concatenate([building_lonlat, raw.trees]) if len(raw.trees) else building_lonlat
     bbox = (float(extent[:, 1].min()), float(extent[:, 0].min()), float(extent[:, 1].max()), float(extent[:, 0].max()))
     heights = np.array([b.height_m for b in buildings])
+    street_names = raw.street_names or [None] * (len(raw.street_offsets) - 1)
     return CityMap(
-        frame, buildings, facades, heights, trees, raw.street_lonlat, raw.street_offsets, bbox, report, source
+        frame,
+        buildings,
+        facades,
+        heights,
+        trees,
+        raw.street_lonlat,
+        raw.street_offsets,
+        bbox,
+        report,
+        source,
+        street_names,
     )
 
 

@@ -159,10 +159,11 @@ class CityMap:
     bbox_wgs84: tuple[float, float, float, float]  # min_lat, min_lon, max_lat, max_lon
     report: LoadReport
     source: str = ""
+    street_names: list[str | None] = field(default_factory=list)  # (S,) each street's OSM name tag, or None
 
     @cached_property
     def streets(self) -> list[np.ndarray]:
-        """Highway centrelines as (N, 2) local polylines (converted on first use: only the simulator needs them)."""
+        """Highway centrelines as (N, 2) local polylines (converted on first use: the simulator, the heat map PNG)."""
         if not len(self.street_lonlat):
             return []
         x, y = self.frame.to_local(self.street_lonlat[:, 1], self.street_lonlat[:, 0])

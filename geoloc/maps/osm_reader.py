@@ -69,6 +69,7 @@ def _read(path: Path, kind: str) -> RawMap:
     building_ways: list[tuple[int, dict[str, str]]] = []
     building_geoms: list[Any] = []
     street_geoms: list[Any] = []
+    street_names: list[str | None] = []
     member_geoms: dict[int, Any] = {}
     # Only tagged nodes reach Python (node locations are cached in C++ for all). Ways all do: a relation's
     # member ways are often untagged, and a filter by id costs memory in the id range on large extracts.
@@ -93,6 +94,7 @@ def _read(path: Path, kind: str) -> RawMap:
         elif "highway" in way_tags:
             geometry = _way_geometry(factory, obj, report)
             street_geoms.append(geometry)
+            street_names.append(way_tags.get("name"))
         if obj.id in member_ids:
             member_geoms[obj.id] = geometry if geometry is not None else _way_geometry(factory, obj, report)
 
@@ -107,6 +109,7 @@ def _read(path: Path, kind: str) -> RawMap:
     street_lonlat, street_offsets = _ragged(street_geoms)
     long_enough = np.flatnonzero(np.diff(street_offsets) >= 2)
     raw.street_lonlat, raw.street_offsets = _reorder(street_lonlat, street_offsets, long_enough)
+    raw.street_names = [street_names[i] for i in long_enough.tolist()]
     raw.trees = np.asarray(trees, dtype=float).reshape(-1, 2)
     return raw
 

@@ -25,7 +25,7 @@ import shapely
 from geoloc.core.geo import LocalFrame
 from geoloc.maps.model import Building, CityMap, Facades, LoadReport, MapReadOptions
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: street names
 """Bumped whenever loading could give a different map for the same file and options."""
 
 
@@ -58,6 +58,7 @@ def save_city_map(city_map: CityMap, path: Path) -> None:
         "names": [b.name for b in buildings],
         "height_sources": [b.height_source for b in buildings],
         "tags": [b.tags for b in buildings],
+        "street_names": city_map.street_names,
     }
     arrays = {
         "meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
@@ -117,6 +118,7 @@ def read_city_map(path: Path) -> CityMap:
         tuple(meta["bbox_wgs84"]),
         LoadReport(**meta["report"]),
         meta["source"],
+        meta["street_names"],
     )
 
 
