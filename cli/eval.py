@@ -156,7 +156,12 @@ def camvid(
 @app.command("world")
 def world(
     world_dir: Path = typer.Argument(..., help="A world folder written by `geoloc sim world`."),
-    json_out: Path | None = typer.Option(None, "--json", help="Write the full results (with per-query rows) here."),
+    json_out: Path | None = typer.Option(
+        None,
+        "--json",
+        help="Write the full results (with per-query rows) here, and beside them the figures: "
+        "OUT.error_cdf.png (rank-1 error CDF per run) and OUT.top_n.png (Fig. 7, best of top N).",
+    ),
     runs: str | None = typer.Option(
         None,
         "--runs",
@@ -173,6 +178,7 @@ def world(
     the heading error, how often the uncertainty radius holds the truth, and Fig. 7 (best of top N).
     """
     # The method loads numpy and OpenCV: imported per command, for CLI start-up time.
+    from geoloc.evaluation.figures import write_world_figures  # lazy: CLI start-up
     from geoloc.evaluation.world import default_runs, evaluate_world  # lazy: CLI start-up
     from geoloc.localize.query import QueryConfig
     from workers.context import method_context
@@ -200,6 +206,8 @@ def world(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(result, indent=2, default=str) + "\n")
         typer.echo(f"wrote {json_out}")
+        for figure in write_world_figures(result, json_out):
+            typer.echo(f"wrote {figure}")
 
 
 def print_world_summary(result: dict[str, Any], seconds: float) -> None:

@@ -1,4 +1,4 @@
-"""What the reference and query routes share: the map lookup, read errors, status, the one photo-upload use-case.
+"""What the routes share: the map lookup (its row, its loaded map), read errors, status, the photo-upload use-case.
 
 A photo upload, a reference or a query, goes through :meth:`PhotoIntake.accept`: look the map up (404),
 check the form, receive the photo (413 over the size limit), check it by its content (415, 413, 422) and
@@ -15,8 +15,11 @@ database) runs on the event loop.
 
 from __future__ import annotations
 
+import json
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 
 from fastapi import UploadFile
 
@@ -27,6 +30,7 @@ from db import jobs as job_store
 from db import maps as map_store
 from db.files import FileStore
 from db.rows import JobRow, MapRow
+from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from service.errors import ApiError
 from service.images import ImageInfo, validate_image
 from service.models import error_responses
@@ -43,6 +47,25 @@ def require_map(db: Database, map_id: int) -> MapRow:
     if row is None:
         raise ApiError(404, "not_found", f"map {map_id} not found")
     return row
+
+
+@lru_cache(maxsize=2)
+def _cached_map(source: str, cache_dir: str, read_options: str, sha256: str) -> CityMap:
+    options = MapReadOptions.from_dict(json.loads(read_options))
+    return load_map_cached(source, Path(cache_dir), options, sha256=sha256)
+
+
+def loaded_map(settings: Settings, store: FileStore, row: MapRow) -> CityMap:
+    """The loaded map of a map row (streets, footprints in local metres), from the copy cached at upload.
+
+    Kept in memory for the last two maps asked (the heat map picture, the streets' GeoJSON).
+    """
+    return _cached_map(
+        str(store.local_path(row["source_path"])),
+        str(map_cache_dir(settings.data_dir)),
+        json.dumps(row["read_options"], sort_keys=True),
+        row["sha256"],
+    )
 
 
 def work_status(status: str, error: str | None, job: JobRow | None) -> tuple[WorkStatus, str | None]:

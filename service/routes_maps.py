@@ -1,4 +1,4 @@
-"""Maps: upload (loaded with ``geoloc.maps.load_map``), list, get, buildings as GeoJSON, delete.
+"""Maps: upload (loaded with ``geoloc.maps.load_map``), list, get, buildings and streets as GeoJSON, delete.
 
 An upload is read once, in the API process; its buildings become rows and the loaded map is also
 written to ``DATA_DIR/cache/maps`` (:mod:`geoloc.maps.store`) so that workers start from that copy
@@ -35,7 +35,7 @@ from service.auth import require_read, require_write
 from service.bounds import MapId
 from service.deps import app_settings, get_db, get_store
 from service.errors import ApiError
-from service.intake import require_map
+from service.intake import loaded_map, require_map
 from service.models import MapList, MapOut, error_responses, timestamp
 from service.uploads import received_upload
 
@@ -103,7 +103,8 @@ def upload_map(
         Form(
             max_length=200,
             description="GIS files: the layer to read (a GeoPackage table, a shapefile's name in the zip); "
-            "needed only when the file has several polygon layers",
+            "needed only when the file has several polygon layers and not exactly one is named buildings "
+            "(else has a building attribute)",
         ),
     ] = None,
     name_attribute: Annotated[
@@ -261,6 +262,43 @@ def get_buildings(map_id: MapId, db: Database = Depends(get_db)) -> Response:
     )
     body = '{"type":"FeatureCollection","attribution":' + attribution + ',"features":[' + features + "]}"
     return Response(body, media_type="application/geo+json")
+
+
+@router.get(
+    "/{map_id}/streets",
+    responses={
+        200: {"content": {"application/geo+json": {}}, "description": "GeoJSON FeatureCollection"},
+        **error_responses(404),
+    },
+    response_class=Response,
+    dependencies=[Depends(require_read)],
+)
+def get_streets(
+    map_id: MapId,
+    db: Database = Depends(get_db),
+    settings: Settings = Depends(app_settings),
+    store: FileStore = Depends(get_store),
+) -> Response:
+    """The map's streets as a GeoJSON FeatureCollection of LineStrings (WGS84, lon/lat), with ``attribution``.
+
+    Each feature's properties: ``street_id`` (its index) and ``name`` (the OSM ``name`` tag, null when it has
+    none). OSM maps' ``highway=*`` ways; GIS maps have no streets (an empty collection).
+    """
+    row = require_map(db, map_id)
+    city_map = loaded_map(settings, store, row)
+    bounds = city_map.street_offsets.tolist()
+    names = city_map.street_names or [""] * (len(bounds) - 1)  # "" is an unnamed street
+    features = [
+        {
+            "type": "Feature",
+            "id": i,
+            "geometry": {"type": "LineString", "coordinates": city_map.street_lonlat[a:b].round(7).tolist()},
+            "properties": {"street_id": i, "name": name or None},
+        }
+        for i, (a, b, name) in enumerate(zip(bounds[:-1], bounds[1:], names, strict=True))
+    ]
+    body = {"type": "FeatureCollection", "attribution": map_attribution(row["attribution"]), "features": features}
+    return Response(json.dumps(body, separators=(",", ":")), media_type="application/geo+json")
 
 
 @router.delete(

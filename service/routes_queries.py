@@ -17,8 +17,6 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Annotated, Any
 
-import cv2
-import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
@@ -46,8 +44,9 @@ from service.geojson import (
     query_collection,
     wants_geojson,
 )
+from service.heatmap_png import heatmap_png
 from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
-from service.intake import READ_ERRORS, PhotoIntake, work_status
+from service.intake import READ_ERRORS, PhotoIntake, loaded_map, require_map, work_status
 from service.limits import require_queue_capacity
 from service.models import QueryOut, error_responses, timestamp
 from service.places import resolve_form_place
@@ -308,15 +307,22 @@ def _done_result(db: Database, query_id: int) -> dict[str, Any]:
     response_class=Response,
     dependencies=[Depends(require_read)],
 )
-def get_heatmap_png(query_id: QueryId, db: Database = Depends(get_db)) -> Response:
-    """The probability map as a PNG (north up, one pixel block per grid cell, the best location marked)."""
-    heat = np.asarray(_done_result(db, query_id)["heatmap"]["values"], dtype=float)
-    scaled = np.flipud(heat / heat.max() if heat.max() > 0 else heat)  # row 0 is the southern edge
-    colored = cv2.applyColorMap((255 * np.sqrt(scaled)).astype(np.uint8), cv2.COLORMAP_INFERNO)
-    block = max(1, 400 // max(heat.shape))
-    colored = cv2.resize(colored, (heat.shape[1] * block, heat.shape[0] * block), interpolation=cv2.INTER_NEAREST)
-    ok, png = cv2.imencode(".png", colored)
-    return Response(png.tobytes(), media_type="image/png")
+def get_heatmap_png(
+    query_id: QueryId,
+    db: Database = Depends(get_db),
+    settings: Settings = Depends(app_settings),
+    store: FileStore = Depends(get_store),
+) -> Response:
+    """The answer as a picture that stands alone (PNG, 800 px wide, north up; :mod:`service.heatmap_png`).
+
+    The probability map's cells over the map's streets and footprints, the top poses as view cones, a colour
+    bar, a scale bar, a north arrow and the map data's attribution.
+    """
+    result = QueryResult.model_validate(_done_result(db, query_id))
+    row, _ = _load(db, query_id)
+    map_row = require_map(db, row["map_id"])
+    png = heatmap_png(loaded_map(settings, store, map_row), result, map_attribution(map_row["attribution"]))
+    return Response(png, media_type="image/png")
 
 
 @router.get(

@@ -101,7 +101,7 @@ def _attributes(city: CityMap, levels: str = "building:levels") -> dict[str, np.
     return {"osm_id": ids, "name": names, "height": height, levels: storeys}
 
 
-def _write(path: Path, geoms: np.ndarray, crs: str | None, driver: str, columns: dict[str, np.ndarray],
+def write_polygons(path: Path, geoms: np.ndarray, crs: str | None, driver: str, columns: dict[str, np.ndarray],
            layer: str | None = None, **kwargs: Any) -> Path:  # fmt: skip
     """Write polygons with attribute columns; GeoJSON keeps each feature's type, the others get MultiPolygons."""
     geometry_type = "Unknown" if driver == "GeoJSON" else "MultiPolygon"
@@ -133,7 +133,7 @@ def write_map_files(folder: Path) -> MapFiles:
     bad: dict[str, BadFile] = {}
 
     # GeoJSON, RFC 7946: WGS84 lon/lat and no CRS member.
-    wgs84 = _write(folder / "helsinki.geojson", lonlat, None, "GeoJSON", attributes, RFC7946="YES")
+    wgs84 = write_polygons(folder / "helsinki.geojson", lonlat, None, "GeoJSON", attributes, RFC7946="YES")
     good["geojson"] = GoodFile(wgs84, n, source_format="geojson")
     gz = folder / "helsinki.geojson.gz"
     gz.write_bytes(gzip.compress(wgs84.read_bytes()))
@@ -141,7 +141,7 @@ def write_map_files(folder: Path) -> MapFiles:
 
     # The same footprints in Web Mercator, as a municipal layer would give them: with a legacy CRS member ...
     mercator = reproject(lonlat, "EPSG:3857")
-    with_crs = _write(folder / "helsinki_3857.geojson", mercator, "EPSG:3857", "GeoJSON", attributes)
+    with_crs = write_polygons(folder / "helsinki_3857.geojson", mercator, "EPSG:3857", "GeoJSON", attributes)
     assert b'"crs"' in with_crs.read_bytes()[:400], "GDAL wrote the legacy crs member"
     good["geojson_3857"] = GoodFile(with_crs, n, source_format="geojson")
     # ... and without one (RFC 7946 says lon/lat: must be refused, or read with the crs form field).
@@ -157,11 +157,11 @@ def write_map_files(folder: Path) -> MapFiles:
     gpkg = folder / "helsinki.gpkg"
     finnish = {"osm_id": attributes["osm_id"], "NIMI": attributes["name"], "KORKEUS": attributes["height"],
                "KERROKSIA": attributes["building:levels"]}  # fmt: skip
-    _write(gpkg, reproject(lonlat, FINNISH_GRID), FINNISH_GRID, "GPKG", finnish, layer="rakennukset")
+    write_polygons(gpkg, reproject(lonlat, FINNISH_GRID), FINNISH_GRID, "GPKG", finnish, layer="rakennukset")
     centroids = shapely.centroid(reproject(lonlat, FINNISH_GRID))
     _write_points(gpkg, centroids, FINNISH_GRID, "osoitteet", append=True)
     blocks = shapely.buffer(centroids[:5], 30.0)
-    _write(gpkg, blocks, FINNISH_GRID, "GPKG", {"NIMI": np.array(["k"] * 5, dtype=object)}, layer="korttelit",
+    write_polygons(gpkg, blocks, FINNISH_GRID, "GPKG", {"NIMI": np.array(["k"] * 5, dtype=object)}, layer="korttelit",
            append=True)  # fmt: skip
     gpkg_options = {"layer": "rakennukset", "name_attribute": "NIMI", "height_attribute": "KORKEUS",
                     "levels_attribute": "KERROKSIA"}  # fmt: skip
@@ -172,13 +172,24 @@ def write_map_files(folder: Path) -> MapFiles:
     bad["gpkg: an attribute that does not exist"] = BadFile(
         gpkg, "attribute_not_found", "KORKEUS", {"layer": "rakennukset", "height_attribute": "korkeus_m"}
     )
+    # Several polygon layers, none named in the form: the one named "buildings" is read, or the only one
+    # with a "building" attribute (each beside a layer of city blocks and one of address points).
+    for key, layer, columns in (
+        ("gpkg_buildings_layer", "buildings", attributes),
+        ("gpkg_building_attribute", "talot", {**attributes, "building": np.array(["yes"] * n, dtype=object)}),
+    ):
+        path = write_polygons(folder / f"{key}.gpkg", lonlat, "EPSG:4326", "GPKG", columns, layer=layer)
+        write_polygons(path, shapely.buffer(shapely.centroid(lonlat[:5]), 0.0003), "EPSG:4326", "GPKG",
+               {"name": np.array(["k"] * 5, dtype=object)}, layer="korttelit", append=True)  # fmt: skip
+        _write_points(path, shapely.centroid(lonlat), "EPSG:4326", "osoitteet", append=True)
+        good[key] = GoodFile(path, n, source_format="gpkg")
     points_only = _write_points(folder / "addresses.gpkg", centroids, FINNISH_GRID, "osoitteet")
     bad["gpkg without polygons"] = BadFile(points_only, "no_polygon_layer", "osoitteet (Point)")
 
     # Zipped Shapefile in UTM 35N, in a sub-folder of the zip as people zip them (field names of 10 chars).
     shp_dir = folder / "shp"
     shp_dir.mkdir(exist_ok=True)
-    _write(shp_dir / "buildings.shp", reproject(lonlat, UTM_35N), UTM_35N, "ESRI Shapefile",
+    write_polygons(shp_dir / "buildings.shp", reproject(lonlat, UTM_35N), UTM_35N, "ESRI Shapefile",
            _attributes(city, levels="levels"))  # fmt: skip
     shp_zip = folder / "helsinki_shp.zip"
     with zipfile.ZipFile(shp_zip, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -187,7 +198,7 @@ def write_map_files(folder: Path) -> MapFiles:
     good["shapefile.zip"] = GoodFile(shp_zip, n, {"levels_attribute": "levels"}, "shapefile.zip")
 
     # FlatGeobuf in WGS84.
-    fgb = _write(folder / "helsinki.fgb", lonlat, "EPSG:4326", "FlatGeobuf", attributes)
+    fgb = write_polygons(folder / "helsinki.fgb", lonlat, "EPSG:4326", "FlatGeobuf", attributes)
     good["fgb"] = GoodFile(fgb, n, source_format="fgb")
 
     # OSM XML, gzipped (an Overpass download).

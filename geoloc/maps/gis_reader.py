@@ -1,10 +1,11 @@
 """GIS files (GeoJSON plain/.gz, GeoPackage, FlatGeobuf, zipped Shapefile) -> :class:`RawMap`, with pyogrio.
 
-One layer is read: the one named by ``MapReadOptions.layer``, else the file's only polygon layer
-(several polygon layers and no name: refused, listing them). Only polygon features are buildings
-(others are counted in ``features_not_polygons``); when the layer has a ``building`` attribute that
-some feature fills, features with no value or ``no`` there are left out, as in OSM. Names, heights
-and storeys come from the attributes named in the options (a unique case-insensitive match counts,
+One layer is read: the one named by ``MapReadOptions.layer``, else the file's only polygon layer; of several
+polygon layers and no name, the only one named ``buildings`` (or ``building``), else the only one with a
+``building`` attribute, saying so in the report's ``layer_choice``; else the file is refused, listing them.
+Only polygon features are buildings (others are counted in ``features_not_polygons``); when the layer has a
+``building`` attribute that some feature fills, features with no value or ``no`` there are left out, as in
+OSM. Names, heights and storeys come from the attributes named in the options (a unique case-insensitive match counts,
 so ``NAME`` serves for ``name``; an attribute named explicitly that the layer lacks is refused).
 A feature's id is its ``@id``, ``osm_id`` or ``id`` attribute, else ``feature/<FID>``. Rings that
 are not closed are closed (counted in ``closed_unclosed_ways``). Coordinates are converted to
@@ -36,6 +37,7 @@ _ID_ATTRIBUTES = ("@id", "osm_id", "id")
 _EXTRA_ATTRIBUTES = ("building", "addr:street", "addr:housenumber", "amenity")
 _CRS_LOOKAHEAD_BYTES = 1 << 16
 _SINGLE_LAYER_FORMATS = ("geojson", "geojson.gz", "fgb")
+BUILDINGS_LAYER_NAMES = ("buildings", "building")
 _POLYGON_TYPES = (shapely.GeometryType.POLYGON, shapely.GeometryType.MULTIPOLYGON)
 
 
@@ -47,6 +49,7 @@ class Layer:
     geometry_type: str | None
     gdal_path: str
     gdal_layer: str | int
+    chosen_by: str = ""  # why this layer was read when the file has several and none was named
 
     @property
     def polygonal(self) -> bool:
@@ -137,6 +140,10 @@ def choose_layer(layers: list[Layer], wanted: str | None, file_name: str) -> Lay
         )
     if len(candidates) > 1:
         names = ", ".join(repr(layer.name) for layer in candidates)
+        chosen = _buildings_layer(candidates)
+        if chosen is not None:
+            chosen.chosen_by = f"{len(candidates)} polygon layers ({names}): read {chosen.name!r}, {chosen.chosen_by}"
+            return chosen
         raise MapLoadError(
             f"{file_name}: {len(candidates)} polygon layers ({names}); choose one with the layer option "
             "(form field layer, geoloc map info --layer)",
@@ -144,6 +151,29 @@ def choose_layer(layers: list[Layer], wanted: str | None, file_name: str) -> Lay
             details=details,
         )
     return candidates[0]
+
+
+def _buildings_layer(candidates: list[Layer]) -> Layer | None:
+    """Of several polygon layers, the one that says it holds the buildings, or None when none or several do.
+
+    The only layer named ``buildings`` (or ``building``, any case), else the only one with a ``building``
+    attribute (any case); its ``chosen_by`` says which rule picked it.
+    """
+    named = [layer for layer in candidates if layer.name.lower() in BUILDINGS_LAYER_NAMES]
+    if len(named) == 1:
+        named[0].chosen_by = f"the only one named {named[0].name!r}"
+        return named[0]
+    if named:
+        return None
+    with_attribute = [
+        layer
+        for layer in candidates
+        if "building" in (str(f).lower() for f in pyogrio.read_info(layer.gdal_path, layer=layer.gdal_layer)["fields"])
+    ]
+    if len(with_attribute) == 1:
+        with_attribute[0].chosen_by = "the only one with a 'building' attribute"
+        return with_attribute[0]
+    return None
 
 
 def _read_layer(path: Path, kind: str, layer: Layer, options: MapReadOptions) -> RawMap:
@@ -157,7 +187,7 @@ def _read_layer(path: Path, kind: str, layer: Layer, options: MapReadOptions) ->
         return_fids=True,
         force_2d=True,
     )
-    report = LoadReport(format=kind, layer=layer.name)
+    report = LoadReport(format=kind, layer=layer.name, layer_choice=layer.chosen_by)
     by_field = dict(zip(meta["fields"], values, strict=True))
     geoms = _polygons(wkb, report)
     attributes = {attribute: by_field[field] for attribute, field in columns.items()}

@@ -79,12 +79,14 @@ class LoadReport:
 
     format: the detected format (``osm``, ``osm.bz2``, ``osm.gz``, ``pbf``, ``geojson``, ``geojson.gz``,
     ``gpkg``, ``shapefile.zip``, ``fgb``). layer, crs: the GIS layer read and the CRS its coordinates
-    were converted from (empty for OSM, which is always WGS84). features_not_polygons: GIS features
+    were converted from (empty for OSM, which is always WGS84). layer_choice: why that layer was read when the
+    file has several polygon layers and none was named (empty otherwise). features_not_polygons: GIS features
     skipped because their geometry is not a polygon (or is empty).
     """
 
     format: str = ""
     layer: str = ""
+    layer_choice: str = ""
     crs: str = ""
     building_ways: int = 0
     building_relations: int = 0
@@ -166,7 +168,7 @@ class CityMap:
 
     @cached_property
     def streets(self) -> list[np.ndarray]:
-        """Highway centrelines as (N, 2) local polylines (converted on first use: only the simulator needs them)."""
+        """Highway centrelines as (N, 2) local polylines (converted on first use: the simulator, the heat map PNG)."""
         if not len(self.street_lonlat):
             return []
         x, y = self.frame.to_local(self.street_lonlat[:, 1], self.street_lonlat[:, 0])

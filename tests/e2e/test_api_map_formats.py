@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 
 from contracts.settings import shared_path
@@ -61,7 +62,18 @@ def snapshot(service: RunningProcess) -> tuple[dict[str, int], list[str]]:
     return table_counts(service.database), stored_files(service.data_dir)
 
 
-GOOD = ["geojson", "geojson.gz", "geojson_3857", "geojson_3857_crs_option", "gpkg", "shapefile.zip", "fgb", "osm.gz"]
+GOOD = [
+    "geojson",
+    "geojson.gz",
+    "geojson_3857",
+    "geojson_3857_crs_option",
+    "gpkg",
+    "gpkg_buildings_layer",
+    "gpkg_building_attribute",
+    "shapefile.zip",
+    "fgb",
+    "osm.gz",
+]
 
 
 @pytest.mark.parametrize("name", GOOD)
@@ -82,6 +94,39 @@ def test_each_format_uploads_with_its_buildings(
     assert cached.is_file(), "the API cached the loaded map for the workers"
     again = upload(client, good.path, f"{name} again", good.options)
     assert again.status_code == 200 and again.json()["id"] == created["id"] and again.json()["duplicate"]
+
+
+def test_of_several_polygon_layers_the_buildings_layer_is_read_and_the_map_says_so(
+    client: httpx.Client, files: MapFiles
+) -> None:
+    response = upload(client, files.good["gpkg_buildings_layer"].path, "several layers")
+    assert response.status_code in (200, 201), response.text
+    report = response.json()["repair_report"]
+    assert report["layer"] == "buildings"
+    assert report["layer_choice"].endswith("read 'buildings', the only one named 'buildings'")
+    refused = upload(client, files.good["gpkg"].path, "several layers, none says buildings")
+    assert refused.status_code == 422 and refused.json()["error"]["code"] == "layer_required"
+
+
+def test_a_maps_streets_come_as_geojson_lines_with_their_names(client: httpx.Client, files: MapFiles) -> None:
+    osm = upload(client, files.good["osm.gz"].path, "streets").json()
+    body = client.get(f"/v1/maps/{osm['id']}/streets")
+    assert body.status_code == 200 and body.headers["content-type"] == "application/geo+json"
+    collection = body.json()
+    assert collection["type"] == "FeatureCollection" and collection["attribution"] == osm["attribution"]
+    streets = collection["features"]
+    assert len(streets) > 100 and all(f["geometry"]["type"] == "LineString" for f in streets)
+    assert [f["properties"]["street_id"] for f in streets] == list(range(len(streets)))
+    names = {f["properties"]["name"] for f in streets} - {None}
+    assert {"Unter den Linden", "Friedrichstraße"} <= names  # the ways' OSM name tags
+    lon, lat = np.array([c for f in streets for c in f["geometry"]["coordinates"]]).T
+    box = osm["bbox"]
+    assert box["min_lon"] - 0.05 < lon.min() < lon.max() < box["max_lon"] + 0.05
+    assert box["min_lat"] - 0.05 < lat.min() < lat.max() < box["max_lat"] + 0.05
+    gis = upload(client, files.good["geojson"].path, "no streets").json()
+    assert client.get(f"/v1/maps/{gis['id']}/streets").json()["features"] == []
+    missing = client.get("/v1/maps/987654/streets")
+    assert missing.status_code == 404 and missing.json()["error"]["code"] == "not_found"
 
 
 def test_mercator_geojson_without_crs_is_refused_with_the_way_out(

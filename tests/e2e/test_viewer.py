@@ -142,6 +142,7 @@ def test_the_viewer_ingests_locates_and_draws_the_answer(
         assert map_row["attribution"] == HELSINKI_ATTRIBUTION
         assert page.locator("#map-attribution").inner_text() == HELSINKI_ATTRIBUTION
         _check_projection(page, map_row, frame)
+        _check_streets(page, api, map_row)
         _check_references_and_open_one(page, api)
         query = _locate_through_the_page(page, api, world.queries[0].path)
         _check_heatmap(page, query["result"]["heatmap"], frame)
@@ -192,6 +193,26 @@ def _check_projection(page: Any, map_row: dict[str, Any], frame: LocalFrame) -> 
     east, north = frame.to_local(np.array([c[0] for c in corners]), np.array([c[1] for c in corners]))
     assert (x1 - x0) / scale == pytest.approx(east[1] - east[0], rel=2e-3)
     assert (y0 - y1) / scale == pytest.approx(north[1] - north[0], rel=2e-3)  # north is up
+
+
+def _check_streets(page: Any, api: httpx.Client, map_row: dict[str, Any]) -> None:
+    """Every street of the API is drawn under the footprints, and named streets are labelled where they fit."""
+    streets = api.get(f"/v1/maps/{map_row['id']}/streets").json()["features"]
+    assert len(streets) > 100 and page.locator("path.street").count() == len(streets)
+    assert int(page.evaluate("document.body.dataset.streetsDrawn")) == len(streets)
+    order = page.evaluate(
+        "() => [...document.getElementById('layer-buildings').children].map((g) => g.getAttribute('class'))"
+    )
+    assert order.index("streets") < order.index("street-names") < order.index("buildings")  # under the footprints
+    names = {f["properties"]["name"] for f in streets if f["properties"]["name"]}
+    labels = page.locator("text.street-name").evaluate_all("els => els.map(e => e.textContent)")
+    assert sorted(labels) == sorted(names)  # one label per name
+    for _ in range(4):  # zoomed in, long streets show their names along them
+        page.locator("#map").press("+")
+    _wait(page, "() => document.querySelectorAll('text.street-name[visibility=visible]').length > 0", 10)
+    box = page.locator("text.street-name[visibility=visible]").first.bounding_box()
+    assert box is not None and box["width"] > 0
+    page.locator("#map").press("0")  # the whole map again, as the checks after this one expect
 
 
 def _check_references_and_open_one(page: Any, api: httpx.Client) -> None:

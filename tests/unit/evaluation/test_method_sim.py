@@ -7,8 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from contracts.settings import models_dir, shared_path
+from geoloc.evaluation.figures import HEIGHT, WIDTH, write_world_figures
 from geoloc.evaluation.world import KS, EvalRun, default_runs, evaluate_world
 from geoloc.localize.query import QueryConfig
 from geoloc.localize.reference import label_reference_photo
@@ -90,7 +92,7 @@ def test_retrieval_finds_the_reference_sharing_most_building_area(world_dir: Pat
     assert hits and np.mean(hits) >= 0.6, hits
 
 
-def test_evaluation_writes_every_key(world_dir: Path) -> None:
+def test_evaluation_writes_every_key(world_dir: Path, tmp_path: Path) -> None:
     config = QueryConfig()
     runs = [run for run in default_runs(config) if run.name == "gt_segmentation/gps"]
     runs.append(
@@ -124,3 +126,6 @@ def test_evaluation_writes_every_key(world_dir: Path) -> None:
         } <= set(row)
     assert result["runs"]["paper_geometry/gps"]["anchored_share"] == 0.0  # the paper's method has no anchors
     assert result["runs"]["paper_geometry/gps"]["config"]["use_identity"] is False
+    figures = write_world_figures(result, tmp_path / "eval.json")  # what `geoloc eval world --json` writes beside it
+    assert [p.name for p in figures] == ["eval.error_cdf.png", "eval.top_n.png"]
+    assert all(Image.open(p).size == (WIDTH, HEIGHT) for p in figures)

@@ -16,7 +16,7 @@ import shapely
 from geoloc.core.geo import LocalFrame
 from geoloc.maps import CityMap, MapLoadError, MapReadOptions, load_map
 from geoloc.maps.crs import guess_crs
-from tests.map_files import BAD_CASES, BERLIN_BUILDINGS, MapFiles, helsinki_wgs84, write_map_files
+from tests.map_files import BAD_CASES, BERLIN_BUILDINGS, MapFiles, helsinki_wgs84, write_map_files, write_polygons
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +49,17 @@ def _max_offset_m(city: CityMap, reference: CityMap) -> float:
     return float(shapely.hausdorff_distance(placed, reference.footprints).max())
 
 
-GIS_FORMATS = ["geojson", "geojson.gz", "geojson_3857", "geojson_3857_crs_option", "gpkg", "shapefile.zip", "fgb"]
+GIS_FORMATS = [
+    "geojson",
+    "geojson.gz",
+    "geojson_3857",
+    "geojson_3857_crs_option",
+    "gpkg",
+    "gpkg_buildings_layer",
+    "gpkg_building_attribute",
+    "shapefile.zip",
+    "fgb",
+]
 
 
 @pytest.mark.parametrize("name", GIS_FORMATS)
@@ -95,6 +105,39 @@ def test_gpkg_layer_and_attributes_are_chosen_by_name(files: MapFiles) -> None:
     # The other polygon layer is a layer like any other.
     blocks = load_map(good.path, MapReadOptions(layer="KORTTELIT"))  # a unique case-insensitive match counts
     assert len(blocks.buildings) == 5 and blocks.report.layer == "korttelit"
+
+
+@pytest.mark.parametrize(
+    ("name", "layer", "because"),
+    [
+        ("gpkg_buildings_layer", "buildings", "the only one named 'buildings'"),
+        ("gpkg_building_attribute", "talot", "the only one with a 'building' attribute"),
+    ],
+)
+def test_of_several_polygon_layers_the_buildings_layer_is_read_and_the_report_says_so(
+    files: MapFiles, name: str, layer: str, because: str
+) -> None:
+    city = load_map(files.good[name].path)
+    assert city.report.layer == layer
+    choice = city.report.layer_choice
+    assert choice.startswith("2 polygon layers (") and "'korttelit'" in choice
+    assert choice.endswith(f"read {layer!r}, {because}")
+    named = load_map(files.good[name].path, MapReadOptions(layer="korttelit"))  # a named layer still wins
+    assert named.report.layer == "korttelit" and named.report.layer_choice == "" and len(named.buildings) == 5
+
+
+def test_several_layers_that_say_buildings_are_still_refused(files: MapFiles, tmp_path: Path) -> None:
+    with pytest.raises(MapLoadError) as error:
+        load_map(files.good["gpkg"].path)  # rakennukset and korttelit: neither says it holds buildings
+    assert error.value.code == "layer_required"
+    both = tmp_path / "both.gpkg"
+    lonlat = helsinki_wgs84(files.helsinki)[:3]
+    for layer in ("buildings", "building"):
+        write_polygons(both, lonlat, "EPSG:4326", "GPKG", {"name": np.array(["b"] * 3, dtype=object)}, layer=layer,
+                       append=both.exists())  # fmt: skip
+    with pytest.raises(MapLoadError, match="2 polygon layers") as error:
+        load_map(both)
+    assert error.value.code == "layer_required"
 
 
 def test_berlin_overpass_download_loads_gzipped(files: MapFiles, tmp_path: Path) -> None:

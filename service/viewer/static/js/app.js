@@ -196,8 +196,13 @@ async function selectMap(mapId) {
   $("prior-place").value = "";
   let map;
   let buildings;
+  let streets;
   try {
-    [map, buildings] = await Promise.all([getJson(`v1/maps/${mapId}`), getJson(`v1/maps/${mapId}/buildings`)]);
+    [map, buildings, streets] = await Promise.all([
+      getJson(`v1/maps/${mapId}`),
+      getJson(`v1/maps/${mapId}/buildings`),
+      getJson(`v1/maps/${mapId}/streets`),
+    ]);
   } catch (err) {
     reportError(err, `Loading map ${mapId}`);
     return;
@@ -207,13 +212,14 @@ async function selectMap(mapId) {
   state.query = null;
   closeReference();
   clearAnswer();
-  view.setMap(map, buildings);
+  view.setMap(map, buildings, streets);
   $("map-attribution").textContent = map.attribution; // the map data's licence requires it shown (ODbL)
   $("map-attribution").hidden = !map.attribution;
   $("map-info").textContent =
     `${map.name}: ${map.building_count} buildings, ${map.facade_count} facades (from ${map.source_filename}).`;
   document.body.dataset.mapId = map.id;
   document.body.dataset.buildingsDrawn = view.buildingPaths.size;
+  document.body.dataset.streetsDrawn = view.streets.count;
   setStatus(`Map ${map.id} “${map.name}”: ${map.building_count} buildings.`);
   updateHash();
   await loadReferences();

@@ -1,8 +1,9 @@
-// The map: building footprints (SVG in metres under one transform), the probability heatmap (a canvas,
+// The map: streets and building footprints (SVG in metres under one transform; street names in pixels), the probability heatmap (a canvas,
 // one texel per grid cell, drawn without smoothing so every cell keeps its value) and an overlay in
 // screen pixels (references, answers, prior and uncertainty circles) redrawn on every pan or zoom.
 
 import { LocalPlane, formatDistance, horizontalFovDeg, niceLength } from "./geo.js";
+import { StreetLayer } from "./streets.js";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
 const MAX_SCALE_PX_PER_M = 40;
@@ -88,6 +89,7 @@ export class MapView {
     this.handlers = { referenceSelect: () => {}, locationSelect: () => {}, mapClick: () => {} };
     this.pendingFrame = 0;
 
+    this.streets = new StreetLayer(parts.buildings); // under the footprints
     this.buildingGroup = svg("g", { class: "buildings" }, parts.buildings);
     const overlay = parts.overlay;
     this.priorGroup = svg("g", { class: "prior-layer" }, overlay);
@@ -204,9 +206,10 @@ export class MapView {
 
   // --- data -----------------------------------------------------------------------------------
 
-  /** A map (MapOut) and its buildings (GeoJSON FeatureCollection): draw the footprints, fit the view. */
-  setMap(map, buildings) {
+  /** A map (MapOut), its buildings and streets (GeoJSON FeatureCollections): draw them, fit the view. */
+  setMap(map, buildings, streets = { features: [] }) {
     this.plane = new LocalPlane(map.origin.lat, map.origin.lon);
+    this.streets.set(streets, this.plane);
     this.buildingGroup.replaceChildren();
     this.buildingPaths.clear();
     let box = [Infinity, Infinity, -Infinity, -Infinity];
@@ -406,7 +409,9 @@ export class MapView {
     const s = this.scale;
     const tx = this.width / 2 - this.center[0] * s;
     const ty = this.height / 2 + this.center[1] * s;
-    this.buildingGroup.setAttribute("transform", `matrix(${s} 0 0 ${-s} ${tx} ${ty})`);
+    const transform = `matrix(${s} 0 0 ${-s} ${tx} ${ty})`;
+    this.buildingGroup.setAttribute("transform", transform);
+    this.streets.render(transform, (x, y) => this.toScreen(x, y), s);
     this.renderHeat();
     this.renderPrior();
     this.renderReferences();
