@@ -76,7 +76,6 @@ def _read(path: Path, kind: str) -> RawMap:
     building_ways: list[tuple[int, dict[str, str]]] = []
     building_geoms: list[Any] = []
     street_geoms: list[Any] = []
-    street_names: list[str | None] = []
     member_geoms: dict[int, Any] = {}
     # Only tagged nodes reach Python (node locations are cached in C++ for all). Ways all do: a relation's
     # member ways are often untagged, and a filter by id costs memory in the id range on large extracts.

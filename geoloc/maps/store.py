@@ -25,9 +25,9 @@ import shapely
 from geoloc.core.geo import LocalFrame
 from geoloc.maps.model import Building, CityMap, Facades, LoadReport, MapReadOptions
 
-CACHE_VERSION = 2
-"""Bumped whenever loading could give a different map for the same file and options (2: street names,
-landmarks, all address tags)."""
+CACHE_VERSION = 3
+"""Bumped whenever loading could give a different map for the same file and options (2, 3: street names,
+landmarks, all address tags; 3 because two unreleased branches each wrote a different version 2)."""
 
 
 def map_cache_dir(data_dir: Path) -> Path:
