@@ -14,6 +14,13 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict
 
+QueryPreset = Literal["fast", "balanced", "accurate"]
+"""A query's speed against accuracy; each names a ``QueryConfig`` (``geoloc/localize/query/config.py: PRESETS``)."""
+QUERY_PRESETS: tuple[QueryPreset, ...] = ("fast", "balanced", "accurate")
+"""The presets, fastest first."""
+DEFAULT_QUERY_PRESET: QueryPreset = "balanced"
+"""The preset of parameters stored before presets existed (they were answered with today's ``balanced``)."""
+
 
 class PriorPosition(BaseModel):
     """A prior on the photo's position: a disc of ``radius_m`` (about 2 sigma) around (lat, lon)."""
@@ -39,7 +46,9 @@ class QueryParams(BaseModel):
     request's, else the photo's compass); prior_heading_accuracy_deg: the compass's accuracy (deg) when the
     heading came from the compass, None for a stated heading (and in parameters stored before it existed);
     focal_length_35mm: the request's 35 mm-equivalent focal length (None: the photo's EXIF, else a default
-    field of view); original_filename: the uploaded file's name (kept for people, not used by the method).
+    field of view); original_filename: the uploaded file's name (kept for people, not used by the method);
+    preset: the query stage's configuration by name (:data:`QueryPreset`; None in parameters stored before
+    presets existed, which means :data:`DEFAULT_QUERY_PRESET`).
     """
 
     model_config = ConfigDict(frozen=True)
@@ -51,10 +60,16 @@ class QueryParams(BaseModel):
     prior_heading_accuracy_deg: float | None = None
     focal_length_35mm: float | None = None
     original_filename: str | None = None
+    preset: QueryPreset | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The stored and served JSON form: the fields that were given (all of them when the API built it)."""
         return self.model_dump(mode="json", exclude_unset=True)
+
+    @property
+    def preset_name(self) -> QueryPreset:
+        """The preset the query is answered with (:data:`DEFAULT_QUERY_PRESET` for parameters stored without one)."""
+        return self.preset or DEFAULT_QUERY_PRESET
 
     @classmethod
     def from_json(cls, stored: Mapping[str, Any]) -> QueryParams:

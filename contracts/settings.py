@@ -23,6 +23,8 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict
 
+from contracts.queries import DEFAULT_QUERY_PRESET, QueryPreset
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 ENV_PREFIX = "GEOLOC_"
 SCOPES = ("read", "write")
@@ -180,6 +182,11 @@ class Settings(BaseSettings):
         description="the workers delete finished queries (photo and answer) older than this; 0 keeps them "
         "forever; references are never deleted implicitly",
         json_schema_extra=_shown("2592000 (30 days)"),
+    )
+    query_preset: QueryPreset = Field(
+        default=DEFAULT_QUERY_PRESET,
+        description="the preset of a query that names none: `fast`, `balanced` or `accurate` (the query stage's "
+        "configurations, `geoloc/localize/query/config.py: PRESETS`)",
     )
     ready_worker_s: float = Field(default=30.0, ge=0, description="`/readyz` needs a worker heartbeat this recent")
     seg_threads: int | None = Field(

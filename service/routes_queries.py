@@ -24,7 +24,7 @@ from fastapi.responses import FileResponse, JSONResponse
 from contracts.answers import QueryResult
 from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload
 from contracts.licenses import map_attribution
-from contracts.queries import PriorPosition, QueryParams
+from contracts.queries import PriorPosition, QueryParams, QueryPreset
 from contracts.settings import Settings
 from db import Database, connect, transaction
 from db import jobs as job_store
@@ -98,6 +98,7 @@ class QueryForm:
     top_n: int
     k: int
     wait_s: float
+    preset: QueryPreset | None = None
 
 
 class QueryIntake(PhotoIntake):
@@ -164,6 +165,7 @@ class QueryIntake(PhotoIntake):
             prior_heading_accuracy_deg=None if form.heading_deg is not None else info.heading_accuracy_deg,
             focal_length_35mm=form.focal_length_35mm,
             original_filename=received.filename,
+            preset=form.preset or self.settings.query_preset,
         )
         return query_store.insert_query(db, map_id=map_id, params=params, image_path=key, sha256=received.sha256)
 
@@ -235,6 +237,10 @@ async def create_query(
     top_n: Annotated[int, bounded_form("top_n", "How many distinct locations to return")] = 10,
     k: Annotated[int, bounded_form("k", "How many references to retrieve for identities")] = 4,
     wait_s: Annotated[float, bounded_form("wait_s", "How long to wait for the answer before 202")] = 60.0,
+    preset: Annotated[
+        QueryPreset | None,
+        Form(description="Speed against accuracy: fast, balanced or accurate (default GEOLOC_QUERY_PRESET)"),
+    ] = None,
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
@@ -245,10 +251,12 @@ async def create_query(
     place's unless ``radius_m`` is given, 422 ``ambiguous_place`` with candidates or ``unknown_place``; else
     the photo's EXIF GPS unless ``use_exif_gps`` is false) and a prior heading (``heading_deg``, else the
     photo's compass with its accuracy as a robust prior: Mapillary's JSON, else EXIF GPSImgDirection) are
-    used as priors and reported in ``result.search``. 200 with the answer, or 202 if it took longer than
-    ``wait_s``; 429 while the job queue is full (retry after ``Retry-After`` seconds).
+    used as priors and reported in ``result.search``. ``preset`` picks the query stage's configuration (fast,
+    balanced, accurate; stored in ``params.preset``, the answer's ``search.preset`` and ``search.config``).
+    200 with the answer, or 202 if it took longer than ``wait_s``; 429 while the job queue is full (retry after
+    ``Retry-After`` seconds).
     """
-    form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm, top_n, k, wait_s)
+    form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm, top_n, k, wait_s, preset)
     accepted = await run_in_threadpool(QueryIntake(settings, store, publisher, form).accept, map_id, image)
     assert accepted.job_id is not None  # a query is never a duplicate
     waiter: JobWaiter = request.app.state.job_waiter

@@ -54,7 +54,7 @@ from db.rows import ReferenceRow
 from geoloc.core.geo import LocalFrame
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.labeling import stated_heading_prior
-from geoloc.localize.query import QueryAnswer, QueryConfig, geolocate
+from geoloc.localize.query import QueryAnswer, geolocate, preset_config
 from geoloc.localize.reference import LabelledReference, label_reference_photo
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
@@ -291,12 +291,13 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         evidence,
         DatabaseReferenceStore(db, map_id),
         vocabulary_for(db, map_id),
-        QueryConfig(k=params.k),
+        preset_config(params.preset_name, k=params.k),
         position_prior=position_prior,
         heading_prior=heading_prior,
         top_n=params.top_n,
         context=context,
     )
+    answer.search["preset"] = params.preset_name  # beside search.config: which preset chose it
     timings_ms = {
         **{k: round(v, 1) for k, v in answer.timings_ms.items()},
         "total": round(1e3 * (time.perf_counter() - t0), 1),

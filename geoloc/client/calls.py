@@ -58,6 +58,7 @@ class QueryFields(TypedDict, total=False):
     top_n: int
     k: int
     wait_s: float
+    preset: Literal["fast", "balanced", "accurate"]
 
 
 @dataclass(frozen=True)

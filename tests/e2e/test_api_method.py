@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from contracts.settings import shared_path
+from geoloc.localize.query import PRESETS
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from tests.conftest import Profile
 from tests.geojson_checks import check_query_collection
@@ -103,7 +104,8 @@ def test_ingest_label_and_query_through_the_api(
             # Continuous poses with an honest-looking 90 % radius, and the stage's configuration recorded.
             assert all(loc["source"] in ("anchors", "likelihood") for loc in result["locations"])
             assert all(0.0 < loc["uncertainty_radius_m"] < 1000.0 for loc in result["locations"])
-            assert result["search"]["config"]["k"] == 4 and "anchors" in result["search"]
+            assert result["search"]["config"] == PRESETS["balanced"].as_dict() and "anchors" in result["search"]
+            assert result["search"]["preset"] == answer["params"]["preset"] == "balanced"
             heat = np.array(result["heatmap"]["values"])
             assert list(heat.shape) == result["heatmap"]["shape"] and heat.sum() == pytest.approx(1.0, abs=1e-3)
             # Identities come from references: judge the buildings (over 5 % of the photo) that one shows.
@@ -123,6 +125,19 @@ def test_ingest_label_and_query_through_the_api(
             assert client.get(f"/v1/queries/{answer['id']}/heatmap.png").content[:4] == b"\x89PNG"
         judged = [n for n in named_right if n is not None]
         assert judged and np.mean(judged) >= 0.6, named_right
+
+        # A fast query is answered with the fast preset's configuration, recorded with its answer.
+        image = world.queries[0]
+        response = client.post(
+            f"/v1/maps/{map_id}/queries",
+            files={"image": (image.path.name, image.path.read_bytes())},
+            data={"preset": "fast"},
+        )
+        assert response.status_code == 200, response.text
+        fast = response.json()
+        assert fast["status"] == "done" and fast["params"]["preset"] == "fast", fast
+        assert fast["result"]["search"]["config"] == PRESETS["fast"].as_dict()
+        assert fast["result"]["search"]["preset"] == "fast" and len(fast["result"]["locations"]) == 10
         assert np.mean(np.array(found) <= 15.0) >= 0.5, np.round(found, 1)
 
 

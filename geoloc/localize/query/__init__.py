@@ -30,8 +30,18 @@ Steps, one module each:
 
 from geoloc.localize.query.anchored import anchored_pose
 from geoloc.localize.query.answer import AnswerPose, QueryAnswer
-from geoloc.localize.query.config import QueryConfig
+from geoloc.localize.query.config import PRESETS, QueryConfig, preset_config
 from geoloc.localize.query.retrieve import retrieve, transfer
 from geoloc.localize.query.stage import geolocate
 
-__all__ = ["AnswerPose", "QueryAnswer", "QueryConfig", "anchored_pose", "geolocate", "retrieve", "transfer"]
+__all__ = [
+    "PRESETS",
+    "AnswerPose",
+    "QueryAnswer",
+    "QueryConfig",
+    "anchored_pose",
+    "geolocate",
+    "preset_config",
+    "retrieve",
+    "transfer",
+]

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
+from contracts.queries import QueryPreset
 from geoloc.localize.grid import GridOptions
 from geoloc.localize.posterior import DEFAULT_SHARPNESS
 
@@ -78,3 +79,25 @@ class QueryConfig:
     def grid(self) -> GridOptions:
         """The grid search's options (:func:`geoloc.localize.grid.localize`)."""
         return GridOptions(self.cell_m, self.search_radius_m, self.n_yaws, self.sharpness)
+
+
+PRESETS: dict[QueryPreset, QueryConfig] = {
+    "fast": QueryConfig(shortlist=10, anchor_references=3, n_yaws=72, refine_poses=1),
+    "balanced": QueryConfig(),
+    "accurate": QueryConfig(shortlist=30, anchor_references=10, cell_m=5.0, n_yaws=180, refine_poses=5),
+}
+"""The query presets (``preset`` of a query, ``GEOLOC_QUERY_PRESET``; names in :data:`contracts.queries.QUERY_PRESETS`).
+
+``balanced`` is the default :class:`QueryConfig` (the answers and figures measured before presets existed).
+``fast`` cuts the stage's expensive parts: 10 shortlisted references re-ranked by RANSAC (20), 3 anchor
+references for the PnP (6), 72 yaws (5 deg) on the grid (120, 3 deg), 1 likelihood pose refined (3).
+``accurate`` spends more: 30 shortlisted references, 10 anchor references, 5 m cells (10 m), 180 yaws (2 deg),
+5 refined poses. Segmentation, facades and features (about half of a query's time) are the same in all three.
+The figures are in ``docs/measurements.md`` (Presets).
+"""
+
+
+def preset_config(preset: QueryPreset, *, k: int | None = None) -> QueryConfig:
+    """The :class:`QueryConfig` of ``preset``, with the query's own ``k`` (identity references) when given."""
+    config = PRESETS[preset]
+    return config if k is None else replace(config, k=k)
