@@ -53,10 +53,7 @@ class PlacementOptions:
     references no better, 0.50-0.52 within 2 m against 0.52, or worse: the robust loss already sets them
     aside). edge_sigma_m, edge_sigma_per_m, edge_yaw_sigma_deg: an edge's sigmas. label_yaw_sigma_deg,
     label_position_floor_m: a label's heading sigma and the floor of its position sigma (2 deg and 0.5 m were
-    the best of 2-10 deg and 0.25-2 m on seed 1). start_compass_votes: what a frame's agreeing compass counts
-    in its consensus start (:func:`_consensus_start`; 0 to 3 placed seed 1 alike; 1 is the least that lets
-    the compass break a tie between the label and its runner-up, which on seed 3 turned 0.83 of the headings
-    within 2 deg into 0.85). cauchy_k, huber_k: the robust losses' scales (in sigmas).
+    the best of 2-10 deg and 0.25-2 m on seed 1). cauchy_k, huber_k: the robust losses' scales (in sigmas).
     max_iterations: Levenberg-Marquardt's.
     """
 
@@ -70,7 +67,6 @@ class PlacementOptions:
     edge_yaw_sigma_deg: float = 0.5
     label_yaw_sigma_deg: float = 2.0
     label_position_floor_m: float = 0.5
-    start_compass_votes: float = 1.0
     cauchy_k: float = 1.0
     huber_k: float = 1.5
     max_iterations: int = 100
@@ -82,9 +78,7 @@ class SequenceFrame:
 
     x_m, y_m, yaw_deg, position_covariance: its label's pose and (2, 2) m^2 covariance. gps_xy, gps_sigma_m:
     its GPS tag and that tag's sigma. heading_prior: its compass (None: none). features, anchors, intrinsics:
-    its keypoints, their 3D points on the map seen from the label's pose, and its camera. alternative: the
-    label's runner-up mode (x_m, y_m, yaw_deg, (2, 2) covariance; often the mirror view across the street), or
-    None.
+    its keypoints, their 3D points on the map seen from the label's pose, and its camera.
     """
 
     x_m: float
@@ -97,7 +91,6 @@ class SequenceFrame:
     features: Features
     anchors: MapAnchors
     intrinsics: Intrinsics
-    alternative: tuple[float, float, float, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -185,19 +178,14 @@ def _disagreement_m(forward: RelativePose, backward: RelativePose) -> float:
 
 
 def _consensus_start(
-    labels: list[gtsam.Pose2],
-    alternatives: list[gtsam.Pose2 | None],
-    compasses: list[HeadingPrior | None],
-    edges: Sequence[RelativePose],
-    options: PlacementOptions,
-) -> list[tuple[gtsam.Pose2, bool]]:
-    """Each frame's starting pose for the optimiser, and whether its label's runner-up mode is the one to keep.
+    labels: list[gtsam.Pose2], edges: Sequence[RelativePose], options: PlacementOptions
+) -> list[gtsam.Pose2]:
+    """Each frame's starting pose for the optimiser: its label, or what its neighbours predict, by agreement.
 
-    The candidates are the frame's label, its runner-up mode and what each neighbour's label and edge predict
-    for it; the one most others agree with starts (agreement: within :data:`START_AGREEMENT_M` and
-    :data:`START_AGREEMENT_DEG`; the frame's compass, when it agrees, counts ``options.start_compass_votes``;
-    a tie keeps the label). Why: Levenberg-Marquardt only descends, and a frame started on the mirror view
-    across the street (heading 180 deg off) stays there however its neighbours pull.
+    The candidates are the frame's own label and what each neighbour's label and edge predict for it; the one
+    most others agree with starts (a tie keeps the label; agreement: within :data:`START_AGREEMENT_M` and
+    :data:`START_AGREEMENT_DEG`). Why: Levenberg-Marquardt only descends, and a frame started on the mirror
+    view across the street (heading 180 deg off) stays there however its neighbours pull.
     """
     predictions: list[list[gtsam.Pose2]] = [[label] for label in labels]
     for edge in edges:
@@ -205,27 +193,11 @@ def _consensus_start(
         predictions[edge.target].append(labels[edge.source].compose(measured))
         predictions[edge.source].append(labels[edge.target].compose(measured.inverse()))
     start = []
-    for k, neighbours in enumerate(predictions):
-        alternative = alternatives[k]
-        candidates = neighbours if alternative is None else [neighbours[0], alternative, *neighbours[1:]]
-        scores = [_support(pose, candidates) + _compass_votes(pose, compasses[k], options) for pose in candidates]
+    for candidates in predictions:
+        scores = [_support(pose, candidates) for pose in candidates]
         best = max(range(len(candidates)), key=lambda i: (scores[i], i == 0))
-        pose = candidates[best]
-        # The runner-up is kept when the start agrees with it rather than with the label.
-        near_alternative = alternative is not None and _support(pose, [alternative]) > _support(pose, [labels[k]])
-        start.append((pose, near_alternative))
+        start.append(candidates[best])
     return start
-
-
-def _compass_votes(pose: gtsam.Pose2, compass: HeadingPrior | None, options: PlacementOptions) -> float:
-    """``options.start_compass_votes`` when a compass agrees with ``pose``'s heading, else 0.
-
-    Agreeing: within twice the compass's sigma, and at least 30 deg.
-    """
-    if compass is None or not options.start_compass_votes:
-        return 0.0
-    delta = abs((_bearing_deg(pose) - compass.mean_bearing_deg + 180.0) % 360.0 - 180.0)
-    return options.start_compass_votes if delta <= max(2.0 * compass.sigma_deg, 30.0) else 0.0
 
 
 def _support(pose: gtsam.Pose2, candidates: list[gtsam.Pose2]) -> int:
@@ -257,17 +229,11 @@ def place_sequence(
     initial = gtsam.Values()
     floor = options.label_position_floor_m**2 * np.eye(2)
     labels = [_pose2(frame.x_m, frame.y_m, frame.yaw_deg) for frame in frames]
-    alternatives = [None if f.alternative is None else _pose2(*f.alternative[:3]) for f in frames]
-    compasses = [frame.heading_prior for frame in frames]
-    starts = _consensus_start(labels, alternatives, compasses, edges, options)
-    for k, (start, _) in enumerate(starts):
+    for k, start in enumerate(_consensus_start(labels, edges, options)):
         initial.insert(k, start)
     for k, frame in enumerate(frames):
-        label, label_yaw, label_covariance = labels[k], frame.yaw_deg, frame.position_covariance
-        if starts[k][1] and frame.alternative is not None:  # the runner-up mode is the frame's own evidence
-            x_m, y_m, label_yaw, label_covariance = frame.alternative
-            label = _pose2(x_m, y_m, label_yaw)
-        covariance = _local(label_covariance + floor, label_yaw, options.label_yaw_sigma_deg)
+        label = labels[k]
+        covariance = _local(frame.position_covariance + floor, frame.yaw_deg, options.label_yaw_sigma_deg)
         label_noise = _robust("cauchy", options.cauchy_k, noise.Gaussian.Covariance(covariance))
         graph.add(gtsam.PriorFactorPose2(k, label, label_noise))
         gps_sigmas = np.array([frame.gps_sigma_m, frame.gps_sigma_m, LOOSE_SIGMA])

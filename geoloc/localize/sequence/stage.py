@@ -61,7 +61,6 @@ class PlacedSequence:
 
 def _frame(frame: LabelledFrame) -> SequenceFrame:
     label = frame.labelled.label
-    alt = label.alternative
     return SequenceFrame(
         label.x_m,
         label.y_m,
@@ -73,7 +72,6 @@ def _frame(frame: LabelledFrame) -> SequenceFrame:
         frame.labelled.evidence.features,
         frame.labelled.anchors,
         frame.photo.intrinsics,
-        None if alt is None else (alt.x_m, alt.y_m, alt.yaw_deg, alt.position_covariance),
     )
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from datetime import UTC, datetime, timedelta
 
@@ -162,13 +161,3 @@ def test_a_wrong_edge_does_not_pull_the_walk_apart() -> None:
     placed = place_sequence(frames, PlacementOptions(), edges)
     errors = [math.hypot(p.x_m - t[0], p.y_m - t[1]) for p, t in zip(placed, truth, strict=True)]
     assert max(errors) < 0.5, errors
-
-
-def test_a_labels_runner_up_mode_is_kept_when_the_walk_and_the_compass_agree_with_it() -> None:
-    truth = _walk(3)
-    frames = [_frame(x, y, yaw, (x, y), yaw) for x, y, yaw in truth]
-    x, y, yaw = truth[1]
-    mirrored = _frame(x + 1.0, y + 7.0, (yaw + 180.0) % 360.0, (x, y), yaw)  # labelled on the other pavement
-    frames[1] = dataclasses.replace(mirrored, alternative=(x, y, yaw, np.diag([0.3, 0.3])))
-    placed = place_sequence(frames, PlacementOptions(), _edges(truth, steps=(1,)))
-    assert _angle(placed[1].yaw_deg, yaw) < 0.5 and math.hypot(placed[1].x_m - x, placed[1].y_m - y) < 0.3
