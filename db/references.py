@@ -144,13 +144,18 @@ def effective_status_counts(db: Database, map_id: int) -> dict[str, int]:
     return counts
 
 
+_WALK_CANDIDATE = "(sequence_id IS NOT NULL OR (capture_time IS NOT NULL AND device IS NOT NULL))"
+"""SQL of :func:`may_join_walk` (the grouping's rule, :mod:`geoloc.localize.sequence.grouping`)."""
+
+
+def may_join_walk(row: ReferenceRow) -> bool:
+    """Whether a reference can be grouped into a walk: a sequence id, or a capture time and a named camera."""
+    return row["sequence_id"] is not None or (row["capture_time"] is not None and row["device"] is not None)
+
+
 def sequence_candidates(db: Database, map_id: int) -> list[ReferenceRow]:
-    """The map's references that may belong to a walk (a sequence id or a capture time), oldest first."""
-    rows = db.query(
-        "SELECT * FROM reference_images WHERE map_id = ? AND (sequence_id IS NOT NULL OR capture_time IS NOT NULL)"
-        " ORDER BY id",
-        (map_id,),
-    )
+    """The map's references that may belong to a walk (:func:`may_join_walk`), oldest first."""
+    rows = db.query(f"SELECT * FROM reference_images WHERE map_id = ? AND {_WALK_CANDIDATE} ORDER BY id", (map_id,))
     return [_decode(row) for row in rows]
 
 

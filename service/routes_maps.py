@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
 from fastapi.responses import JSONResponse
@@ -238,12 +238,16 @@ def get_map(map_id: MapId, db: Database = Depends(get_db)) -> MapOut:
     return map_out(require_map(db, map_id), reference_count=_reference_total(db, map_id))
 
 
+GEOJSON_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {"content": {"application/geo+json": {}}, "description": "GeoJSON FeatureCollection"},
+    **error_responses(404),
+}
+"""The answers of a map's GeoJSON layers (buildings, streets)."""
+
+
 @router.get(
     "/{map_id}/buildings",
-    responses={
-        200: {"content": {"application/geo+json": {}}, "description": "GeoJSON FeatureCollection"},
-        **error_responses(404),
-    },
+    responses=GEOJSON_RESPONSES,
     response_class=Response,
     dependencies=[Depends(require_read)],
 )
@@ -266,10 +270,7 @@ def get_buildings(map_id: MapId, db: Database = Depends(get_db)) -> Response:
 
 @router.get(
     "/{map_id}/streets",
-    responses={
-        200: {"content": {"application/geo+json": {}}, "description": "GeoJSON FeatureCollection"},
-        **error_responses(404),
-    },
+    responses=GEOJSON_RESPONSES,
     response_class=Response,
     dependencies=[Depends(require_read)],
 )

@@ -302,11 +302,12 @@ async def get_query(
     return out
 
 
-def _done_result(db: Database, query_id: int) -> dict[str, Any]:
+def _done_result(db: Database, query_id: int) -> tuple[QueryRow, dict[str, Any]]:
+    """The query's row and its stored answer; 409 while it has none."""
     row, _ = _load(db, query_id)
     if row["status"] != "done" or not row["result"]:
         raise ApiError(409, "not_ready", f"query {query_id} has no answer yet (status {row['status']})")
-    return dict(row["result"])
+    return row, dict(row["result"])
 
 
 @router.get(
@@ -326,8 +327,8 @@ def get_heatmap_png(
     The probability map's cells over the map's streets and footprints, the top poses as view cones, a colour
     bar, a scale bar, a north arrow and the map data's attribution.
     """
-    result = QueryResult.model_validate(_done_result(db, query_id))
-    row, _ = _load(db, query_id)
+    row, stored = _done_result(db, query_id)
+    result = QueryResult.model_validate(stored)
     map_row = require_map(db, row["map_id"])
     png = heatmap_png(loaded_map(settings, store, map_row), result, map_attribution(map_row["attribution"]))
     return Response(png, media_type="image/png")
@@ -344,8 +345,7 @@ def get_answer_geojson(query_id: QueryId, db: Database = Depends(get_db)) -> JSO
 
     ``GET /v1/queries/{id}?format=geojson`` adds view cones and the identified buildings.
     """
-    result = _done_result(db, query_id)
-    row, _ = _load(db, query_id)
+    row, result = _done_result(db, query_id)
     body = {
         "type": "FeatureCollection",
         "features": pose_points(result["locations"]),

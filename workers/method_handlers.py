@@ -188,8 +188,13 @@ def reference_labels(city: CityMap, photo: Photo, labelled: LabelledReference, t
         )
 
 
-def save_labels(db: Database, reference_id: int, labelled: LabelledReference, labels: ReferenceLabels) -> None:
-    """Store a labelled reference's arrays and answer (inside the caller's transaction); it is ``done``."""
+def save_labels(
+    db: Database, reference_id: int, labelled: LabelledReference, labels: ReferenceLabels, placement: str
+) -> None:
+    """Store a labelled reference's arrays and answer (inside the caller's transaction); it is ``done``.
+
+    placement: ``alone`` (its own label) or ``sequence`` (its walk's joint placement).
+    """
     stored = labels.model_dump(mode="json")
     estimated = labels.estimated
     reference_store.save_labels(db, reference_id, labelled.label_arrays())
@@ -204,13 +209,14 @@ def save_labels(db: Database, reference_id: int, labelled: LabelledReference, la
         buildings_seen=stored["buildings_seen"],
         timings=stored["timings"],
     )
+    reference_store.set_reference_placement(db, reference_id, placement)
 
 
 @register(LABEL_REFERENCE, LabelReferencePayload)
 def label_reference(db: Database, payload: LabelReferencePayload) -> LabelReferenceResult:
     """Label a reference with the map, extract and index its features, store its pose and identities.
 
-    A reference that may belong to a walk (a sequence id or a capture time) then queues the map's sequence job
+    A reference that may belong to a walk (:func:`db.references.may_join_walk`) then queues the map's sequence job
     (:mod:`workers.sequence_handlers`) unless one already waits: it places each walk once all of it is labelled.
     """
     reference_id, map_id = payload.reference_id, payload.map_id
@@ -227,16 +233,14 @@ def label_reference(db: Database, payload: LabelReferencePayload) -> LabelRefere
     with transaction(db):
         if reference_store.get_reference(db, reference_id) is None:
             raise PermanentJobError(f"reference {reference_id} was deleted while it was labelled")
-        save_labels(db, reference_id, labelled, labels)
-        reference_store.set_reference_placement(db, reference_id, "alone")
+        save_labels(db, reference_id, labelled, labels, "alone")
         sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
-        # One waiting sequence job per map is enough: it places every walk of the map that changed.
-        may_be_walk = ref["sequence_id"] is not None or ref["capture_time"] is not None
-        db.lock(f"geoloc:place-sequence:{map_id}")
-        if may_be_walk and not job_store.has_queued_job(db, PLACE_SEQUENCE, map_id):
-            job_store.enqueue_job(
-                db, PLACE_SEQUENCE, PlaceSequencePayload(reference_id=reference_id, map_id=map_id), map_id=map_id
-            )
+        if reference_store.may_join_walk(ref):
+            # One waiting sequence job per map is enough: it places every walk of the map that changed.
+            db.lock(f"geoloc:place-sequence:{map_id}")
+            if not job_store.has_queued_job(db, PLACE_SEQUENCE, map_id):
+                sequence_job = PlaceSequencePayload(reference_id=reference_id, map_id=map_id)
+                job_store.enqueue_job(db, PLACE_SEQUENCE, sequence_job, map_id=map_id)
     assert labels.estimated is not None and labels.estimated.heading_deg is not None
     return LabelReferenceResult(
         reference_id=reference_id, heading_deg=labels.estimated.heading_deg, buildings=len(labels.buildings_seen)

@@ -74,8 +74,9 @@ def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> Placed
             if current is None or current["status"] != "done":
                 continue  # deleted (or re-queued) while the walk was placed: leave it be
             if row["id"] in moved:
-                save_labels(db, row["id"], *moved[row["id"]])
-            reference_store.set_reference_placement(db, row["id"], "sequence")
+                save_labels(db, row["id"], *moved[row["id"]], "sequence")
+            else:
+                reference_store.set_reference_placement(db, row["id"], "sequence")
     return placed
 
 
