@@ -97,6 +97,14 @@ def has_queued_job(db: Database, kind: str, map_id: int) -> bool:
     return row is not None
 
 
+def pending_job_count(db: Database, kind: str, map_id: int) -> int:
+    """Jobs of ``kind`` for map ``map_id`` not yet finished (``queued`` or ``running``)."""
+    row = db.execute(
+        "SELECT COUNT(*) FROM jobs WHERE kind = ? AND map_id = ? AND status IN ('queued', 'running')", (kind, map_id)
+    ).fetchone()
+    return int(row[0])
+
+
 def queue_depth(db: Database) -> int:
     """Jobs waiting to run (``queued``, including retries waiting for their delay)."""
     return int(db.execute("SELECT COUNT(*) FROM jobs WHERE status = 'queued'").fetchone()[0])

@@ -326,6 +326,7 @@ class ReferenceList(BaseModel):
                     "references": [],
                     "total": 60,
                     "counts": {"queued": 12, "processing": 2, "done": 45, "failed": 1},
+                    "walks_placing": 1,
                     "next_after_id": 100,
                     "attribution": "© OpenStreetMap contributors",
                 }
@@ -337,6 +338,13 @@ class ReferenceList(BaseModel):
     references: list[ReferenceOut] = Field(description="Up to `limit` references with ids above `after_id`, by id")
     total: int = Field(description="All references of the map")
     counts: dict[str, int] = Field(description="All references of the map per status: queued, processing, done, failed")
+    walks_placing: int = Field(
+        ge=0,
+        description=(
+            "Walk placements of this map queued or running (at most one waits and one runs). While above 0, "
+            "the estimated poses of references in walks may still move (docs/method.md)"
+        ),
+    )
     next_after_id: int | None = Field(
         description="Pass as `after_id` for the next page; null on the last page", examples=[100]
     )

@@ -14,7 +14,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
 from contracts.answers import BuildingInPhoto, EstimatedPose
-from contracts.jobs import LABEL_REFERENCE, LabelReferencePayload
+from contracts.jobs import LABEL_REFERENCE, PLACE_SEQUENCE, LabelReferencePayload
 from contracts.licenses import map_attribution
 from contracts.settings import Settings
 from db import Database, transaction
@@ -373,6 +373,7 @@ def list_map_references(
         ],
         total=sum(counts.values()),
         counts=counts,
+        walks_placing=job_store.pending_job_count(db, PLACE_SEQUENCE, map_id),
         next_after_id=page[-1]["id"] if len(rows) > limit else None,
         attribution=attribution,
     )

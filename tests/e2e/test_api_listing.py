@@ -15,7 +15,7 @@ from typing import Any
 import httpx
 import pytest
 
-from contracts.jobs import LABEL_REFERENCE
+from contracts.jobs import LABEL_REFERENCE, PLACE_SEQUENCE, PlaceSequencePayload
 from tests.conftest import Profile
 from tests.service_fixtures import READ_KEY, WRITE_KEY, RunningProcess, jpeg_bytes, running_service
 
@@ -104,6 +104,30 @@ def test_references_come_page_by_page_with_counts_for_the_whole_map(client: http
     assert first["original_filename"] == "ref_0.jpg" and first["position"]["source"] == "exif"
 
 
+def _check_walks_placing_follows_its_job(
+    service: RunningProcess, client: httpx.Client, map_id: int, reference_id: int
+) -> None:
+    """``walks_placing`` counts the map's sequence job while it waits and while it runs, then not."""
+    from db import connect
+    from db import jobs as job_store
+
+    def placing() -> int:
+        return int(client.get(f"/v1/maps/{map_id}/references", params={"limit": 1}).json()["walks_placing"])
+
+    worker = "test-worker:2"
+    db = connect(service.database)
+    try:
+        payload = PlaceSequencePayload(reference_id=reference_id, map_id=map_id)
+        job_id = job_store.enqueue_job(db, PLACE_SEQUENCE, payload, map_id=map_id)
+        assert placing() == 1
+        claimed = job_store.claim_job(db, worker, lease_s=600, kinds=[PLACE_SEQUENCE])
+        assert claimed is not None and claimed["id"] == job_id and placing() == 1
+        job_store.complete_job(db, job_id, worker, {"placed": 0})
+        assert placing() == 0
+    finally:
+        db.close()
+
+
 def test_counts_follow_the_jobs(tmp_path: Path, profile: Profile) -> None:
     from db import connect
     from db import jobs as job_store
@@ -127,6 +151,8 @@ def test_counts_follow_the_jobs(tmp_path: Path, profile: Profile) -> None:
         finally:
             db.close()
         page = client.get(f"/v1/maps/{map_id}/references").json()
+        assert page["walks_placing"] == 0
+        _check_walks_placing_follows_its_job(service, client, map_id, accepted[2]["id"])
     assert page["counts"] == {"queued": 1, "processing": 1, "done": 1, "failed": 1} and page["total"] == 4
     statuses = [(r["id"], r["status"]) for r in page["references"]]
     assert statuses == list(zip([a["id"] for a in accepted], ["processing", "failed", "done", "queued"], strict=True))

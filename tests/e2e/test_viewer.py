@@ -176,7 +176,7 @@ def _upload_and_ingest_through_the_page(page: Any, service: RunningProcess, worl
     _wait(
         page,
         f"() => {{ const d = document.getElementById('ingest').dataset;"
-        f" return d.total === '{N_REFERENCES}' && d.pending === '0'; }}",
+        f" return d.total === '{N_REFERENCES}' && d.pending === '0' && d.walksPlacing === '0'; }}",
         600,
     )
     ingest = page.locator("#ingest")

@@ -265,11 +265,13 @@ async function loadReferences() {
   const references = [];
   let after = 0;
   let counts = null;
+  let walksPlacing = 0;
   try {
     for (;;) {
       const page = await getJson(`v1/maps/${mapId}/references?after_id=${after}&limit=${PAGE_LIMIT}`);
       references.push(...page.references);
       counts = page.counts;
+      walksPlacing = page.walks_placing;
       if (page.next_after_id == null) break;
       after = page.next_after_id;
     }
@@ -281,15 +283,18 @@ async function loadReferences() {
   state.references = references;
   state.counts = counts;
   view.setReferences(references);
-  showIngest(counts);
+  showIngest(counts, walksPlacing);
   if (state.selectedReference) {
     const fresh = references.find((r) => r.id === state.selectedReference.id);
     if (fresh && fresh.status !== state.selectedReference.status) openReference(fresh.id, { keepFocus: true });
   }
-  if (counts.queued + counts.processing > 0) referencePollTimer = setTimeout(loadReferences, REFERENCE_POLL_MS);
+  // keep polling while walks are being placed too: their references move when it finishes
+  if (counts.queued + counts.processing + walksPlacing > 0) {
+    referencePollTimer = setTimeout(loadReferences, REFERENCE_POLL_MS);
+  }
 }
 
-function showIngest(counts) {
+function showIngest(counts, walksPlacing) {
   const total = counts.queued + counts.processing + counts.done + counts.failed;
   const finished = counts.done + counts.failed;
   const box = $("ingest");
@@ -297,6 +302,7 @@ function showIngest(counts) {
   box.dataset.done = counts.done;
   box.dataset.failed = counts.failed;
   box.dataset.pending = counts.queued + counts.processing;
+  box.dataset.walksPlacing = walksPlacing;
   const bar = $("ingest-progress");
   bar.max = Math.max(total, 1);
   bar.value = finished;
@@ -308,6 +314,7 @@ function showIngest(counts) {
     if (counts.processing) parts.push(`${counts.processing} processing`);
     if (counts.queued) parts.push(`${counts.queued} queued`);
     if (counts.failed) parts.push(`${counts.failed} failed`);
+    if (walksPlacing) parts.push("placing walks");
     text.textContent = `${parts.join(", ")}.`;
   }
 }
