@@ -98,7 +98,7 @@ class ReferenceList(_Model):
     references: list[Reference]
     total: int
     counts: dict[str, int]
-    walks_placing: int = 0
+    walks_placing: int
     """Walk placements queued or running; while above 0, references in walks may still move."""
     next_after_id: int | None
     attribution: str

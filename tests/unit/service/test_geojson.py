@@ -86,6 +86,7 @@ def test_references_are_points_at_their_estimated_pose_else_their_uploaded_posit
         references=[_reference(1, {"lat": 60.1701, "lon": 24.9403, "heading_deg": 91.5}), _reference(2, None)],
         total=2,
         counts={"done": 1, "queued": 1},
+        walks_placing=0,
         next_after_id=None,
         attribution=ATTRIBUTION,
     )
