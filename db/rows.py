@@ -116,6 +116,8 @@ class JobRow(TypedDict):
     heartbeat_at: float | None
     map_id: int | None
     reference_id: int | None
+    tenant: str | None
+    """Stamped when queued (migration 8): the tenant given, else its map's; None: untenanted."""
     result: dict[str, Any] | None
     error: str | None
     created_at: float

@@ -1,10 +1,11 @@
 """The routes' lookups for a tenant: a map, a reference, a query or a job the caller may see, else ``404``.
 
-A map belongs to the tenant of the key that uploaded it (``maps.tenant``, None: untenanted); a reference, a
-query and a job belong to their map's tenant (every reference and query has a map; a job without a map, or
-whose map is gone, counts as untenanted). A caller (:class:`service.auth.Caller`) sees only the rows of its
-own tenant; a key without a tenant, and every request while auth is off, sees the untenanted rows. Another
-tenant's id gets the same ``404`` with the same body as an id that does not exist, so ids leak nothing.
+A map belongs to the tenant of the key that uploaded it (``maps.tenant``, None: untenanted); a reference and
+a query belong to their map's tenant (every reference and query has a map); a job to the tenant stamped when
+it was queued (``jobs.tenant``: the tenant given to :func:`db.jobs.enqueue_job`, else its map's). A caller
+(:class:`service.auth.Caller`) sees only the rows of its own tenant; a key without a tenant, and every request
+while auth is off, sees the untenanted rows. Another tenant's id gets the same ``404`` with the same body as
+an id that does not exist, so ids leak nothing.
 """
 
 from __future__ import annotations
@@ -22,10 +23,10 @@ def _not_found(what: str, row_id: int) -> ApiError:
     return ApiError(404, "not_found", f"{what} {row_id} not found")
 
 
-def _map_tenant_is(db: Database, map_id: int | None, tenant: str | None) -> bool:
-    """Whether map ``map_id`` belongs to ``tenant`` (a missing map counts as untenanted)."""
-    row = map_store.get_map(db, map_id) if map_id is not None else None
-    return (row["tenant"] if row is not None else None) == tenant
+def _map_tenant_is(db: Database, map_id: int, tenant: str | None) -> bool:
+    """Whether map ``map_id`` exists and belongs to ``tenant``."""
+    row = map_store.get_map(db, map_id)
+    return row is not None and row["tenant"] == tenant
 
 
 def require_map(db: Database, map_id: int, tenant: str | None) -> MapRow:
@@ -53,8 +54,8 @@ def require_query(db: Database, query_id: int, tenant: str | None) -> QueryRow:
 
 
 def require_job(db: Database, job_id: int, tenant: str | None) -> JobRow:
-    """The job row if it exists and its map belongs to ``tenant``, else 404."""
+    """The job row if it exists and belongs to ``tenant`` (its ``jobs.tenant``), else 404."""
     row = job_store.get_job(db, job_id)
-    if row is None or not _map_tenant_is(db, row["map_id"], tenant):
+    if row is None or row["tenant"] != tenant:
         raise _not_found("job", job_id)
     return row

@@ -160,8 +160,12 @@ def test_a_tenant_deletes_its_own_rows(service: RunningProcess, seeded: dict[str
         assert client.delete(f"/v1/references/{rows['reference_id']}").status_code == 204
         assert client.delete(f"/v1/maps/{rows['map_id']}").status_code == 204
         assert client.get(f"/v1/maps/{rows['map_id']}").status_code == 404
-    with service.client(A_WRITE) as client:
-        assert client.get(f"/v1/maps/{seeded[A_WRITE]['map_id']}").status_code == 200
+        job = client.get(f"/v1/jobs/{rows['job_id']}")
+        assert job.status_code == 200 and job.json()["status"] == "cancelled", "the job stays, with its tenant"
+    for key in (A_WRITE, PLAIN):
+        with service.client(key) as client:
+            assert client.get(f"/v1/maps/{seeded[key]['map_id']}").status_code == 200
+            assert client.get(f"/v1/jobs/{rows['job_id']}").status_code == 404, "a deleted map's job stays team-b's"
 
 
 def _seed_fresh(client: httpx.Client) -> dict[str, int]:
@@ -181,7 +185,12 @@ def _seed_fresh(client: httpx.Client) -> dict[str, int]:
         data={"use_exif_gps": "false", "wait_s": "0"},
     )
     assert reference.status_code == 202 and query.status_code == 202, (reference.text, query.text)
-    return {"map_id": map_id, "reference_id": reference.json()["id"], "query_id": query.json()["id"]}
+    return {
+        "map_id": map_id,
+        "reference_id": reference.json()["id"],
+        "query_id": query.json()["id"],
+        "job_id": reference.json()["job_id"],
+    }
 
 
 def test_tenant_keys_still_need_their_scope(service: RunningProcess, seeded: dict[str, dict[str, int]]) -> None:
@@ -192,12 +201,15 @@ def test_tenant_keys_still_need_their_scope(service: RunningProcess, seeded: dic
         assert anonymous.get("/v1/maps").status_code == 401
 
 
-def test_the_keys_tenant_is_stamped_on_the_map(service: RunningProcess, seeded: dict[str, dict[str, int]]) -> None:
+def test_the_keys_tenant_is_stamped_on_the_map_and_its_jobs(
+    service: RunningProcess, seeded: dict[str, dict[str, int]]
+) -> None:
     db = connect(service.database)
     try:
         tenants = {row["id"]: row["tenant"] for row in db.query("SELECT id, tenant FROM maps")}
+        job_tenants = {row["id"]: row["tenant"] for row in db.query("SELECT id, tenant FROM jobs")}
     finally:
         db.close()
-    assert tenants[seeded[A_WRITE]["map_id"]] == "team-a"
-    assert tenants[seeded[B_WRITE]["map_id"]] == "team-b"
-    assert tenants[seeded[PLAIN]["map_id"]] is None
+    for key, tenant in ((A_WRITE, "team-a"), (B_WRITE, "team-b"), (PLAIN, None)):
+        assert tenants[seeded[key]["map_id"]] == tenant
+        assert job_tenants[seeded[key]["job_id"]] == tenant

@@ -6,7 +6,9 @@ from pathlib import Path
 
 import pytest
 
+from contracts.jobs import LABEL_REFERENCE, LabelReferencePayload
 from db import LATEST_VERSION, Database, connect, migrate, transaction
+from db import jobs as job_store
 from db import maps as map_store
 from tests.conftest import Profile
 from tests.unit.db.test_db import add_map, small_map_content
@@ -51,5 +53,15 @@ def test_migration_8_leaves_old_maps_untenanted_and_lists_filter_by_tenant(
             found = map_store.find_map_by_sha256(database, "0" * 64, {}, tenant)
             assert found is not None and found["id"] == expected and found["tenant"] == tenant
         assert map_store.find_map_by_sha256(database, "0" * 64, {}, "team-c") is None
+
+        def job_tenant(map_id: int | None, tenant: str | None = None) -> str | None:
+            payload = LabelReferencePayload(reference_id=1, map_id=map_id or 0)
+            job_id = job_store.enqueue_job(database, LABEL_REFERENCE, payload, map_id=map_id, tenant=tenant)
+            job = job_store.get_job(database, job_id)
+            assert job is not None
+            return job["tenant"]
+
+        assert job_tenant(a_id) == "team-a" and job_tenant(old_id) is None, "a job takes its map's tenant"
+        assert job_tenant(None, "team-b") == "team-b" and job_tenant(None) is None, "or the one given"
     finally:
         database.close()
