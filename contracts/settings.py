@@ -23,50 +23,15 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict
 
+from contracts.keys import ApiKey, parse_api_keys
 from contracts.queries import DEFAULT_QUERY_PRESET, QueryPreset
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 ENV_PREFIX = "GEOLOC_"
-SCOPES = ("read", "write")
-"""API-key scopes: ``read`` (GETs, queries) and ``write`` (maps, references; implies ``read``)."""
 
 
 class SettingsError(ValueError):
     """A setting has an invalid value; the message names the variable, its value and the rule."""
-
-
-def parse_api_keys(raw: str) -> dict[str, frozenset[str]]:
-    """Parse ``GEOLOC_API_KEYS``.
-
-    Parameters
-    ----------
-    raw
-        Comma-separated ``KEY:SCOPES`` entries, scopes among :data:`SCOPES` joined by ``+``
-        (``KEY`` alone means ``read+write``), e.g. ``'k1:read+write,k2:read'``.
-
-    Returns
-    -------
-    dict[str, frozenset[str]]
-        Scopes per key; ``write`` implies ``read``.
-
-    Raises
-    ------
-    ValueError
-        An entry has no key or an unknown scope.
-    """
-    keys: dict[str, frozenset[str]] = {}
-    for entry in raw.split(","):
-        item = entry.strip()
-        if not item:
-            continue
-        key, _, scope_text = item.partition(":")
-        scopes = {s.strip() for s in (scope_text or "read+write").split("+") if s.strip()}
-        if not key.strip() or scopes - set(SCOPES):
-            raise ValueError(f"bad entry {item!r} (expected KEY:read, KEY:write or KEY:read+write)")
-        if "write" in scopes:
-            scopes.add("read")
-        keys[key.strip()] = frozenset(scopes)
-    return keys
 
 
 def _shown(default: str) -> dict[str, Any]:
@@ -116,9 +81,10 @@ class Settings(BaseSettings):
         "`tmp/`); in the distributed profile a volume every API and worker machine mounts",
         json_schema_extra=_shown("`GEOLOC_DATA_DIR`"),
     )
-    api_keys: Annotated[dict[str, frozenset[str]], NoDecode] = Field(
+    api_keys: Annotated[dict[str, ApiKey], NoDecode] = Field(
         default_factory=dict,
-        description="`KEY:SCOPES,…` with scopes `read`, `write` joined by `+` (`write` implies `read`); "
+        description="`KEY:SCOPES@TENANT,…` with scopes `read`, `write` joined by `+` (`write` implies `read`) "
+        "and an optional tenant (the key sees only that tenant's maps; without one, only untenanted data); "
         "with no keys, auth is off and the service binds to loopback only",
         json_schema_extra=_shown("(none)"),
     )

@@ -69,10 +69,12 @@ def enqueue_job(
     map_id: int | None = None,
     reference_id: int | None = None,
     max_queued: int | None = None,
+    tenant: str | None = None,
 ) -> int:
     """Add a queued job; returns its id. Joins the caller's transaction if one is open.
 
-    The payload is stored as the JSON of its model (:meth:`contracts.jobs.JobPayload.to_json`).
+    The payload is stored as the JSON of its model (:meth:`contracts.jobs.JobPayload.to_json`). The job's
+    tenant (``jobs.tenant``, who may see it in the API) is ``tenant``, else its map's (None: untenanted).
 
     With ``max_queued``, raise :class:`QueueFullError` instead when that many jobs already wait
     (inside the caller's transaction, under :data:`ENQUEUE_LOCK`, the count cannot change before the
@@ -81,11 +83,14 @@ def enqueue_job(
     if max_queued is not None:
         db.lock(ENQUEUE_LOCK)
         check_queue_capacity(db, max_queued)
+    if tenant is None and map_id is not None:
+        row = db.execute("SELECT tenant FROM maps WHERE id = ?", (map_id,)).fetchone()
+        tenant = row[0] if row is not None else None
     now = time.time()
     return db.insert_returning_id(
-        "INSERT INTO jobs (kind, payload, status, priority, max_attempts, map_id, reference_id,"
-        " created_at, updated_at) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?)",
-        (kind, json.dumps(payload.to_json()), priority, max_attempts, map_id, reference_id, now, now),
+        "INSERT INTO jobs (kind, payload, status, priority, max_attempts, map_id, reference_id, tenant,"
+        " created_at, updated_at) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?, ?)",
+        (kind, json.dumps(payload.to_json()), priority, max_attempts, map_id, reference_id, tenant, now, now),
     )
 
 

@@ -111,15 +111,18 @@ def insert_map(
     content: MapContent,
     read_options: dict[str, Any] | None = None,
     attribution: str | None = None,
+    tenant: str | None = None,
 ) -> int:
     """Insert a map with its buildings and facades; returns the map id. Call inside a transaction.
 
     read_options: how the file was read (``MapReadOptions.as_dict()``; default ``{}``). attribution: what the
-    upload stated, None for none (the column, from migration 6, is then left to its NULL).
+    upload stated, None for none (the column, from migration 6, is then left to its NULL). tenant: the
+    uploading key's tenant (migration 8), None for untenanted (the column is then left to its NULL).
     """
     min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
     facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
-    stated = ("attribution",) if attribution is not None else ()
+    optional = {"attribution": attribution, "tenant": tenant}
+    stated = tuple(name for name, value in optional.items() if value is not None)
     columns = ", ".join(("repair_report", "read_options", "created_at", *stated))
     map_id = db.insert_returning_id(
         "INSERT INTO maps (name, source_filename, source_format, source_path, sha256, size_bytes,"
@@ -143,7 +146,7 @@ def insert_map(
             json.dumps(content.repair_report),
             _options_json(read_options),
             time.time(),
-            *((attribution,) if attribution is not None else ()),
+            *(optional[name] for name in stated),
         ),
     )
     db.executemany(
@@ -179,20 +182,35 @@ def _options_json(read_options: dict[str, Any] | None) -> str:
     return json.dumps(read_options or {}, sort_keys=True)
 
 
-def find_map_by_sha256(db: Database, sha256: str, read_options: dict[str, Any] | None = None) -> MapRow | None:
-    """The oldest map uploaded from a file with this checksum and read with these options, or None."""
+def tenant_condition(tenant: str | None, column: str = "tenant") -> tuple[str, tuple[str, ...]]:
+    """SQL matching the rows of ``tenant`` (None: the untenanted rows), with its parameters.
+
+    ``column = ?`` never matches NULL, so the untenanted rows are asked with ``IS NULL`` (both engines).
+    """
+    return (f"{column} IS NULL", ()) if tenant is None else (f"{column} = ?", (tenant,))
+
+
+def find_map_by_sha256(
+    db: Database, sha256: str, read_options: dict[str, Any] | None = None, tenant: str | None = None
+) -> MapRow | None:
+    """The tenant's oldest map uploaded from a file with this checksum and read with these options, or None.
+
+    tenant: None for the untenanted maps; another tenant's upload of the same file is another map.
+    """
+    condition, tenant_args = tenant_condition(tenant)
     rows = list(
         db.query(
-            "SELECT * FROM maps WHERE sha256 = ? AND read_options = ? ORDER BY id LIMIT 1",
-            (sha256, _options_json(read_options)),
+            f"SELECT * FROM maps WHERE sha256 = ? AND read_options = ? AND {condition} ORDER BY id LIMIT 1",
+            (sha256, _options_json(read_options), *tenant_args),
         )
     )
     return _decode_map(rows[0]) if rows else None
 
 
-def list_maps(db: Database) -> list[MapRow]:
-    """All maps, oldest first."""
-    return [_decode_map(row) for row in db.query("SELECT * FROM maps ORDER BY id")]
+def list_maps(db: Database, tenant: str | None = None) -> list[MapRow]:
+    """The maps of ``tenant`` (None: the untenanted maps), oldest first."""
+    condition, tenant_args = tenant_condition(tenant)
+    return [_decode_map(row) for row in db.query(f"SELECT * FROM maps WHERE {condition} ORDER BY id", tenant_args)]
 
 
 def map_reference_counts(db: Database, map_id: int) -> dict[str, int]:

@@ -36,6 +36,11 @@ Storage decisions (see also the module docstrings of the access modules):
   stated), when it was taken (ISO 8601 as the photo states it: aware, or naive camera time), its camera (EXIF
   make and model), and whether its pose is its own label's (``alone``, every reference stored before) or its
   sequence's joint placement (``sequence``; :mod:`geoloc.localize.sequence`).
+- ``maps.tenant`` (migration 8): the tenant of the API key that uploaded the map (NULL: untenanted, every map
+  stored before it). References and queries have no tenant of their own: they belong to their map's
+  (``service/tenancy.py``); every query and reference has a map (``map_id NOT NULL``). ``jobs.tenant``
+  (migration 8) is stamped when the job is queued (the tenant given, else its map's), so a job keeps its
+  tenant without a map (one queued before its map exists, or after its map is deleted).
 """
 
 from __future__ import annotations
@@ -255,6 +260,15 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         ALTER TABLE reference_images ADD COLUMN device TEXT;
         ALTER TABLE reference_images ADD COLUMN placement TEXT NOT NULL DEFAULT 'alone';
         CREATE INDEX reference_images_sequence ON reference_images(map_id, sequence_id);
+        """,
+    ),
+    (
+        8,
+        "tenants: the tenant of a map and of a job",
+        """
+        ALTER TABLE maps ADD COLUMN tenant TEXT;
+        CREATE INDEX maps_tenant ON maps(tenant);
+        ALTER TABLE jobs ADD COLUMN tenant TEXT;
         """,
     ),
 ]

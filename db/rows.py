@@ -37,6 +37,8 @@ class MapRow(TypedDict):
     attribution: str | None
     """The attribution the upload stated, None when it stated none (the default then applies)."""
     created_at: float
+    tenant: str | None
+    """The tenant of the key that uploaded it (migration 8); None: untenanted."""
     bbox_wgs84: tuple[float, float, float, float]
     """(min_lat, min_lon, max_lat, max_lon), from the four columns."""
 
@@ -114,6 +116,8 @@ class JobRow(TypedDict):
     heartbeat_at: float | None
     map_id: int | None
     reference_id: int | None
+    tenant: str | None
+    """Stamped when queued (migration 8): the tenant given, else its map's; None: untenanted."""
     result: dict[str, Any] | None
     error: str | None
     created_at: float

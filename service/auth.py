@@ -1,14 +1,23 @@
-"""API keys (``X-API-Key``) with scopes ``read`` and ``write``; off when no keys are configured."""
+"""API keys (``X-API-Key``) with scopes ``read`` and ``write`` and an optional tenant; off when no keys are configured.
+
+Tenants: a key configured as ``KEY:SCOPES@TENANT`` (:func:`contracts.keys.parse_api_keys`) sees and changes
+only its tenant's maps and what belongs to them (references, queries, jobs); a key without a tenant sees only
+untenanted data, and so does every request while auth is off. :func:`request_caller` gives a route the
+request's :class:`Caller`; :mod:`service.tenancy` looks rows up for it (another tenant's id is the same
+``404`` as a missing one, never ``403``).
+"""
 
 from __future__ import annotations
 
 import hmac
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 
 import anyio.to_thread
 from fastapi import Request, Security
 from fastapi.security import APIKeyHeader
 
+from contracts.keys import ApiKey
 from contracts.settings import Settings
 from service.deps import app_settings
 from service.errors import ApiError
@@ -19,18 +28,38 @@ api_key_header = APIKeyHeader(
     auto_error=False,
     description=(
         "API key; scope `write` for maps and references, `read` for the rest (`write` implies `read`). "
-        "Keys and their scopes are configured with `GEOLOC_API_KEYS` (`KEY:SCOPES`, scopes joined by `+`). "
+        "Keys and their scopes are configured with `GEOLOC_API_KEYS` (`KEY:SCOPES@TENANT`, scopes joined by `+`, "
+        "the tenant optional: a key sees only its tenant's maps, references, queries and jobs). "
         "A missing or unknown key is `401`, a key without the endpoint's scope is `403`. With no keys "
         "configured authentication is off and the service only listens on a loopback address."
     ),
 )
 
 
-def _scopes_of(settings: Settings, presented: str) -> frozenset[str] | None:
-    for key, scopes in settings.api_keys.items():
+@dataclass(frozen=True)
+class Caller:
+    """Who makes a request, as far as the data is concerned: the tenant of its key (None: untenanted)."""
+
+    tenant: str | None = None
+
+
+def _key_of(settings: Settings, presented: str) -> ApiKey | None:
+    for key, record in settings.api_keys.items():
         if hmac.compare_digest(key.encode(), presented.encode()):
-            return scopes
+            return record
     return None
+
+
+def request_caller(request: Request) -> Caller:
+    """A dependency: the request's :class:`Caller` (no tenant while auth is off).
+
+    Declared after :func:`require_scope` (the route's ``dependencies``), which already refused a missing or
+    unknown key; this reads the header itself so that the OpenAPI schema is unchanged.
+    """
+    settings = app_settings(request)
+    presented = request.headers.get("X-API-Key")
+    record = _key_of(settings, presented) if settings.auth_enabled and presented else None
+    return Caller(tenant=None if record is None else record.tenant)
 
 
 def require_scope(scope: str) -> Callable[..., Awaitable[None]]:
@@ -49,8 +78,8 @@ def require_scope(scope: str) -> Callable[..., Awaitable[None]]:
             return
         if not api_key:
             raise ApiError(401, "unauthorized", "missing API key: send it in the X-API-Key header")
-        scopes = _scopes_of(settings, api_key)
-        if scopes is None:
+        record = _key_of(settings, api_key)
+        if record is None:
             raise ApiError(401, "unauthorized", "invalid API key")
         limiter: RateLimiter | RedisRateLimiter | None = request.app.state.rate_limiter
         if limiter is not None:
@@ -60,7 +89,7 @@ def require_scope(scope: str) -> Callable[..., Awaitable[None]]:
                 wait_s = limiter.acquire(api_key)
             if wait_s is not None:
                 raise rate_limited(limiter, wait_s)
-        if scope not in scopes:
+        if scope not in record.scopes:
             raise ApiError(403, "forbidden", f"this API key lacks the '{scope}' scope")
 
     return dependency

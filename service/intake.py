@@ -27,26 +27,17 @@ from contracts.jobs import JobPayload, WorkStatus, reported_status
 from contracts.settings import Settings
 from db import Database, connect, transaction
 from db import jobs as job_store
-from db import maps as map_store
 from db.files import FileStore
 from db.rows import JobRow, MapRow
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
-from service.errors import ApiError
 from service.images import ImageInfo, validate_image
 from service.models import error_responses
+from service.tenancy import require_map
 from service.uploads import ReceivedFile, received_upload
 from workers.broker import JobPublisher
 
 READ_ERRORS = error_responses(404)
 """Errors a read answers itself (the specification adds auth, rate-limit and validation statuses)."""
-
-
-def require_map(db: Database, map_id: int) -> MapRow:
-    """The map row, or 404."""
-    row = map_store.get_map(db, map_id)
-    if row is None:
-        raise ApiError(404, "not_found", f"map {map_id} not found")
-    return row
 
 
 @lru_cache(maxsize=2)
@@ -131,12 +122,12 @@ class PhotoIntake(ABC):
         """The reference the job belongs to (its deletion cancels the job), if any."""
         return None
 
-    def accept(self, map_id: int, image: UploadFile) -> Accepted:
-        """Check and store an upload of map ``map_id`` with its job, then publish the job; see the module."""
+    def accept(self, map_id: int, image: UploadFile, tenant: str | None) -> Accepted:
+        """Check and store an upload of map ``map_id`` (of ``tenant``, else 404) with its job; see the module."""
         settings = self.settings
         db = connect(settings.database)
         try:
-            map_row = require_map(db, map_id)
+            map_row = require_map(db, map_id, tenant)
             self.check_form()
             with received_upload(image, self.store, settings.max_image_bytes, "the image") as received:
                 info = validate_image(

@@ -29,12 +29,12 @@ from db.files import open_store
 from db.rows import MapRow
 from geoloc.maps import MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.maps.places import Place, PlaceIndex, place_index, resolve_place
-from service.auth import require_read
+from service.auth import Caller, request_caller, require_read
 from service.bounds import MapId
 from service.deps import app_settings
 from service.errors import ApiError
-from service.intake import require_map
 from service.models import error_responses
+from service.tenancy import require_map
 
 router = APIRouter(tags=["maps"])
 MAX_PLACE_CHARS = 200
@@ -117,10 +117,10 @@ def resolve_form_place(settings: Settings, map_row: MapRow, text: str) -> Place:
     )
 
 
-def _search(settings: Settings, map_id: int, q: str, limit: int) -> PlaceList:
+def _search(settings: Settings, map_id: int, tenant: str | None, q: str, limit: int) -> PlaceList:
     db = connect(settings.database)
     try:
-        row = require_map(db, map_id)
+        row = require_map(db, map_id, tenant)
     finally:
         db.close()
     places = map_places(settings, row).search(q, limit=limit)
@@ -141,10 +141,11 @@ async def search_places(
     ],
     limit: Annotated[int, Query(ge=1, le=50, description="How many places to return")] = 10,
     settings: Settings = Depends(app_settings),
+    caller: Caller = Depends(request_caller),
 ) -> PlaceList:
     """Places of the map matching ``q``, best first, for autocompletion: buildings' names, addresses, streets.
 
     Accent- and case-insensitive, fuzzy, the last word also as a prefix (docs/places.md). Each place gives
     the position prior a query's or a reference's ``place`` field would use.
     """
-    return await run_in_threadpool(_search, settings, map_id, q, limit)
+    return await run_in_threadpool(_search, settings, map_id, caller.tenant, q, limit)

@@ -31,12 +31,13 @@ from geoloc.maps import (
     save_city_map,
 )
 from geoloc.maps.crs import parse_crs
-from service.auth import require_read, require_write
+from service.auth import Caller, request_caller, require_read, require_write
 from service.bounds import MapId
 from service.deps import app_settings, get_db, get_store
 from service.errors import ApiError
-from service.intake import loaded_map, require_map
+from service.intake import loaded_map
 from service.models import MapList, MapOut, error_responses, timestamp
+from service.tenancy import require_map
 from service.uploads import received_upload
 
 log = logging.getLogger("geoloc.api")
@@ -137,6 +138,7 @@ def upload_map(
     db: Database = Depends(get_db),
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
+    caller: Caller = Depends(request_caller),
 ) -> MapOut | JSONResponse:
     """Upload a map: buildings and facades are extracted and stored.
 
@@ -155,7 +157,7 @@ def upload_map(
             raise ApiError(422, "invalid_request", f"crs: {exc}") from exc
     read_options = options.as_dict()
     with received_upload(file, store, settings.max_map_bytes, "the map file") as received:
-        existing = map_store.find_map_by_sha256(db, received.sha256, read_options)
+        existing = map_store.find_map_by_sha256(db, received.sha256, read_options, caller.tenant)
         if existing is not None:
             out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
             return JSONResponse(out.model_dump(mode="json"), status_code=200)
@@ -174,7 +176,7 @@ def upload_map(
         relative = f"maps/{received.sha256}{SOURCE_EXTENSIONS.get(source_format, '.map')}"
         with transaction(db):  # the duplicate check and the insert are atomic
             db.lock(f"geoloc:map:{received.sha256}")  # the same file sent twice at once
-            existing = map_store.find_map_by_sha256(db, received.sha256, read_options)
+            existing = map_store.find_map_by_sha256(db, received.sha256, read_options, caller.tenant)
             if existing is None:
                 received.move_to(relative)
                 map_id = map_store.insert_map(
@@ -188,6 +190,7 @@ def upload_map(
                     content=content,
                     read_options=read_options,
                     attribution=attribution.strip() if attribution and attribution.strip() else None,
+                    tenant=caller.tenant,
                 )
         if existing is not None:
             out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
@@ -225,17 +228,16 @@ def _reference_total(db: Database, map_id: int) -> int:
 
 
 @router.get("", response_model=MapList, dependencies=[Depends(require_read)])
-def list_maps(db: Database = Depends(get_db)) -> MapList:
-    """All maps, oldest first."""
-    return MapList(
-        maps=[map_out(row, reference_count=_reference_total(db, row["id"])) for row in map_store.list_maps(db)]
-    )
+def list_maps(db: Database = Depends(get_db), caller: Caller = Depends(request_caller)) -> MapList:
+    """The caller's maps (its key's tenant's; all untenanted ones for a key without a tenant), oldest first."""
+    rows = map_store.list_maps(db, caller.tenant)
+    return MapList(maps=[map_out(row, reference_count=_reference_total(db, row["id"])) for row in rows])
 
 
 @router.get("/{map_id}", response_model=MapOut, responses=error_responses(404), dependencies=[Depends(require_read)])
-def get_map(map_id: MapId, db: Database = Depends(get_db)) -> MapOut:
+def get_map(map_id: MapId, db: Database = Depends(get_db), caller: Caller = Depends(request_caller)) -> MapOut:
     """One map."""
-    return map_out(require_map(db, map_id), reference_count=_reference_total(db, map_id))
+    return map_out(require_map(db, map_id, caller.tenant), reference_count=_reference_total(db, map_id))
 
 
 GEOJSON_RESPONSES: dict[int | str, dict[str, Any]] = {
@@ -251,12 +253,12 @@ GEOJSON_RESPONSES: dict[int | str, dict[str, Any]] = {
     response_class=Response,
     dependencies=[Depends(require_read)],
 )
-def get_buildings(map_id: MapId, db: Database = Depends(get_db)) -> Response:
+def get_buildings(map_id: MapId, db: Database = Depends(get_db), caller: Caller = Depends(request_caller)) -> Response:
     """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat), with the map's ``attribution``.
 
     Each feature has its building id, OSM id, name and height.
     """
-    attribution = json.dumps(map_attribution(require_map(db, map_id)["attribution"]))
+    attribution = json.dumps(map_attribution(require_map(db, map_id, caller.tenant)["attribution"]))
     # The stored geometry text goes out as it is: no decoding and re-encoding of a city's footprints.
     features = ",".join(
         f'{{"type":"Feature","id":{b["building_id"]},"geometry":{b["footprint_geojson"]},"properties":'
@@ -279,13 +281,14 @@ def get_streets(
     db: Database = Depends(get_db),
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
+    caller: Caller = Depends(request_caller),
 ) -> Response:
     """The map's streets as a GeoJSON FeatureCollection of LineStrings (WGS84, lon/lat), with ``attribution``.
 
     Each feature's properties: ``street_id`` (its index) and ``name`` (the OSM ``name`` tag, null when it has
     none). OSM maps' ``highway=*`` ways; GIS maps have no streets (an empty collection).
     """
-    row = require_map(db, map_id)
+    row = require_map(db, map_id, caller.tenant)
     city_map = loaded_map(settings, store, row)
     bounds = city_map.street_offsets.tolist()
     names = city_map.street_names or [""] * (len(bounds) - 1)  # "" is an unnamed street
@@ -313,9 +316,11 @@ def delete_map(
     db: Database = Depends(get_db),
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
+    caller: Caller = Depends(request_caller),
 ) -> Response:
     """Delete a map with its buildings, references, labels, index entries and queries."""
     with transaction(db):
+        require_map(db, map_id, caller.tenant)
         deleted = map_store.delete_map(db, map_id)
     if deleted is None:
         raise ApiError(404, "not_found", f"map {map_id} not found")

@@ -32,7 +32,7 @@ from db import maps as map_store
 from db import queries as query_store
 from db.files import FileStore
 from db.rows import JobRow, MapRow, QueryRow
-from service.auth import require_read, require_write
+from service.auth import Caller, request_caller, require_read, require_write
 from service.bounds import MapId, QueryId, bounded_form, check_bounds
 from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
@@ -46,11 +46,12 @@ from service.geojson import (
 )
 from service.heatmap_png import heatmap_png
 from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
-from service.intake import READ_ERRORS, PhotoIntake, loaded_map, require_map, work_status
+from service.intake import READ_ERRORS, PhotoIntake, loaded_map, work_status
 from service.limits import require_queue_capacity
 from service.models import QueryOut, error_responses, timestamp
 from service.places import resolve_form_place
 from service.spec import QUEUE_FULL_RESPONSE
+from service.tenancy import require_map, require_query
 from service.uploads import ReceivedFile
 from service.waiting import JobWaiter
 from workers.broker import JobPublisher
@@ -76,10 +77,8 @@ def query_out(row: QueryRow, job: JobRow | None, attribution: str) -> QueryOut:
     )
 
 
-def _load(db: Database, query_id: int) -> tuple[QueryRow, JobRow | None]:
-    row = query_store.get_query(db, query_id)
-    if row is None:
-        raise ApiError(404, "not_found", f"query {query_id} not found")
+def _load(db: Database, query_id: int, tenant: str | None) -> tuple[QueryRow, JobRow | None]:
+    row = require_query(db, query_id, tenant)
     job = job_store.get_job(db, row["job_id"]) if row["job_id"] else None
     return row, job
 
@@ -183,11 +182,16 @@ def _attribution(db: Database, map_id: int) -> str:
     return map_attribution(None if row is None else row["attribution"])
 
 
-def _load_query(settings: Settings, query_id: int, *, geojson: bool = False) -> QueryOut | dict[str, Any]:
-    """The query as its API model, or with ``geojson`` as its FeatureCollection (:mod:`service.geojson`)."""
+def _load_query(
+    settings: Settings, query_id: int, tenant: str | None, *, geojson: bool = False
+) -> QueryOut | dict[str, Any]:
+    """The query (of ``tenant``, else 404) as its API model, or with ``geojson`` as its FeatureCollection.
+
+    The FeatureCollection is :mod:`service.geojson`'s.
+    """
     db = connect(settings.database)
     try:
-        row, job = _load(db, query_id)
+        row, job = _load(db, query_id, tenant)
         out = query_out(row, job, _attribution(db, row["map_id"]))
         if not geojson:
             return out
@@ -198,8 +202,8 @@ def _load_query(settings: Settings, query_id: int, *, geojson: bool = False) -> 
         db.close()
 
 
-def _query_model(settings: Settings, query_id: int) -> QueryOut:
-    out = _load_query(settings, query_id)
+def _query_model(settings: Settings, query_id: int, tenant: str | None) -> QueryOut:
+    out = _load_query(settings, query_id, tenant)
     assert isinstance(out, QueryOut)
     return out
 
@@ -244,6 +248,7 @@ async def create_query(
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
+    caller: Caller = Depends(request_caller),
 ) -> QueryOut | JSONResponse:
     """Geolocate a photo on a map: ranked locations with headings, the heatmap, the buildings in the photo.
 
@@ -257,11 +262,12 @@ async def create_query(
     ``Retry-After`` seconds).
     """
     form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm, top_n, k, wait_s, preset)
-    accepted = await run_in_threadpool(QueryIntake(settings, store, publisher, form).accept, map_id, image)
+    intake = QueryIntake(settings, store, publisher, form)
+    accepted = await run_in_threadpool(intake.accept, map_id, image, caller.tenant)
     assert accepted.job_id is not None  # a query is never a duplicate
     waiter: JobWaiter = request.app.state.job_waiter
     await waiter.wait(accepted.job_id, wait_s)
-    out = await run_in_threadpool(_query_model, settings, accepted.subject_id)
+    out = await run_in_threadpool(_query_model, settings, accepted.subject_id, caller.tenant)
     if out.status in ("done", "failed"):
         return out
     return JSONResponse(out.model_dump(mode="json"), status_code=status.HTTP_202_ACCEPTED)
@@ -282,6 +288,7 @@ async def get_query(
     ] = 0.0,
     format_name: GeoJsonFormat = None,
     settings: Settings = Depends(app_settings),
+    caller: Caller = Depends(request_caller),
 ) -> QueryOut | JSONResponse:
     """A query: status (queued, processing, done, failed) and, when done, its answer.
 
@@ -291,20 +298,20 @@ async def get_query(
     buildings' footprints, ``attribution`` as a foreign member; a query not answered (yet) gets the same status
     code with an empty collection whose ``status`` (and ``error``) say why.
     """
-    out = await run_in_threadpool(_query_model, settings, query_id)
+    out = await run_in_threadpool(_query_model, settings, query_id, caller.tenant)
     if wait_s > 0 and out.status not in ("done", "failed") and out.job_id is not None:
         waiter: JobWaiter = request.app.state.job_waiter
         await waiter.wait(out.job_id, wait_s)
-        out = await run_in_threadpool(_query_model, settings, query_id)
+        out = await run_in_threadpool(_query_model, settings, query_id, caller.tenant)
     if wants_geojson(request, format_name):
-        body = await run_in_threadpool(partial(_load_query, settings, query_id, geojson=True))
+        body = await run_in_threadpool(partial(_load_query, settings, query_id, caller.tenant, geojson=True))
         return JSONResponse(body, media_type=GEOJSON_MEDIA_TYPE)
     return out
 
 
-def _done_result(db: Database, query_id: int) -> tuple[QueryRow, dict[str, Any]]:
-    """The query's row and its stored answer; 409 while it has none."""
-    row, _ = _load(db, query_id)
+def _done_result(db: Database, query_id: int, tenant: str | None) -> tuple[QueryRow, dict[str, Any]]:
+    """The query's row (of ``tenant``, else 404) and its stored answer; 409 while it has none."""
+    row, _ = _load(db, query_id, tenant)
     if row["status"] != "done" or not row["result"]:
         raise ApiError(409, "not_ready", f"query {query_id} has no answer yet (status {row['status']})")
     return row, dict(row["result"])
@@ -321,15 +328,16 @@ def get_heatmap_png(
     db: Database = Depends(get_db),
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
+    caller: Caller = Depends(request_caller),
 ) -> Response:
     """The answer as a picture that stands alone (PNG, 800 px wide, north up; :mod:`service.heatmap_png`).
 
     The probability map's cells over the map's streets and footprints, the top poses as view cones, a colour
     bar, a scale bar, a north arrow and the map data's attribution.
     """
-    row, stored = _done_result(db, query_id)
+    row, stored = _done_result(db, query_id, caller.tenant)
     result = QueryResult.model_validate(stored)
-    map_row = require_map(db, row["map_id"])
+    map_row = require_map(db, row["map_id"], caller.tenant)
     png = heatmap_png(loaded_map(settings, store, map_row), result, map_attribution(map_row["attribution"]))
     return Response(png, media_type="image/png")
 
@@ -340,12 +348,14 @@ def get_heatmap_png(
     response_class=Response,
     dependencies=[Depends(require_read)],
 )
-def get_answer_geojson(query_id: QueryId, db: Database = Depends(get_db)) -> JSONResponse:
+def get_answer_geojson(
+    query_id: QueryId, db: Database = Depends(get_db), caller: Caller = Depends(request_caller)
+) -> JSONResponse:
     """The ranked locations as GeoJSON points (properties: rank, heading, probabilities), with ``attribution``.
 
     ``GET /v1/queries/{id}?format=geojson`` adds view cones and the identified buildings.
     """
-    row, result = _done_result(db, query_id)
+    row, result = _done_result(db, query_id, caller.tenant)
     body = {
         "type": "FeatureCollection",
         "features": pose_points(result["locations"]),
@@ -361,9 +371,15 @@ def get_answer_geojson(query_id: QueryId, db: Database = Depends(get_db)) -> JSO
     responses=error_responses(404),
     dependencies=[Depends(require_write)],
 )
-def delete_query(query_id: QueryId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)) -> Response:
+def delete_query(
+    query_id: QueryId,
+    db: Database = Depends(get_db),
+    store: FileStore = Depends(get_store),
+    caller: Caller = Depends(request_caller),
+) -> Response:
     """Delete a query and its stored photo."""
     with transaction(db):
+        require_query(db, query_id, caller.tenant)
         deleted = query_store.delete_query(db, query_id)
     if deleted is None:
         raise ApiError(404, "not_found", f"query {query_id} not found")
@@ -379,10 +395,13 @@ def delete_query(query_id: QueryId, db: Database = Depends(get_db), store: FileS
     dependencies=[Depends(require_read)],
 )
 def get_query_image(
-    query_id: QueryId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)
+    query_id: QueryId,
+    db: Database = Depends(get_db),
+    store: FileStore = Depends(get_store),
+    caller: Caller = Depends(request_caller),
 ) -> FileResponse:
     """The query photo as uploaded (its stored bytes, with the media type of its format)."""
-    row, _ = _load(db, query_id)
+    row, _ = _load(db, query_id, caller.tenant)
     if not row["image_path"]:
         raise ApiError(404, "not_found", f"query {query_id} has no stored photo")
     return stored_photo_response(store.local_path(row["image_path"]))

@@ -22,13 +22,13 @@ from db import jobs as job_store
 from db import references as reference_store
 from db.files import FileStore
 from db.rows import JobRow, MapRow, ReferenceRow
-from service.auth import require_read, require_write
+from service.auth import Caller, request_caller, require_read, require_write
 from service.bounds import MapId, ReferenceId, bounded_form, check_bounds
 from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
 from service.geojson import GEOJSON_MEDIA_TYPE, GEOJSON_RESPONSE, GeoJsonFormat, references_collection, wants_geojson
 from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
-from service.intake import READ_ERRORS, PhotoIntake, require_map, work_status
+from service.intake import READ_ERRORS, PhotoIntake, work_status
 from service.limits import require_queue_capacity
 from service.models import (
     Position,
@@ -41,6 +41,7 @@ from service.models import (
 from service.places import resolve_form_place
 from service.rendering import identity_overlay_png
 from service.spec import QUEUE_FULL_RESPONSE
+from service.tenancy import require_map, require_reference
 from service.uploads import ReceivedFile
 from workers.broker import JobPublisher
 
@@ -215,6 +216,7 @@ async def upload_reference(
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
+    caller: Caller = Depends(request_caller),
 ) -> ReferenceAccepted | JSONResponse:
     """Add a geo-tagged reference photo and queue its labelling.
 
@@ -228,7 +230,7 @@ async def upload_reference(
     stated_sequence = sequence.strip() if sequence and sequence.strip() else None
     form = ReferenceForm(lat, lon, heading_deg, focal_length_35mm, stated_sequence, place)
     intake = ReferenceIntake(settings, store, publisher, form)
-    accepted = await run_in_threadpool(intake.accept, map_id, image)
+    accepted = await run_in_threadpool(intake.accept, map_id, image, caller.tenant)
     if intake.duplicate is not None:
         existing = intake.duplicate
         out = ReferenceAccepted(
@@ -286,16 +288,16 @@ def reference_out(row: ReferenceRow, job: JobRow | None, attribution: str) -> Re
     responses=error_responses(404),
     dependencies=[Depends(require_read)],
 )
-def get_reference(reference_id: ReferenceId, db: Database = Depends(get_db)) -> ReferenceOut:
+def get_reference(
+    reference_id: ReferenceId, db: Database = Depends(get_db), caller: Caller = Depends(request_caller)
+) -> ReferenceOut:
     """A reference: its status (queued, processing, done, failed).
 
     When done, also the estimated pose, the buildings seen and timings.
     """
-    row = reference_store.get_reference(db, reference_id)
-    if row is None:
-        raise ApiError(404, "not_found", f"reference {reference_id} not found")
+    row = require_reference(db, reference_id, caller.tenant)
     job = job_store.get_job(db, row["job_id"]) if row["job_id"] is not None else None
-    return reference_out(row, job, map_attribution(require_map(db, row["map_id"])["attribution"]))
+    return reference_out(row, job, map_attribution(require_map(db, row["map_id"], caller.tenant)["attribution"]))
 
 
 @router.delete(
@@ -305,10 +307,14 @@ def get_reference(reference_id: ReferenceId, db: Database = Depends(get_db)) -> 
     dependencies=[Depends(require_write)],
 )
 def delete_reference(
-    reference_id: ReferenceId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)
+    reference_id: ReferenceId,
+    db: Database = Depends(get_db),
+    store: FileStore = Depends(get_store),
+    caller: Caller = Depends(request_caller),
 ) -> Response:
     """Delete a reference with its labels, keypoints and index entries (its queued job is cancelled)."""
     with transaction(db):
+        require_reference(db, reference_id, caller.tenant)
         deleted = reference_store.delete_reference(db, reference_id)
     if deleted is None:
         raise ApiError(404, "not_found", f"reference {reference_id} not found")
@@ -323,15 +329,16 @@ def delete_reference(
     dependencies=[Depends(require_read)],
 )
 def get_labels_png(
-    reference_id: ReferenceId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)
+    reference_id: ReferenceId,
+    db: Database = Depends(get_db),
+    store: FileStore = Depends(get_store),
+    caller: Caller = Depends(request_caller),
 ) -> Response:
     """The photo with its building pixels coloured by identity; 409 until the reference is labelled.
 
     One colour per building, as in the paper's Fig. 5; uncertain columns are drawn paler.
     """
-    row = reference_store.get_reference(db, reference_id)
-    if row is None:
-        raise ApiError(404, "not_found", f"reference {reference_id} not found")
+    row = require_reference(db, reference_id, caller.tenant)
     labels = reference_store.load_labels(db, reference_id)
     if labels is None:
         raise ApiError(409, "not_ready", f"reference {reference_id} is not labelled yet (status {row['status']})")
@@ -354,6 +361,7 @@ def list_map_references(
     limit: Annotated[int, Query(ge=1, le=500, description="Most references in this page")] = 100,
     format_name: GeoJsonFormat = None,
     db: Database = Depends(get_db),
+    caller: Caller = Depends(request_caller),
 ) -> ReferenceList | JSONResponse:
     """A map's references, oldest first, a page at a time (follow ``next_after_id``).
 
@@ -361,7 +369,7 @@ def list_map_references(
     whole map (ingestion progress). With ``Accept: application/geo+json`` or ``?format=geojson``: the page as
     a GeoJSON FeatureCollection, a Point per reference at its estimated pose (else its uploaded position).
     """
-    attribution = map_attribution(require_map(db, map_id)["attribution"])
+    attribution = map_attribution(require_map(db, map_id, caller.tenant)["attribution"])
     rows = reference_store.list_references_after(db, map_id, after_id=after_id, limit=limit + 1)
     page = rows[:limit]
     counts = reference_store.effective_status_counts(db, map_id)
@@ -389,10 +397,11 @@ def list_map_references(
     dependencies=[Depends(require_read)],
 )
 def get_reference_image(
-    reference_id: ReferenceId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)
+    reference_id: ReferenceId,
+    db: Database = Depends(get_db),
+    store: FileStore = Depends(get_store),
+    caller: Caller = Depends(request_caller),
 ) -> FileResponse:
     """The reference photo as uploaded (its stored bytes, with the media type of its format)."""
-    row = reference_store.get_reference(db, reference_id)
-    if row is None:
-        raise ApiError(404, "not_found", f"reference {reference_id} not found")
+    row = require_reference(db, reference_id, caller.tenant)
     return stored_photo_response(store.local_path(row["image_path"]))

@@ -14,11 +14,12 @@ from contracts.settings import Settings
 from db import LATEST_VERSION, Database, connect, schema_version
 from db import jobs as job_store
 from db.rows import JobRow
-from service.auth import require_read
+from service.auth import Caller, request_caller, require_read
 from service.bounds import JobId
 from service.deps import app_settings, get_db
-from service.errors import ApiError, error_body
+from service.errors import error_body
 from service.models import About, ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
+from service.tenancy import require_job
 from workers.broker import broker_problem
 from workers.context import model_problems
 
@@ -128,9 +129,6 @@ def job_out(job: JobRow) -> JobOut:
     tags=["jobs"],
     dependencies=[Depends(require_read)],
 )
-def get_job(job_id: JobId, db: Database = Depends(get_db)) -> JobOut:
-    """A background job: status, attempts, result or last error."""
-    job = job_store.get_job(db, job_id)
-    if job is None:
-        raise ApiError(404, "not_found", f"job {job_id} not found")
-    return job_out(job)
+def get_job(job_id: JobId, db: Database = Depends(get_db), caller: Caller = Depends(request_caller)) -> JobOut:
+    """A background job: status, attempts, result or last error (404 for a job of another tenant's map)."""
+    return job_out(require_job(db, job_id, caller.tenant))

@@ -1,10 +1,12 @@
 """An external fuzzer against a real server: Schemathesis with every check finds nothing.
 
 ``schemathesis run http://HOST:PORT/openapi.json --checks all`` (the repository's ``schemathesis.toml``
-applies) against ``geoloc serve`` on loopback with one worker, once without API keys and once with keys
-and a rate limit, on a database seeded with a map, a reference and a query so that the operations on
-existing resources are reached too (their ids are offered to the fuzzer half of the time). A bounded
-number of examples per operation keeps each run under a minute or two on 2 cores.
+applies) against ``geoloc serve`` on loopback with one worker, once without API keys, once with keys
+and a rate limit, and once with the keys of two tenants, on a database seeded with a map, a reference and a
+query so that the operations on existing resources are reached too (their ids are offered to the fuzzer half
+of the time). With tenants each tenant's key seeds its own rows and the fuzzer, with team-a's key, is offered
+the ids of both: team-b's must answer the documented ``404``. A bounded number of examples per operation
+keeps each run under a minute or two on 2 cores.
 """
 
 from __future__ import annotations
@@ -53,11 +55,12 @@ def _seed(client: httpx.Client) -> dict[str, int]:
     return {"map_id": map_id, "reference_id": reference["id"], "query_id": query["id"], "job_id": query["job_id"]}
 
 
-def _config_with_seeds(path: Path, ids: dict[str, int]) -> Path:
-    """The repository's ``schemathesis.toml`` plus dictionaries offering the seeded ids."""
+def _config_with_seeds(path: Path, seeded: list[dict[str, int]]) -> Path:
+    """The repository's ``schemathesis.toml`` plus dictionaries offering the seeded ids (of every seeding)."""
     lines = [(REPO_ROOT / "schemathesis.toml").read_text(), ""]
-    for name, value in ids.items():
-        lines += [f"[dictionaries.seeded-{name}]", f"values = [{value}]", ""]
+    ids = seeded[0]
+    for name in ids:
+        lines += [f"[dictionaries.seeded-{name}]", f"values = [{', '.join(str(s[name]) for s in seeded)}]", ""]
     lines.append("[parameters]")
     lines += [f'"path.{name}" = {{ dictionary = "seeded-{name}", probability = 0.5 }}' for name in ids]
     path.write_text("\n".join(lines) + "\n")
@@ -87,23 +90,32 @@ def _schemathesis(base_url: str, config: Path, headers: dict[str, str]) -> subpr
     )
 
 
+TEAM_B_KEY = "fuzz-team-b"
+
+
 @pytest.mark.parametrize(
-    ("api_keys", "overrides"),
+    ("api_keys", "seed_keys", "overrides"),
     [
-        (None, {}),
-        (f"{WRITE_KEY}:write,fuzz-reader:read", {"GEOLOC_RATE_LIMIT_PER_MIN": "3000"}),
+        (None, [None], {}),
+        (f"{WRITE_KEY}:write,fuzz-reader:read", [WRITE_KEY], {"GEOLOC_RATE_LIMIT_PER_MIN": "3000"}),
+        (
+            f"{WRITE_KEY}:write@team-a,{TEAM_B_KEY}:read+write@team-b,fuzz-reader:read@team-a",
+            [WRITE_KEY, TEAM_B_KEY],
+            {"GEOLOC_RATE_LIMIT_PER_MIN": "3000"},
+        ),
     ],
-    ids=["without-api-keys", "with-api-keys"],
+    ids=["without-api-keys", "with-api-keys", "with-tenants"],
 )
 def test_schemathesis_with_every_check_finds_nothing(
-    tmp_path: Path, built_models: Path, api_keys: str | None, overrides: dict[str, Any]
+    tmp_path: Path, built_models: Path, api_keys: str | None, seed_keys: list[str | None], overrides: dict[str, Any]
 ) -> None:
     data_dir = tmp_path / "data"
     with running_service(data_dir, workers=1, models=built_models, api_keys=api_keys, **overrides) as service:
-        key = WRITE_KEY if api_keys else None
-        with service.client(key) as client:
-            ids = _seed(client)
-        run = _schemathesis(service.base_url or "", _config_with_seeds(tmp_path / "schemathesis.toml", ids),
+        seeded = []
+        for key in seed_keys:  # with tenants: team-a's rows, then team-b's (ids the fuzzer's key may not see)
+            with service.client(key) as client:
+                seeded.append(_seed(client))
+        run = _schemathesis(service.base_url or "", _config_with_seeds(tmp_path / "schemathesis.toml", seeded),
                             {"X-API-Key": WRITE_KEY} if api_keys else {})  # fmt: skip
         report = run.stdout[-6000:] + run.stderr[-2000:]
         assert run.returncode == 0, report

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from contracts import settings as config
+from contracts.keys import ApiKey
 from contracts.settings import REPO_ROOT, Settings, SettingsError, get_settings, reset_settings, settings_table
 
 
@@ -46,9 +47,9 @@ def test_environment_is_parsed_once_and_reset_reads_it_again(monkeypatch: pytest
     settings = get_settings()
     assert settings.data_dir == (tmp_path / "data").resolve()
     assert settings.api_keys == {
-        "k1": frozenset({"read", "write"}),
-        "k2": frozenset({"read"}),
-        "k3": frozenset({"read", "write"}),
+        "k1": ApiKey(frozenset({"read", "write"})),
+        "k2": ApiKey(frozenset({"read"})),
+        "k3": ApiKey(frozenset({"read", "write"})),
     }
     assert settings.worker_plugins == ("a.py", "mod.handlers")
     assert settings.job_lease_s == 1.5 and settings.min_image_side == 64
@@ -68,6 +69,7 @@ def test_environment_is_parsed_once_and_reset_reads_it_again(monkeypatch: pytest
         ("GEOLOC_MAX_IMAGE_BYTES", "-1", "greater than or equal to 0"),
         ("GEOLOC_JOB_MAX_ATTEMPTS", "0", "greater than or equal to 1"),
         ("GEOLOC_API_KEYS", "k1:admin", "bad entry 'k1:admin'"),
+        ("GEOLOC_API_KEYS", "k1:read@team a", "tenant 'team a' must be 1 to 64 letters"),
     ],
 )
 def test_invalid_values_name_the_variable_and_the_rule(
