@@ -45,7 +45,7 @@ from typing import Any, TypeVar
 
 import httpx
 from local_service import LocalService
-from soak_checks import process_checks, sample, verdict
+from soak_checks import process_checks, sample, under_load, verdict
 
 from contracts.settings import shared_path
 from geoloc.client import ApiError, AsyncClient, RetryPolicy, Sent, ServiceUnreachableError, calls
@@ -321,7 +321,7 @@ def summary(report: dict[str, Any]) -> dict[str, Any]:
         "store_mb": [round(first["store_bytes"] / 1e6, 2), round(last["store_bytes"] / 1e6, 2)],
         "queued_max": max(s["queued"] for s in report["samples"]),
         "load_average_mean": round(sum(s["load_average"] for s in report["samples"]) / len(report["samples"]), 2),
-        "processes": process_checks(report["samples"], report["mark_s"]),
+        "processes": process_checks(under_load(report), report["mark_s"]),
     }
 
 
@@ -341,7 +341,10 @@ def main() -> int:
         help="GEOLOC_QUERY_RETENTION_S of the service (default: a fifteenth of the run, at least 60 s)",
     )
     parser.add_argument("--out", type=Path, default=None, help="write the JSON report here")
+    parser.add_argument("--judge", type=Path, default=None, help="judge a saved report (--out) again; no run")
     args = parser.parse_args()
+    if args.judge is not None:
+        return judge(json.loads(args.judge.read_text()), args.out)
     args.sample_s = args.sample_s or max(1.0, args.duration_s / 120.0)
     args.retention_s = args.retention_s or max(60.0, round(args.duration_s / 15.0))
     machine = f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
@@ -372,6 +375,11 @@ def main() -> int:
                 servers[0].stop()
                 servers[1].close()
     report |= {"machine": machine, "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])}
+    return judge(report, args.out)
+
+
+def judge(report: dict[str, Any], out: Path | None) -> int:
+    """Add the summary and the checks to ``report``, print them, write it to ``out``; the exit code."""
     report["summary"] = summary(report)
     checks = verdict(report)
     report["checks"] = {name: met for name, met in checks}
@@ -383,9 +391,9 @@ def main() -> int:
         print(f"error: {line}")
     for name, met in checks:
         print(f"{'ok  ' if met else 'MISS'} {name}")
-    if args.out:
-        args.out.write_text(json.dumps(report, indent=1) + "\n")
-        print(f"wrote {args.out}")
+    if out:
+        out.write_text(json.dumps(report, indent=1) + "\n")
+        print(f"wrote {out}")
     return 0 if all(met for _, met in checks) else 1
 
 

@@ -61,6 +61,14 @@ def test_one_peak_does_not_decide_but_shrinking_memory_is_flagged() -> None:
     )
 
 
+def test_only_the_samples_under_load_are_judged() -> None:
+    leak_then_idle = [*[20 + i // 10 for i in range(121)], *[15] * 20]  # fds grow, then drop once the load ends
+    flat = [*FLAT, *FLAT[:20]]
+    series = samples({"api 1": flat, "worker 2": flat}, {"api 1": leak_then_idle, "worker 2": [*FDS, *FDS[:20]]})
+    assert failed(verdict(report(series, duration_s=3600.0))) == ["api 1 open file descriptors did not grow"]
+    assert failed(verdict(report(series))) == []  # judged with the idle tail, the growth would hide
+
+
 def test_growing_fds_a_restarted_worker_errors_and_unfinished_jobs_fail() -> None:
     leaking_fds = [20 + i // 10 for i in range(121)]
     checks = verdict(report(samples({"api 1": FLAT, "worker 2": FLAT}, {"api 1": leaking_fds, "worker 2": FDS})))
