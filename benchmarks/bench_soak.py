@@ -294,7 +294,7 @@ async def run(args: argparse.Namespace, service: LocalService, database_url: str
         "rate_qps": round(rate, 3),
         "retention_s": args.retention_s,
         "sample_s": args.sample_s,
-        "mark_s": args.duration_s * MARK_S / HOUR_S,
+        "mark_s": args.mark_s or args.duration_s * MARK_S / HOUR_S,
         "drain_s": round(drain_s, 1),
         "requests": dict(sorted(stats.ops.items())),
         "errors": dict(stats.errors),
@@ -341,10 +341,17 @@ def main() -> int:
         help="GEOLOC_QUERY_RETENTION_S of the service (default: a fifteenth of the run, at least 60 s)",
     )
     parser.add_argument("--out", type=Path, default=None, help="write the JSON report here")
+    parser.add_argument(
+        "--mark-s",
+        type=float,
+        default=None,
+        help="the memory and fd checks' mark (default: 600 s of an hour, a sixth of a shorter run)",
+    )
     parser.add_argument("--judge", type=Path, default=None, help="judge a saved report (--out) again; no run")
     args = parser.parse_args()
     if args.judge is not None:
-        return judge(json.loads(args.judge.read_text()), args.out)
+        saved = json.loads(args.judge.read_text())
+        return judge(saved | ({"mark_s": args.mark_s} if args.mark_s else {}), args.out)
     args.sample_s = args.sample_s or max(1.0, args.duration_s / 120.0)
     args.retention_s = args.retention_s or max(60.0, round(args.duration_s / 15.0))
     machine = f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"

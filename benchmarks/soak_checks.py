@@ -9,8 +9,10 @@ samples and counts into the issue's checks.
 Decisions: a process's *level* is the median of its samples in a window (a sixth of the mark, at least three
 samples), so that one sample taken while a worker holds a query's images does not decide; memory is *within
 10 %* when the level of the run's last window is within 10 % of the level just after the mark (the 10-minute
-mark of an hour's run, a sixth of a shorter one), and the file descriptors *did not grow* when the most open
-in the last window is no more than the most open in the window after the mark. A process that was not alive
+mark of an hour's run, a sixth of a shorter one). The file descriptors *did not grow* when the fewest open in
+the last window is no more than the most open in the window after the mark: descriptors that leak never close,
+so they raise the floor, while the API's connections in flight come and go above it (one more socket open
+at the end than at the mark is load, not a leak). A process that was not alive
 at both ends (a worker restarted) fails its checks: a restart hides a leak. Only the samples taken while the
 load ran count (not those of the drain and the retention check after it).
 """
@@ -117,7 +119,7 @@ def process_checks(samples: list[dict[str, Any]], mark_s: float) -> dict[str, di
         level = statistics.median(p["rss_mb"] for p in early)
         final = statistics.median(p["rss_mb"] for p in late)
         ratio = final / level if level else float("inf")
-        fds_mark, fds_end = max(p["fds"] for p in early), max(p["fds"] for p in late)
+        fds_mark, fds_end = max(p["fds"] for p in early), min(p["fds"] for p in late)
         out[name] = {
             "alive_throughout": True,
             "rss_mark_mb": round(level, 1),
@@ -125,8 +127,9 @@ def process_checks(samples: list[dict[str, Any]], mark_s: float) -> dict[str, di
             "rss_max_mb": max(s["processes"][name]["rss_mb"] for s in samples if name in s["processes"]),
             "rss_ratio": round(ratio, 3),
             "rss_ok": abs(ratio - 1.0) <= RSS_TOLERANCE,
-            "fds_mark": fds_mark,
-            "fds_end": fds_end,
+            "fds_mark_max": fds_mark,
+            "fds_end_min": fds_end,
+            "fds_end_max": max(p["fds"] for p in late),
             "fds_ok": fds_end <= fds_mark,
         }
     return out
