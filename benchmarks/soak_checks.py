@@ -1,0 +1,162 @@
+"""The soak benchmark's samples and verdict (``benchmarks/bench_soak.py``), apart so the verdict is unit-tested.
+
+:func:`sample` reads, at one moment, each service process's resident memory (``/proc/PID/status`` ``VmRSS``,
+MB) and open file descriptors (``/proc/PID/fd``), the database size (the SQLite file with its ``-wal`` and
+``-shm``, or PostgreSQL's ``pg_database_size``), the store size (bytes under the data folder, less the
+database files and the linked models) and the queue depth (jobs ``queued``). :func:`verdict` turns a run's
+samples and counts into the issue's checks.
+
+Decisions: a process's *level* is the median of its samples in a window (a sixth of the mark, at least three
+samples), so that one sample taken while a worker holds a query's images does not decide; memory is *within
+10 %* when the level of the run's last window is within 10 % of the level just after the mark (the 10-minute
+mark of an hour's run, a sixth of a shorter one). The file descriptors *did not grow* when the fewest open in
+the last window is no more than the most open in the window after the mark: descriptors that leak never close,
+so they raise the floor, while the API's connections in flight come and go above it (one more socket open
+at the end than at the mark is load, not a leak). A process that was not alive
+at both ends (a worker restarted) fails its checks: a restart hides a leak. Only the samples taken while the
+load ran count (not those of the drain and the retention check after it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sqlite3
+import statistics
+from pathlib import Path
+from typing import Any
+
+RSS_TOLERANCE = 0.10
+"""Resident memory may end at most this fraction above or below its level at the mark."""
+DB_FILES = ("geoloc.sqlite3", "geoloc.sqlite3-wal", "geoloc.sqlite3-shm")
+
+
+def process_figures(pid: int) -> dict[str, float] | None:
+    """``{"rss_mb", "fds"}`` of a live process, None when it has gone."""
+    try:
+        rss_kb = next(
+            int(line.split()[1])
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+            if line.startswith("VmRSS:")
+        )
+        fds = len(os.listdir(f"/proc/{pid}/fd"))
+    except (OSError, StopIteration):
+        return None
+    return {"rss_mb": round(rss_kb / 1024.0, 1), "fds": fds}
+
+
+def store_bytes(data_dir: Path) -> int:
+    """Bytes of the files under ``data_dir``: the stored maps and photos (not the database, not ``cache/``)."""
+    total = 0
+    for root, dirs, files in os.walk(data_dir):  # does not follow the models' symlink
+        top = Path(root) == data_dir
+        if top:
+            dirs[:] = [d for d in dirs if d != "cache"]
+        for name in files:
+            if top and name in DB_FILES:
+                continue
+            with contextlib.suppress(OSError):
+                total += (Path(root) / name).lstat().st_size
+    return total
+
+
+def database_figures(data_dir: Path, database_url: str | None) -> tuple[int, int]:
+    """(database bytes, queued jobs) of the embedded SQLite file in ``data_dir`` or of ``database_url``."""
+    if database_url is not None:
+        return _postgres_figures(database_url)
+    size = sum((data_dir / name).stat().st_size for name in DB_FILES if (data_dir / name).exists())
+    conn = sqlite3.connect(f"file:{data_dir / DB_FILES[0]}?mode=ro", uri=True, timeout=10)
+    try:
+        row = conn.execute("SELECT count(*) FROM jobs WHERE status = 'queued'").fetchone()
+    finally:
+        conn.close()
+    return size, int(row[0])
+
+
+def _postgres_figures(database_url: str) -> tuple[int, int]:
+    """(``pg_database_size``, queued jobs) of the distributed profile's database."""
+    import psycopg  # only the distributed profile needs it
+
+    with psycopg.connect(database_url, autocommit=True) as conn:
+        size = conn.execute("SELECT pg_database_size(current_database())").fetchone()
+        queued = conn.execute("SELECT count(*) FROM jobs WHERE status = 'queued'").fetchone()
+    return int(size[0] if size else 0), int(queued[0] if queued else 0)
+
+
+def sample(t_s: float, roles: dict[str, list[int]], data_dir: Path, database_url: str | None) -> dict[str, Any]:
+    """One sample at ``t_s`` seconds into the run; ``roles``: ``{"api": [pid, ...], "worker": [...]}``."""
+    processes = {}
+    for role, pids in roles.items():
+        for pid in pids:
+            if (figures := process_figures(pid)) is not None:
+                processes[f"{role} {pid}"] = figures
+    db_bytes, queued = database_figures(data_dir, database_url)
+    return {"t_s": round(t_s, 1), "processes": processes, "db_bytes": db_bytes,
+            "store_bytes": store_bytes(data_dir), "queued": queued}  # fmt: skip
+
+
+def _window(samples: list[dict[str, Any]], start_s: float, width_s: float) -> list[dict[str, Any]]:
+    """The samples in ``[start_s, start_s + width_s]``, at least the three from ``start_s`` on."""
+    after = [s for s in samples if s["t_s"] >= start_s]
+    inside = [s for s in after if s["t_s"] <= start_s + width_s]
+    return inside if len(inside) >= 3 else after[:3]
+
+
+def process_checks(samples: list[dict[str, Any]], mark_s: float) -> dict[str, dict[str, Any]]:
+    """Per process: RSS level at the mark and at the end, their ratio, fds most open at both; ``ok`` flags."""
+    width = max(mark_s / 6.0, 1e-9)
+    end_start = samples[-1]["t_s"] - width if samples else 0.0
+    at_mark, at_end = _window(samples, mark_s, width), [s for s in samples if s["t_s"] >= end_start]
+    names = sorted({name for s in samples for name in s["processes"]})
+    out: dict[str, dict[str, Any]] = {}
+    for name in names:
+        early = [s["processes"][name] for s in at_mark if name in s["processes"]]
+        late = [s["processes"][name] for s in at_end if name in s["processes"]]
+        alive = bool(early) and bool(late) and name in samples[-1]["processes"]
+        if not alive:
+            out[name] = {"alive_throughout": False, "rss_ok": False, "fds_ok": False}
+            continue
+        level = statistics.median(p["rss_mb"] for p in early)
+        final = statistics.median(p["rss_mb"] for p in late)
+        ratio = final / level if level else float("inf")
+        fds_mark, fds_end = max(p["fds"] for p in early), min(p["fds"] for p in late)
+        out[name] = {
+            "alive_throughout": True,
+            "rss_mark_mb": round(level, 1),
+            "rss_end_mb": round(final, 1),
+            "rss_max_mb": max(s["processes"][name]["rss_mb"] for s in samples if name in s["processes"]),
+            "rss_ratio": round(ratio, 3),
+            "rss_ok": abs(ratio - 1.0) <= RSS_TOLERANCE,
+            "fds_mark_max": fds_mark,
+            "fds_end_min": fds_end,
+            "fds_end_max": max(p["fds"] for p in late),
+            "fds_ok": fds_end <= fds_mark,
+        }
+    return out
+
+
+def under_load(report: dict[str, Any]) -> list[dict[str, Any]]:
+    """The samples taken while the load ran (``t_s`` up to ``duration_s``), not while the queue drained after."""
+    return [s for s in report["samples"] if s["t_s"] <= report.get("duration_s", float("inf"))]
+
+
+def verdict(report: dict[str, Any]) -> list[tuple[str, bool]]:
+    """The issue's checks on a run's report (``samples``, ``mark_s``, ``errors``, ``jobs``): (name, met).
+
+    The memory and fd checks look at the samples :func:`under_load` (an idle tail would hide a growth in fds).
+    """
+    processes = process_checks(under_load(report), report["mark_s"])
+    jobs = report["jobs"]
+    roles = {name.split()[0] for name in processes}
+    checks = [
+        ("0 errors other than documented 429s", sum(report["errors"].values()) == 0),
+        ("every accepted job done", jobs["accepted"] > 0 and jobs["done"] == jobs["accepted"]),
+        ("an API and a worker process sampled", {"api", "worker"} <= roles),
+    ]
+    if "retention" in report:  # queries left to retention are gone once older than it
+        old, pruned = report["retention"]["older_than_retention"], report["retention"]["pruned"]
+        checks.append(("retention pruned every query older than it", old > 0 and pruned == old))
+    for name, figures in processes.items():
+        checks.append((f"{name} resident memory within 10 % of its level at the mark", figures["rss_ok"]))
+        checks.append((f"{name} open file descriptors did not grow", figures["fds_ok"]))
+    return checks

@@ -1,0 +1,89 @@
+"""The soak benchmark's verdict (``benchmarks/soak_checks.py``) on synthetic samples: growth flagged, flat passes."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from benchmarks.soak_checks import process_checks, verdict
+
+MARK_S = 600.0
+
+
+def samples(rss: dict[str, list[float]], fds: dict[str, list[int]], every_s: float = 30.0) -> list[dict[str, Any]]:
+    """One sample per index of the series, ``every_s`` apart, for the processes named in ``rss``."""
+    count = len(next(iter(rss.values())))
+    return [
+        {"t_s": i * every_s, "db_bytes": 0, "store_bytes": 0, "queued": 0,
+         "processes": {name: {"rss_mb": rss[name][i], "fds": fds[name][i]} for name in rss if rss[name][i] > 0}}
+        for i in range(count)
+    ]  # fmt: skip
+
+
+def report(series: list[dict[str, Any]], **changes: Any) -> dict[str, Any]:
+    base = {"samples": series, "mark_s": MARK_S, "errors": {}, "jobs": {"accepted": 10, "done": 10},
+            "retention": {"older_than_retention": 5, "pruned": 5}}  # fmt: skip
+    return base | changes
+
+
+def failed(checks: list[tuple[str, bool]]) -> list[str]:
+    return [name for name, met in checks if not met]
+
+
+FLAT = [300.0 + (i % 3) for i in range(121)]  # an hour at 30 s, wobbling by 2 MB
+FDS = [20 + (i % 2) for i in range(121)]
+
+
+def test_flat_memory_and_fds_pass() -> None:
+    checks = verdict(report(samples({"api 1": FLAT, "worker 2": FLAT}, {"api 1": FDS, "worker 2": FDS})))
+    assert failed(checks) == []
+    names = [name for name, _ in checks]
+    assert "worker 2 resident memory within 10 % of its level at the mark" in names
+    assert "api 1 open file descriptors did not grow" in names
+
+
+def test_a_steady_leak_is_flagged_and_a_warm_up_before_the_mark_is_not() -> None:
+    warm_then_leak = [100.0 + 10 * i if i < 20 else 300.0 + 0.5 * (i - 20) for i in range(121)]  # +50 MB after
+    checks = verdict(report(samples({"api 1": FLAT, "worker 2": warm_then_leak}, {"api 1": FDS, "worker 2": FDS})))
+    assert failed(checks) == ["worker 2 resident memory within 10 % of its level at the mark"]
+    figures = process_checks(samples({"w 2": warm_then_leak}, {"w 2": FDS}), MARK_S)["w 2"]
+    assert figures["rss_ratio"] > 1.1
+    warm_then_flat = [100.0 + 10 * i if i < 20 else 300.0 for i in range(121)]  # grows only before the mark
+    assert failed(verdict(report(samples({"api 1": FLAT, "worker 2": warm_then_flat},
+                                         {"api 1": FDS, "worker 2": FDS})))) == []  # fmt: skip
+
+
+def test_one_peak_does_not_decide_but_shrinking_memory_is_flagged() -> None:
+    peak = [*FLAT[:60], 900.0, *FLAT[61:]]
+    assert failed(verdict(report(samples({"api 1": FLAT, "worker 2": peak}, {"api 1": FDS, "worker 2": FDS})))) == []
+    shrinking = [300.0 - 1.0 * i for i in range(121)]
+    assert "api 1 resident memory within 10 % of its level at the mark" in failed(
+        verdict(report(samples({"api 1": shrinking, "worker 2": FLAT}, {"api 1": FDS, "worker 2": FDS})))
+    )
+
+
+def test_only_the_samples_under_load_are_judged() -> None:
+    leak_then_idle = [*[20 + i // 10 for i in range(121)], *[15] * 20]  # fds grow, then drop once the load ends
+    flat = [*FLAT, *FLAT[:20]]
+    series = samples({"api 1": flat, "worker 2": flat}, {"api 1": leak_then_idle, "worker 2": [*FDS, *FDS[:20]]})
+    assert failed(verdict(report(series, duration_s=3600.0))) == ["api 1 open file descriptors did not grow"]
+    assert failed(verdict(report(series))) == []  # judged with the idle tail, the growth would hide
+
+
+def test_growing_fds_a_restarted_worker_errors_and_unfinished_jobs_fail() -> None:
+    leaking_fds = [20 + i // 10 for i in range(121)]
+    checks = verdict(report(samples({"api 1": FLAT, "worker 2": FLAT}, {"api 1": leaking_fds, "worker 2": FDS})))
+    assert failed(checks) == ["api 1 open file descriptors did not grow"]
+    gone_at_half = [*FLAT[:60], *[0.0] * 61]  # worker 2 died; worker 3 took over
+    late = [*[0.0] * 60, *FLAT[60:]]
+    series = samples({"api 1": FLAT, "worker 2": gone_at_half, "worker 3": late},
+                     {"api 1": FDS, "worker 2": FDS, "worker 3": FDS})  # fmt: skip
+    assert {"worker 2 resident memory within 10 % of its level at the mark",
+            "worker 3 open file descriptors did not grow"} <= set(failed(verdict(report(series))))  # fmt: skip
+    flat = samples({"api 1": FLAT, "worker 2": FLAT}, {"api 1": FDS, "worker 2": FDS})
+    assert failed(verdict(report(flat, errors={"GET /v1/maps 500 internal": 1}))) == [
+        "0 errors other than documented 429s"
+    ]
+    assert failed(verdict(report(flat, jobs={"accepted": 10, "done": 9}))) == ["every accepted job done"]
+    assert failed(verdict(report(flat, retention={"older_than_retention": 5, "pruned": 4}))) == [
+        "retention pruned every query older than it"
+    ]
