@@ -3,7 +3,8 @@
 Each query's place is its camera's nearest addressed building (``addr:street`` + ``addr:housenumber``),
 resolved by :func:`geoloc.maps.places.resolve_place` from the address text alone, as the API does; both runs
 go through the evaluation's query stage (:func:`geoloc.evaluation.queries.answer_run`) with the same labelled
-references. Run (about two minutes on 2 cores)::
+references; a third run answers with the place's covering disc instead of its shape (the prior before
+:meth:`PositionPrior.of_place`), for comparison. Run (minutes on 2 cores)::
 
     python -m benchmarks.bench_places /tmp/worlds/h1 --out /tmp/places_h1.json
 """
@@ -61,6 +62,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     queries = world.queries[: args.max_queries] if args.max_queries else world.queries
     index = place_index(city)
     priors: dict[str, PositionPrior] = {}
+    discs: dict[str, PositionPrior] = {}  # the place's covering disc, the prior before it followed the shape
     places: dict[str, dict[str, Any]] = {}
     for q in queries:
         found = nearest_address(city, q.pose.x_m, q.pose.y_m)
@@ -71,10 +73,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         places[q.name] = {"address": text, "building_distance_m": round(distance, 1), "status": match.status}
         if match.place is not None:
             p = match.place
-            priors[q.name] = PositionPrior.from_radius(p.x_m, p.y_m, p.radius_m)
+            prior = priors[q.name] = PositionPrior.of_place(p)  # as the workers build it (position_prior_for)
+            discs[q.name] = PositionPrior.from_radius(p.x_m, p.y_m, p.radius_m)
             places[q.name] |= {
                 "radius_m": p.radius_m,
                 "camera_to_centre_m": round(math.hypot(p.x_m - q.pose.x_m, p.y_m - q.pose.y_m), 1),
+                "camera_to_prior_m": round(float(prior.distances_m(np.array([q.pose.x_m, q.pose.y_m]))[0]), 1),
+                "prior_radius_m": prior.radius_m,
             }
     say = print
     labelled = label_references(world, city, vocabulary, "model", say, context)
@@ -82,9 +87,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     shown = {q.name: shown_by_references(world, q.name, [r.name for r in world.references]) for q in queries}
     config = QueryConfig()
     out: dict[str, Any] = {"world": str(args.world), "queries": len(queries), "resolved": len(priors), "places": places}
-    for name, prior in (("ours/gps", "gps"), ("ours/place", "given")):
+    runs = (("ours/gps", "gps", {}), ("ours/place", "given", priors), ("ours/place_disc", "given", discs))
+    for name, prior, given in runs:
         run = EvalRun(name, prior, "model", "transferred", config)
-        summary = answer_run(world, city, labelled, vocabulary, run, queries, shown, say, context, given_priors=priors)
+        summary = answer_run(world, city, labelled, vocabulary, run, queries, shown, say, context, given_priors=given)
         rows = summary["per_query"]
         out[name] = {
             "within_5m": within(rows, 5.0),
@@ -99,7 +105,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print(
         json.dumps(
             {k: v for k, v in out.items() if k not in ("places",)}
-            | {k: {m: v for m, v in out[k].items() if m != "errors_m"} for k in ("ours/gps", "ours/place")},
+            | {k: {m: v for m, v in out[k].items() if m != "errors_m"} for k, _, _ in runs},
             indent=1,
         )
     )

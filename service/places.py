@@ -7,9 +7,10 @@ cached copy (the one the upload wrote; the source is parsed again if it is missi
 
 Decision (precedence of positions): an explicit ``lat``/``lon`` and a ``place`` together are a 422 (two
 answers to one question); a ``place`` overrides the photo's EXIF GPS (a user who names a place means it);
-EXIF GPS is used only when neither is given. A query's prior radius is the place's (:class:`Place`) unless
-``radius_m`` is given. A reference placed by name is stored with position source ``request`` (the request
-gave it) at the place's centre.
+EXIF GPS is used only when neither is given. A query stores the place's disc (:class:`Place`; ``radius_m``
+the request's when given); the worker answers it with the prior along the place's shape (docs/places.md).
+A reference placed by name is stored with position source ``request`` (the request gave it) at the place's
+centre.
 """
 
 from __future__ import annotations
@@ -47,7 +48,10 @@ class PlaceOut(BaseModel):
     kind: str = Field(description="address, building, street or landmark", examples=["address"])
     lat: float = Field(examples=[60.1695])
     lon: float = Field(examples=[24.94])
-    radius_m: float = Field(description="The prior's radius (m): the building plus a margin, the street's reach")
+    radius_m: float = Field(
+        description="The disc covering the place (m): the building plus a margin, the street's reach; the query's "
+        "prior follows the place's shape (docs/places.md)"
+    )
     building_id: int | None = Field(default=None, description="The map's building (addresses and buildings)")
     score: float = Field(description="How well the name matched the text (0-1, 1: exactly)")
 

@@ -252,8 +252,9 @@ async def create_query(
 ) -> QueryOut | JSONResponse:
     """Geolocate a photo on a map: ranked locations with headings, the heatmap, the buildings in the photo.
 
-    A prior position (``lat``/``lon`` with ``radius_m``; else a ``place`` named in the map, its radius the
-    place's unless ``radius_m`` is given, 422 ``ambiguous_place`` with candidates or ``unknown_place``; else
+    A prior position (``lat``/``lon`` with ``radius_m``; else a ``place`` named in the map, the prior along
+    its footprint or street (``radius_m``, when given, the distance from it), 422 ``ambiguous_place`` with
+    candidates or ``unknown_place``; else
     the photo's EXIF GPS unless ``use_exif_gps`` is false) and a prior heading (``heading_deg``, else the
     photo's compass with its accuracy as a robust prior: Mapillary's JSON, else EXIF GPSImgDirection) are
     used as priors and reported in ``result.search``. ``preset`` picks the query stage's configuration (fast,

@@ -43,6 +43,7 @@ from contracts.jobs import (
     LocalizeQueryResult,
     PlaceSequencePayload,
 )
+from contracts.queries import PriorPosition
 from contracts.settings import data_dir, get_settings
 from db import Database, sbow, transaction
 from db import jobs as job_store
@@ -58,6 +59,7 @@ from geoloc.localize.query import QueryAnswer, geolocate, preset_config
 from geoloc.localize.reference import LabelledReference, label_reference_photo
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
+from geoloc.maps.places import PlaceIndex, find_place, place_index
 from geoloc.photos.heading_prior import HeadingPrior, compass_heading_prior
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.vision.evidence import analyze_photo
@@ -86,12 +88,37 @@ MAX_REPORTED_RADIUS_M = 100_000.0
 """Uncertainty radii are capped here (an answer with no evidence at all has an infinite one)."""
 
 
-def city_map_for(db: Database, map_id: int) -> CityMap:
-    """The CityMap of map ``map_id`` (cached per process); a permanent job error if the map is gone."""
+@lru_cache(maxsize=4)
+def _place_index(source_path: str, sha256: str, read_options: str) -> PlaceIndex:
+    """The places of a map (:func:`geoloc.maps.places.place_index`), built once per worker process."""
+    return place_index(_city_map(source_path, sha256, read_options))
+
+
+def _map_key(db: Database, map_id: int) -> tuple[str, str, str]:
+    """What identifies a map's loaded forms (file, checksum, read options); a permanent job error if it is gone."""
     row = map_store.get_map(db, map_id)
     if row is None:
         raise PermanentJobError(f"map {map_id} no longer exists")
-    return _city_map(row["source_path"], row["sha256"], json.dumps(row["read_options"], sort_keys=True))
+    return row["source_path"], row["sha256"], json.dumps(row["read_options"], sort_keys=True)
+
+
+def city_map_for(db: Database, map_id: int) -> CityMap:
+    """The CityMap of map ``map_id`` (cached per process); a permanent job error if the map is gone."""
+    return _city_map(*_map_key(db, map_id))
+
+
+def position_prior_for(db: Database, map_id: int, city: CityMap, prior: PriorPosition) -> PositionPrior:
+    """A query's position prior in the map's frame: near the named place's shape, else the stated disc.
+
+    A place's radius stored with the query is the place's own unless the request gave one (then it is the
+    distance from the place's shape, :meth:`PositionPrior.of_place`).
+    """
+    x, y = (float(v) for v in city.frame.to_local(prior.lat, prior.lon))
+    if prior.source == "place" and prior.place is not None and prior.place_kind is not None:
+        place = find_place(_place_index(*_map_key(db, map_id)), prior.place, prior.place_kind, x, y)
+        if place is not None:
+            return PositionPrior.of_place(place, None if prior.radius_m == place.radius_m else prior.radius_m)
+    return PositionPrior.from_radius(x, y, float(prior.radius_m))
 
 
 def _stored_photo(relative_path: str, focal_35mm: float | None) -> Photo:
@@ -284,10 +311,7 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         raise PermanentJobError(f"query {query_id} has no stored photo")
     photo = _stored_photo(query["image_path"], params.focal_length_35mm)
     evidence = analyze_photo(photo, context=context)
-    position_prior = None
-    if params.prior is not None:
-        x, y = (float(v) for v in frame.to_local(params.prior.lat, params.prior.lon))
-        position_prior = PositionPrior.from_radius(x, y, float(params.prior.radius_m))
+    position_prior = None if params.prior is None else position_prior_for(db, map_id, city, params.prior)
     heading_prior = _heading_prior(frame, params.prior_heading_deg, params.prior_heading_accuracy_deg)
     answer = geolocate(
         city,

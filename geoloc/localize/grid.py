@@ -32,6 +32,7 @@ from geoloc.localize.posterior import (
     top_poses,
 )
 from geoloc.maps import CityMap
+from geoloc.maps.places import Place
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.vision.image_model import ImageModel
 
@@ -64,8 +65,11 @@ class GridOptions:
 
 @dataclass
 class PositionPrior:
-    """A Gaussian prior on the camera position: centre (x_m, y_m), standard deviation ``sigma_m`` (m).
+    """A prior on the camera position: near a point or near a shape, falling off as a Gaussian of the distance.
 
+    Without ``shape``: a Gaussian around (x_m, y_m) with standard deviation ``sigma_m`` (m). With ``shape`` (a
+    shapely geometry in local metres: a building's footprint, a street's centreline): a band, weight 1 on the
+    shape and ``exp(-d^2 / 2 sigma^2)`` at distance ``d`` from it; (x_m, y_m) is then the shape's centroid.
     The API speaks of a prior *radius*, about two standard deviations (:meth:`from_radius`); inside, every
     prior (query GPS here, reference GPS in :mod:`geoloc.localize.labeling`) is a standard deviation.
     """
@@ -73,22 +77,53 @@ class PositionPrior:
     x_m: float
     y_m: float
     sigma_m: float
+    shape: shapely.Geometry | None = None
 
     @classmethod
     def from_radius(cls, x_m: float, y_m: float, radius_m: float) -> PositionPrior:
         """The prior of a position known to within ``radius_m`` (about 2 sigma, ~86 % of the mass)."""
         return cls(x_m, y_m, radius_m / 2.0)
 
+    @classmethod
+    def near(cls, shape: shapely.Geometry, radius_m: float) -> PositionPrior:
+        """The prior of a position within about ``radius_m`` (2 sigma) of ``shape`` (local metres)."""
+        centre = shapely.centroid(shape)
+        return cls(float(shapely.get_x(centre)), float(shapely.get_y(centre)), radius_m / 2.0, shape)
+
+    @classmethod
+    def of_place(cls, place: Place, radius_m: float | None = None) -> PositionPrior:
+        """The prior a named place gives: near its shape (:meth:`Place.prior_shape`), else within its disc.
+
+        radius_m: the caller's radius (2 sigma, m) instead of the place's: the distance from the shape, or the
+        disc's radius for a place without one.
+        """
+        shaped = place.prior_shape()
+        if shaped is None:
+            return cls.from_radius(place.x_m, place.y_m, radius_m or place.radius_m)
+        shape, margin_m = shaped
+        return cls.near(shape, radius_m or margin_m)
+
     @property
     def radius_m(self) -> float:
         """Two standard deviations (m)."""
         return 2.0 * self.sigma_m
 
+    def distances_m(self, positions: np.ndarray) -> np.ndarray:
+        """(P,) distance (m) of positions (P, 2) from the prior's point or shape (0 on or inside the shape)."""
+        positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+        if self.shape is None:
+            return np.asarray(np.hypot(positions[:, 0] - self.x_m, positions[:, 1] - self.y_m))
+        return np.asarray(shapely.distance(self.shape, shapely.points(positions)), dtype=float)
+
     def weights(self, positions: np.ndarray) -> np.ndarray:
         """(P,) prior weight (peak 1) of positions (P, 2)."""
-        d2 = np.sum((positions - np.array([self.x_m, self.y_m])) ** 2, axis=1)
-        weights: np.ndarray = np.exp(-0.5 * d2 / self.sigma_m**2)
+        weights: np.ndarray = np.exp(-0.5 * (self.distances_m(positions) / self.sigma_m) ** 2)
         return weights
+
+    def region(self, sigmas: float) -> shapely.Geometry:
+        """Where the prior's weight is above ``exp(-sigmas^2 / 2)``: within ``sigmas`` sigma of its point or shape."""
+        core = shapely.Point(self.x_m, self.y_m) if self.shape is None else self.shape
+        return shapely.buffer(core, sigmas * self.sigma_m)
 
 
 @dataclass
@@ -131,9 +166,7 @@ def search_grid(
     """Candidate grid and a word on how it was chosen ("identified_buildings", "position_prior", "whole_map")."""
     if position_prior is not None:
         # The prior bounds the search; identities still weigh every pose inside it through the likelihood.
-        region = shapely.Point(position_prior.x_m, position_prior.y_m).buffer(
-            PRIOR_REGION_SIGMAS * position_prior.sigma_m
-        )
+        region = position_prior.region(PRIOR_REGION_SIGMAS)
         reason = "position_prior"
     elif building_ids:
         region = unary_union([city_map.buildings[b].polygon for b in building_ids]).buffer(search_radius_m)
@@ -141,7 +174,7 @@ def search_grid(
     else:
         region = shapely.box(*city_map.bounds_m)
         reason = "whole_map"
-    min_x, min_y, max_x, max_y = region.bounds
+    min_x, min_y, max_x, max_y = (float(v) for v in shapely.bounds(region))
     # Snap the grid to multiples of the cell so that grids of different queries share positions.
     origin = np.floor(np.array([min_x, min_y]) / cell_m) * cell_m
     grid = make_grid(city_map, (origin[0], origin[1], max_x, max_y), cell_m)
@@ -187,6 +220,7 @@ def localize(
         "cell_m": cell_m,
         "identity": identity_likelihood,
         "position_prior": position_prior is not None,
+        "position_prior_shaped": position_prior is not None and position_prior.shape is not None,  # a place's
         "heading_prior": yaw_prior is not None,
     }
     if len(positions) == 0:

@@ -19,6 +19,7 @@ Both take the image model (its per-bin orientations and offsets; :func:`refine_p
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,6 +95,7 @@ def refine_pose(
     *,
     prior_xy: tuple[float, float] | None = None,
     prior_sigma_m: float | None = None,
+    prior_weights: Callable[[np.ndarray], np.ndarray] | None = None,
     half_size_m: float = 6.0,
     cell_m: float = 1.0,
     yaw_offsets_deg: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
@@ -103,7 +105,8 @@ def refine_pose(
     """Refine a pose: vanishing-point yaw, then the best of a fine grid of positions x yaws around it.
 
     likelihood: the photo's map likelihood (identity-aware when its options ask for it and its image model
-    carries identities). prior_xy, prior_sigma_m: optional Gaussian position prior (e.g. the GPS tag).
+    carries identities). prior_xy, prior_sigma_m: optional Gaussian position prior (e.g. the GPS tag);
+    prior_weights: or any position prior, as its weights of (P, 2) positions (e.g. ``PositionPrior.weights``).
     Positions inside buildings are skipped.
     """
     city_map, image_model = likelihood.city_map, likelihood.image_model
@@ -122,6 +125,8 @@ def refine_pose(
     if prior_xy is not None and prior_sigma_m:
         d2 = np.sum((positions - np.asarray(prior_xy, dtype=float)) ** 2, axis=1)
         weight = weight * np.exp(-0.5 * d2 / prior_sigma_m**2)[:, None]
+    if prior_weights is not None:
+        weight = weight * prior_weights(positions)[:, None]
     best_p, best_y = np.unravel_index(int(np.argmax(weight)), weight.shape)
     best_yaw = float(yaws[best_y])
     if use_vanishing_points:

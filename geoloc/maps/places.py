@@ -14,17 +14,19 @@ autocompletion); the score is the mean of those matches, lowered a little for na
 left out (so "Aleksanterinkatu" is the street rather than one of its addresses); a house number the map
 does not hold falls back to the street, scored :data:`STREET_FALLBACK`.
 
-Each place carries the prior it gives on the camera position, a disc (centre, ``radius_m``, about 2 sigma
-as everywhere): a building or an address is the footprint's centroid with a radius reaching its farthest
-corner plus :data:`VIEW_MARGIN_M` (photos of a building are taken from its street); a street is the
-centroid of its centreline with a radius covering all of it (the query stage's Gaussian prior cannot
-express a line, so a long street gives a wide, honest disc); a landmark point gets :data:`POINT_RADIUS_M`.
+Each place carries a disc that covers it (centre, ``radius_m``, about 2 sigma as everywhere): a building or
+an address is the footprint's centroid with a radius reaching its farthest corner plus :data:`VIEW_MARGIN_M`
+(photos of a building are taken from its street); a street is the centroid of its centreline with a radius
+covering all of it; a landmark point gets :data:`POINT_RADIUS_M`. The prior the query stage uses follows the
+place's shape (``geometry``, :meth:`Place.prior_shape`): within :data:`VIEW_MARGIN_M` of a building's walls,
+within :data:`STREET_MARGIN_M` of a street's centreline; only a landmark point keeps its disc.
 Areas (squares, parks as polygons) are not read yet: a square is found through its buildings and streets.
 """
 
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import difflib
 import math
 import re
@@ -43,6 +45,8 @@ from geoloc.maps.model import CityMap
 PlaceKind = Literal["address", "building", "landmark", "street"]
 VIEW_MARGIN_M = 30.0
 """Added to a building's radius: a photo of it is taken from within about this far of its walls."""
+STREET_MARGIN_M = 20.0
+"""A photo taken on a street is within about this far (2 sigma) of its centreline (carriageway and pavements)."""
 POINT_RADIUS_M = 60.0
 """The prior radius of a landmark known only as a point."""
 MIN_SCORE = 0.75
@@ -76,7 +80,8 @@ class Place:
     """A place of the map: its name, kind, the prior it gives (lat/lon WGS84 degrees, radius_m about 2 sigma).
 
     x_m, y_m: the centre in the map's local frame; building_id: the building (address, building), else None;
-    score: how well it matched the text (0-1; 1 for an exact name).
+    score: how well it matched the text (0-1; 1 for an exact name); geometry: its footprint, centreline or
+    point (local metres).
     """
 
     name: str
@@ -88,6 +93,13 @@ class Place:
     y_m: float
     building_id: int | None = None
     score: float = 0.0
+    geometry: shapely.Geometry | None = field(default=None, compare=False, repr=False)
+
+    def prior_shape(self) -> tuple[shapely.Geometry, float] | None:
+        """The shape a photo of this place is taken near and how near (m, about 2 sigma); None: use the disc."""
+        if self.geometry is None or self.kind == "landmark":
+            return None
+        return self.geometry, STREET_MARGIN_M if self.kind == "street" else VIEW_MARGIN_M
 
 
 @dataclass(frozen=True)
@@ -135,7 +147,7 @@ class PlaceIndex:
         out = []
         for score, i in scored[:limit]:
             p = self.places[i]
-            out.append(Place(p.name, p.kind, p.lat, p.lon, p.radius_m, p.x_m, p.y_m, p.building_id, round(score, 3)))
+            out.append(dataclasses.replace(p, score=round(score, 3)))
         return out
 
     def _close_tokens(self, token: str, prefix: bool) -> set[str]:
@@ -274,7 +286,9 @@ def _place(city_map: CityMap, group: list[_Entry]) -> Place:
     lat, lon = city_map.frame.to_wgs84(cx, cy)
     radius = math.ceil(radius * 10) / 10  # rounded up: the disc still covers the place
     building_id = first.building_id if len({e.building_id for e in group}) == 1 else None
-    return Place(first.name, first.kind, round(float(lat), 7), round(float(lon), 7), radius, cx, cy, building_id)
+    return Place(
+        first.name, first.kind, round(float(lat), 7), round(float(lon), 7), radius, cx, cy, building_id, 0.0, geometry
+    )
 
 
 def place_index(city_map: CityMap) -> PlaceIndex:
@@ -295,6 +309,17 @@ def place_index(city_map: CityMap) -> PlaceIndex:
             places.append(_place(city_map, group))
             tokens.append(words)
     return PlaceIndex(city_map, places, tokens, dict(by_token))
+
+
+def find_place(index: PlaceIndex, name: str, kind: str, x_m: float, y_m: float) -> Place | None:
+    """The place named exactly ``name`` of ``kind`` nearest to (x_m, y_m) (local metres); None if none.
+
+    How a worker gets back the place a query was given by (its stored name, kind and centre).
+    """
+    words = normalize(name).split()
+    found = set.intersection(*(set(index.by_token.get(w, ())) for w in words)) if words else set()
+    same = [index.places[i] for i in found if index.places[i].name == name and index.places[i].kind == kind]
+    return min(same, key=lambda p: math.hypot(p.x_m - x_m, p.y_m - y_m), default=None)
 
 
 def resolve_place(index: PlaceIndex, text: str) -> PlaceMatch:

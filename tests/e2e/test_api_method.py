@@ -14,9 +14,12 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+import shapely
 
+from benchmarks.bench_places import nearest_address
 from contracts.settings import shared_path
 from geoloc.localize.query import PRESETS
+from geoloc.maps.places import VIEW_MARGIN_M, find_place, place_index
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from tests.conftest import Profile
 from tests.geojson_checks import check_query_collection
@@ -139,6 +142,28 @@ def test_ingest_label_and_query_through_the_api(
         assert fast["result"]["search"]["config"] == PRESETS["fast"].as_dict()
         assert fast["result"]["search"]["preset"] == "fast" and len(fast["result"]["locations"]) == 10
         assert np.mean(np.array(found) <= 15.0) >= 0.5, np.round(found, 1)
+        _check_a_place_query(client, map_id, world)
+
+
+def _check_a_place_query(client: httpx.Client, map_id: int, world: Any) -> None:
+    """A query given its camera's nearest address is answered near that building's walls (the shaped prior)."""
+    city, image = world.load_map(), world.queries[0]
+    address, _ = nearest_address(city, image.pose.x_m, image.pose.y_m) or pytest.fail("no addressed building")
+    response = client.post(
+        f"/v1/maps/{map_id}/queries",
+        files={"image": (image.path.name, image.path.read_bytes())},
+        data={"place": address, "use_exif_gps": "false"},
+    )
+    assert response.status_code == 200, response.text
+    answer = response.json()
+    assert answer["status"] == "done" and answer["params"]["prior"]["source"] == "place", answer
+    assert answer["result"]["search"]["position_prior_shaped"]
+    kind = answer["params"]["prior"]["place_kind"]
+    place = find_place(place_index(city), address, kind, image.pose.x_m, image.pose.y_m)
+    assert place is not None and place.geometry is not None
+    for loc in answer["result"]["locations"][:3]:  # within the band's 3 sigma of the walls, not the disc's
+        x, y = (float(v) for v in city.frame.to_local(loc["lat"], loc["lon"]))
+        assert shapely.distance(place.geometry, shapely.Point(x, y)) <= 1.5 * VIEW_MARGIN_M, (loc, address)
 
 
 def test_killed_worker_and_restarted_service_lose_no_reference(

@@ -88,8 +88,7 @@ def likelihood_answers(
                 x,
                 y,
                 yaw,
-                prior_xy=None if position_prior is None else (position_prior.x_m, position_prior.y_m),
-                prior_sigma_m=None if position_prior is None else position_prior.sigma_m,
+                prior_weights=None if position_prior is None else position_prior.weights,
                 half_size_m=config.cell_m / 2.0 + 1.0,
                 sharpness=config.sharpness,
             )

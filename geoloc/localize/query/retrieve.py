@@ -41,13 +41,15 @@ def retrieve(
     if position_prior is not None:
         # Positions first: only the references kept are loaded (features are the costly part to read).
         reach = config.prior_sigmas * position_prior.sigma_m + config.view_range_m
-        centre = np.array([position_prior.x_m, position_prior.y_m])
         positions = store.positions([ref_id for ref_id, _ in ranked])
         ranked = [
             (ref_id, score)
             for ref_id, score in ranked
             if ref_id in positions
-            and (not np.all(np.isfinite(positions[ref_id])) or np.hypot(*(positions[ref_id] - centre)) <= reach)
+            and (
+                not np.all(np.isfinite(positions[ref_id]))
+                or float(position_prior.distances_m(positions[ref_id])[0]) <= reach
+            )
         ]
     stored = store.load([ref_id for ref_id, _ in ranked[: config.shortlist]])
     shortlist = [(ref_id, score) for ref_id, score in ranked if ref_id in stored][: config.shortlist]

@@ -7,7 +7,6 @@ reference's two readings, at most) the map and the prior pick the one that expla
 
 from __future__ import annotations
 
-import math
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 
@@ -65,7 +64,7 @@ def trust_anchored(
     ok &= abs(pose.height_m - 1.6) <= config.max_height_error_m
     ok &= abs(anchored.pitch_deg) <= config.max_pitch_deg
     if position_prior is not None:
-        distance = math.hypot(pose.x_m - position_prior.x_m, pose.y_m - position_prior.y_m)
+        distance = float(position_prior.distances_m(np.array([pose.x_m, pose.y_m]))[0])
         checks["prior_distance_m"] = round(distance, 1)
         ok &= distance <= config.prior_sigmas * position_prior.sigma_m
     lik = likelihood.at(pose.x_m, pose.y_m, pose.yaw_deg)

@@ -105,3 +105,51 @@ def test_the_stored_map_keeps_what_places_need(berlin: CityMap, tmp_path: Path) 
     assert back.landmark_names == berlin.landmark_names
     np.testing.assert_array_equal(back.landmark_lonlat, berlin.landmark_lonlat)
     assert [p.name for p in place_index(back).places] == [p.name for p in place_index(berlin).places]
+
+
+def test_the_prior_of_a_place_follows_its_shape(helsinki: CityMap, helsinki_places: PlaceIndex) -> None:
+    """A building's prior is a band along its walls, a street's a corridor along it, not the disc around them."""
+    from geoloc.localize.grid import PositionPrior  # the query stage's prior, built from the maps layer's place
+
+    address = resolve_place(helsinki_places, "mannerheimintie 5").place
+    assert address is not None and address.geometry is not None
+    prior = PositionPrior.of_place(address)
+    assert prior.shape is not None and prior.radius_m == pytest.approx(VIEW_MARGIN_M)
+    walls = shapely.get_coordinates(shapely.get_exterior_ring(address.geometry))
+    outward = walls[0] + 10.0 * (walls[0] - np.array([address.x_m, address.y_m])) / np.hypot(
+        *(walls[0] - np.array([address.x_m, address.y_m]))
+    )
+    # on the wall: weight 1; 10 m out: the band's Gaussian; the disc would have weighed the centre highest
+    assert prior.weights(walls[:1])[0] == pytest.approx(1.0)
+    assert prior.distances_m(outward[None, :])[0] == pytest.approx(10.0, abs=3.0)
+    far = np.array([[address.x_m + 2 * address.radius_m, address.y_m]])
+    assert prior.weights(far)[0] < 1e-3
+    assert shapely.contains(prior.region(3.0), address.geometry)
+
+    street = resolve_place(helsinki_places, "Aleksanterinkatu").place
+    assert street is not None and street.prior_shape() is not None
+    corridor = PositionPrior.of_place(street)
+    line = shapely.get_coordinates(street.geometry)
+    assert np.allclose(corridor.weights(line), 1.0)  # anywhere along the street, not only near its middle
+    assert corridor.radius_m < street.radius_m / 5
+    assert PositionPrior.of_place(street, radius_m=50.0).radius_m == 50.0  # the request's radius: from the line
+
+
+def test_a_stored_place_is_found_again(helsinki: CityMap, helsinki_places: PlaceIndex) -> None:
+    """What a query stores (name, kind, centre) gives the worker back the same place, with its shape."""
+    from geoloc.maps.places import find_place
+
+    for text in ("mannerheimintie 5", "Aleksanterinkatu"):
+        place = resolve_place(helsinki_places, text).place
+        assert place is not None
+        again = find_place(helsinki_places, place.name, place.kind, place.x_m + 5.0, place.y_m)
+        assert again is not None and (again.name, again.kind, again.x_m, again.y_m) == (
+            place.name,
+            place.kind,
+            place.x_m,
+            place.y_m,
+        )
+        assert again.geometry is not None
+        assert shapely.equals(again.geometry, place.geometry)
+    assert find_place(helsinki_places, "Mannerheimintie 5", "street", 0.0, 0.0) is None
+    assert find_place(helsinki_places, "Nowhere 99", "address", 0.0, 0.0) is None
