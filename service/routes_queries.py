@@ -155,9 +155,14 @@ class QueryIntake(PhotoIntake):
         self.prior = prior
 
     def insert(self, db: Database, map_id: int, key: str, received: ReceivedFile, info: ImageInfo) -> int:
-        """Insert the queued query with its parameters (:class:`contracts.queries.QueryParams`)."""
+        """Insert the queued query with its parameters (:meth:`params`)."""
+        params = self.params(received, info)
+        return query_store.insert_query(db, map_id=map_id, params=params, image_path=key, sha256=received.sha256)
+
+    def params(self, received: ReceivedFile, info: ImageInfo) -> QueryParams:
+        """The query's parameters from the form, the checked prior and the photo's EXIF (after :meth:`check_photo`)."""
         form = self.form
-        params = QueryParams(
+        return QueryParams(
             top_n=form.top_n,
             k=form.k,
             prior=self.prior,
@@ -167,7 +172,6 @@ class QueryIntake(PhotoIntake):
             original_filename=received.filename,
             preset=form.preset or self.settings.query_preset,
         )
-        return query_store.insert_query(db, map_id=map_id, params=params, image_path=key, sha256=received.sha256)
 
     def payload(self, subject_id: int, map_id: int) -> LocalizeQueryPayload:
         """Answer this query."""
