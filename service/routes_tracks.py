@@ -28,7 +28,7 @@ from db import queries as query_store
 from db import tracks as track_store
 from db.files import FileStore
 from service.auth import require_read, require_write
-from service.bounds import MapId, QueryId, bounded_form, check_bounds
+from service.bounds import MapId, TrackId, bounded_form, check_bounds
 from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
 from service.geojson import GEOJSON_MEDIA_TYPE, GEOJSON_RESPONSE, GeoJsonFormat, track_collection, wants_geojson
@@ -42,7 +42,6 @@ from service.waiting import JobWaiter
 from workers.broker import JobPublisher
 
 router = APIRouter(tags=["tracks"])
-TrackId = QueryId  # the same 64-bit id bounds; documented as the track's in the route
 _PRIORS = TypeAdapter(list[FramePrior | None])
 
 

@@ -59,10 +59,10 @@ class TrackFromQueries(BaseModel):
 
     query_ids: list[int] = Field(min_length=1, description="The queries whose photos are the frames, in order")
     by_capture_time: bool = Field(default=False, description="Order the frames by their photos' capture time")
-    top_n: int = Field(default=10, ge=1, le=50)
-    k: int = Field(default=4, ge=1, le=20)
-    preset: QueryPreset | None = None
-    wait_s: float = Field(default=60.0, ge=0, le=300)
+    top_n: int = Field(default=10, ge=1, le=50, description="How many distinct locations each frame's answer holds")
+    k: int = Field(default=4, ge=1, le=20, description="How many references to retrieve for identities")
+    preset: QueryPreset | None = Field(default=None, description="fast, balanced or accurate")
+    wait_s: float = Field(default=60.0, ge=0, le=300, description="How long to wait for the answer before 202")
 
 
 @dataclass(frozen=True)
