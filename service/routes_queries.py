@@ -13,6 +13,7 @@ thread for the few milliseconds it takes. While the job queue is full the reques
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from typing import Annotated, Any
@@ -52,7 +53,7 @@ from service.models import QueryOut, error_responses, timestamp
 from service.places import resolve_form_place
 from service.spec import QUEUE_FULL_RESPONSE
 from service.uploads import ReceivedFile
-from service.waiting import JobWaiter
+from service.waiting import answered, long_poll
 from workers.broker import JobPublisher
 
 router = APIRouter(tags=["queries"])
@@ -263,12 +264,7 @@ async def create_query(
     form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm, top_n, k, wait_s, preset)
     accepted = await run_in_threadpool(QueryIntake(settings, store, publisher, form).accept, map_id, image)
     assert accepted.job_id is not None  # a query is never a duplicate
-    waiter: JobWaiter = request.app.state.job_waiter
-    await waiter.wait(accepted.job_id, wait_s)
-    out = await run_in_threadpool(_query_model, settings, accepted.subject_id)
-    if out.status in ("done", "failed"):
-        return out
-    return JSONResponse(out.model_dump(mode="json"), status_code=status.HTTP_202_ACCEPTED)
+    return await answered(request, accepted.job_id, wait_s, partial(_query_model, settings, accepted.subject_id))
 
 
 @router.get(
@@ -295,11 +291,7 @@ async def get_query(
     buildings' footprints, ``attribution`` as a foreign member; a query not answered (yet) gets the same status
     code with an empty collection whose ``status`` (and ``error``) say why.
     """
-    out = await run_in_threadpool(_query_model, settings, query_id)
-    if wait_s > 0 and out.status not in ("done", "failed") and out.job_id is not None:
-        waiter: JobWaiter = request.app.state.job_waiter
-        await waiter.wait(out.job_id, wait_s)
-        out = await run_in_threadpool(_query_model, settings, query_id)
+    out = await long_poll(request, wait_s, partial(_query_model, settings, query_id))
     if wants_geojson(request, format_name):
         body = await run_in_threadpool(partial(_load_query, settings, query_id, geojson=True))
         return JSONResponse(body, media_type=GEOJSON_MEDIA_TYPE)
@@ -367,12 +359,27 @@ def get_answer_geojson(query_id: QueryId, db: Database = Depends(get_db)) -> JSO
 )
 def delete_query(query_id: QueryId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)) -> Response:
     """Delete a query and its stored photo."""
-    with transaction(db):
+
+    def delete(db: Database) -> list[str | None] | None:
         deleted = query_store.delete_query(db, query_id)
-    if deleted is None:
-        raise ApiError(404, "not_found", f"query {query_id} not found")
-    with transaction(db):  # the same photo asked again shares the file: remove it only when unreferenced
-        store.delete(*query_store.unreferenced_images(db, [deleted["image_path"]]))
+        return None if deleted is None else [deleted["image_path"]]
+
+    return delete_with_photos(db, store, f"query {query_id}", delete)
+
+
+def delete_with_photos(
+    db: Database, store: FileStore, what: str, delete: Callable[[Database], list[str | None] | None]
+) -> Response:
+    """Delete rows, then their photos that no query uses any more (the same photo asked again shares the file).
+
+    ``delete`` runs in a transaction and returns the rows' photo paths (None: nothing to delete: 404); 204.
+    """
+    with transaction(db):
+        paths = delete(db)
+    if paths is None:
+        raise ApiError(404, "not_found", f"{what} not found")
+    with transaction(db):
+        store.delete(*query_store.unreferenced_images(db, paths))
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 

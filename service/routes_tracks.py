@@ -21,10 +21,9 @@ from contracts.answers import TrackFrameResult, TrackResult
 from contracts.licenses import map_attribution
 from contracts.queries import QueryPreset
 from contracts.settings import Settings
-from db import Database, connect, transaction
+from db import Database, connect
 from db import jobs as job_store
 from db import maps as map_store
-from db import queries as query_store
 from db import tracks as track_store
 from db.files import FileStore
 from service.auth import require_read, require_write
@@ -36,9 +35,10 @@ from service.images import ACCEPTED_NAMES
 from service.intake import work_status
 from service.limits import require_queue_capacity
 from service.models import TrackOut, error_responses, timestamp
+from service.routes_queries import delete_with_photos
 from service.spec import QUEUE_FULL_RESPONSE
 from service.track_intake import FramePrior, TrackForm, TrackFromQueries, TrackIntake
-from service.waiting import JobWaiter
+from service.waiting import answered, long_poll
 from workers.broker import JobPublisher
 
 router = APIRouter(tags=["tracks"])
@@ -177,12 +177,7 @@ async def create_track(
             check_bounds(name, value)
         form = TrackForm(use_exif_gps, by_capture_time, top_n, k, wait_s, preset, _priors(priors))
         track_id, job_id = await run_in_threadpool(intake.accept_uploads, map_id, form, images or [])
-    waiter: JobWaiter = request.app.state.job_waiter
-    await waiter.wait(job_id, wait_s)
-    out = await run_in_threadpool(load_track, settings, track_id)
-    if out.status in ("done", "failed"):
-        return out
-    return JSONResponse(out.model_dump(mode="json"), status_code=status.HTTP_202_ACCEPTED)
+    return await answered(request, job_id, wait_s, partial(load_track, settings, track_id))
 
 
 @router.get(
@@ -207,11 +202,7 @@ async def get_track(
     LineString through the frames in order), a Point and a view cone per frame.
     Each frame's whole answer is its query's (``GET /v1/queries/{query_id}``).
     """
-    out = await run_in_threadpool(load_track, settings, track_id)
-    if wait_s > 0 and out.status not in ("done", "failed") and out.job_id is not None:
-        waiter: JobWaiter = request.app.state.job_waiter
-        await waiter.wait(out.job_id, wait_s)
-        out = await run_in_threadpool(load_track, settings, track_id)
+    out = await long_poll(request, wait_s, partial(load_track, settings, track_id))
     if wants_geojson(request, format_name):
         return JSONResponse(await run_in_threadpool(partial(track_collection, out)), media_type=GEOJSON_MEDIA_TYPE)
     return out
@@ -224,11 +215,5 @@ async def get_track(
     dependencies=[Depends(require_write)],
 )
 def delete_track(track_id: TrackId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)) -> Response:
-    """Delete a track with its frames (their queries and photos)."""
-    with transaction(db):
-        paths = track_store.delete_track(db, track_id)
-    if paths is None:
-        raise ApiError(404, "not_found", f"track {track_id} not found")
-    with transaction(db):  # a photo another query still uses stays
-        store.delete(*query_store.unreferenced_images(db, paths))
-    return Response(status_code=status.HTTP_204_NO_CONTENT)
+    """Delete a track with its frames (their queries and photos; a photo another query still uses stays)."""
+    return delete_with_photos(db, store, f"track {track_id}", partial(track_store.delete_track, track_id=track_id))
