@@ -354,13 +354,21 @@ def get_answer_geojson(query_id: QueryId, db: Database = Depends(get_db)) -> JSO
 @router.delete(
     "/v1/queries/{query_id}",
     status_code=status.HTTP_204_NO_CONTENT,
-    responses=error_responses(404),
+    responses=error_responses(404, 409),
     dependencies=[Depends(require_write)],
 )
 def delete_query(query_id: QueryId, db: Database = Depends(get_db), store: FileStore = Depends(get_store)) -> Response:
-    """Delete a query and its stored photo."""
+    """Delete a query and its stored photo; a track's frame is deleted with its track (409 here)."""
 
     def delete(db: Database) -> list[str | None] | None:
+        row = query_store.get_query(db, query_id)
+        if row is not None and row.get("track_id") is not None:
+            raise ApiError(
+                409,
+                "conflict",
+                f"query {query_id} is frame {row['frame_index']} of track {row['track_id']}: delete the track",
+                {"track_id": row["track_id"]},
+            )
         deleted = query_store.delete_query(db, query_id)
         return None if deleted is None else [deleted["image_path"]]
 

@@ -136,6 +136,8 @@ def test_a_track_stores_one_job_and_a_query_per_frame(service: RunningProcess) -
         assert geojson.headers["content-type"].startswith("application/geo+json")
         assert geojson.json()["features"] == [] and geojson.json()["status"] == "queued"
 
+        frame_delete = client.delete(f"/v1/queries/{track['frames'][0]['query_id']}")
+        assert frame_delete.status_code == 409 and _error(frame_delete)["details"] == {"track_id": track["id"]}
         files_before = stored_files(service.data_dir)
         assert client.delete(f"/v1/tracks/{track['id']}").status_code == 204
         assert client.get(f"/v1/tracks/{track['id']}").status_code == 404
