@@ -13,6 +13,7 @@ from cli import map as map_cmd
 from cli import models as models_cmd
 from cli import serve as serve_cmd
 from cli import sim as sim_cmd
+from cli import track as track_cmd
 
 app = typer.Typer(no_args_is_help=True, help="Map-based visual geolocation: maps, simulation, analysis, service.")
 app.add_typer(map_cmd.app, name="map")
@@ -24,3 +25,4 @@ backup_cmd.register(app)
 app.command("analyze")(analyze_cmd.analyze)
 app.command("ingest")(ingest_cmd.ingest)
 app.command("about")(about_cmd.about)
+app.command("locate-track")(track_cmd.locate_track)

@@ -132,3 +132,33 @@ class ReferenceLabels(_Answer):
     estimated: EstimatedPose
     buildings_seen: list[BuildingInPhoto]
     timings: dict[str, float] = Field(description="Milliseconds per step and in total")
+
+
+class TrackFrameResult(_Answer):
+    """One frame of a track: its photo's query and, once located, its pose in the track (the rank-1 pose).
+
+    The pose fields are None until the track is answered (and for a frame the method found no pose for).
+    """
+
+    index: int = Field(description="The frame's place in the track, from 0", examples=[0])
+    query_id: int = Field(description="The frame's query (`GET /v1/queries/{id}`: its whole answer)", examples=[41])
+    original_filename: str | None = Field(default=None, examples=["IMG_0412.jpg"])
+    capture_time: str | None = Field(default=None, description="When the photo was taken (ISO 8601, EXIF)")
+    lat: float | None = Field(default=None, examples=[60.16952])
+    lon: float | None = Field(default=None, examples=[24.94117])
+    heading_deg: float | None = Field(default=None, description="Deg clockwise from north", examples=[93.0])
+    uncertainty_radius_m: float | None = Field(default=None, description="90 % radius (m)", examples=[4.2])
+    source: str | None = Field(
+        default=None, description="The pose's source, as a query's location", examples=["anchors"]
+    )
+    outlier: bool = Field(default=False, description="The track disagrees with this frame's own evidence")
+    hfov_deg: float | None = Field(default=None, description="The photo's horizontal field of view (deg)")
+    buildings: list[BuildingInPhoto] = Field(default_factory=list, description="The buildings identified in it")
+
+
+class TrackResult(_Answer):
+    """The answer to a track: one :class:`TrackFrameResult` per frame, in order, and how it was searched."""
+
+    frames: list[TrackFrameResult]
+    search: dict[str, Any] = Field(description="What the track stage did", examples=[{"smoother": "none"}])
+    timings_ms: dict[str, float]

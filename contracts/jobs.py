@@ -36,6 +36,9 @@ LOCALIZE_QUERY: Final = "localize_query"
 PLACE_SEQUENCE: Final = "place_sequence"
 """Kind of the job a labelled reference of a sequence enqueues (payload :class:`PlaceSequencePayload`): the map's
 walks placed jointly, in the background, while the references keep being served with their own labels."""
+LOCATE_TRACK: Final = "locate_track"
+"""Kind of the job the API enqueues for each new track (payload :class:`LocateTrackPayload`): its frames' photos,
+which are the track's query rows, located together by the track stage."""
 
 
 class JobPayload(BaseModel):
@@ -107,6 +110,22 @@ class LocalizeQueryResult(JobResult):
 
     query_id: int
     locations: int
+
+
+class LocateTrackPayload(JobPayload):
+    """Locate track ``track_id`` of map ``map_id`` (its frames are the queries with that ``track_id``)."""
+
+    track_id: int
+    map_id: int
+
+
+class LocateTrackResult(JobResult):
+    """What locating a track reports on its job: its frames, how many got a pose, how many were outliers."""
+
+    track_id: int
+    frames: int
+    located: int
+    outliers: int
 
 
 def reported_status(

@@ -95,6 +95,9 @@ class Settings(BaseSettings):
         ge=0,
         description="most pixels per photo, checked from the header (decompression-bomb guard, 413)",
     )
+    max_track_frames: int = Field(
+        default=50, ge=1, description="most photos in one track (`POST /v1/maps/{id}/tracks`; 413 above)"
+    )
     min_image_side: int = Field(default=64, ge=0, description="smallest accepted side in pixels (422)")
     position_margin_m: float = Field(
         default=250.0,
@@ -133,8 +136,7 @@ class Settings(BaseSettings):
     max_queued_jobs: int = Field(
         default=100,
         ge=1,
-        description="most jobs waiting in the queue; beyond it new references and queries get `429` with "
-        "`Retry-After`",
+        description="most jobs waiting in the queue; beyond it new references and queries get `429` with `Retry-After`",
     )
     rate_limit_per_min: int = Field(
         default=600,

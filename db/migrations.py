@@ -271,6 +271,28 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         ALTER TABLE jobs ADD COLUMN tenant TEXT;
         """,
     ),
+    (
+        10,
+        "tracks: a walk of query photos located together; its frames are query rows with track_id, frame_index",
+        """
+        CREATE TABLE tracks (
+            id INTEGER PRIMARY KEY AUTOINCREMENT,
+            map_id INTEGER NOT NULL REFERENCES maps(id) ON DELETE CASCADE,
+            params TEXT NOT NULL DEFAULT '{}',
+            status TEXT NOT NULL DEFAULT 'queued'
+                CHECK (status IN ('queued', 'processing', 'done', 'failed')),
+            job_id INTEGER,
+            result TEXT,
+            error TEXT,
+            created_at REAL NOT NULL,
+            updated_at REAL NOT NULL
+        );
+        CREATE INDEX tracks_map ON tracks(map_id);
+        ALTER TABLE queries ADD COLUMN track_id INTEGER REFERENCES tracks(id) ON DELETE CASCADE;
+        ALTER TABLE queries ADD COLUMN frame_index INTEGER;
+        CREATE INDEX queries_track ON queries(track_id, frame_index);
+        """,
+    ),
 ]
 
 LATEST_VERSION = MIGRATIONS[-1][0]

@@ -18,7 +18,8 @@ QUERY_PHOTOS_LOCK = "geoloc:query-photos"
 """Held by a transaction that stores a query photo or checks which photos no query uses any more."""
 
 
-def _decode(row: dict[str, Any]) -> QueryRow:
+def decode_query_row(row: dict[str, Any]) -> QueryRow:
+    """A query row as stored to its typed form (params and result decoded)."""
     row = dict(row)
     row["params"] = QueryParams.from_json(json.loads(row["params"] or "{}"))
     row["result"] = json.loads(row["result"]) if row.get("result") else None
@@ -55,7 +56,7 @@ def set_query_job(db: Database, query_id: int, job_id: int) -> None:
 def get_query(db: Database, query_id: int) -> QueryRow | None:
     """One query (params and result decoded), or None."""
     rows = list(db.query("SELECT * FROM queries WHERE id = ?", (query_id,)))
-    return _decode(rows[0]) if rows else None
+    return decode_query_row(rows[0]) if rows else None
 
 
 def update_query_result(
@@ -86,13 +87,15 @@ def delete_expired_queries(db: Database, cutoff: float, *, limit: int = 500) -> 
     """Delete up to ``limit`` finished queries created before ``cutoff`` (Unix s) with their jobs.
 
     A query is finished when its row says ``done``/``failed`` or its job is ``done``, ``failed`` or
-    ``cancelled``; queries still waiting or running are kept whatever their age. References are not
-    touched. Call inside a transaction; returns the image path of each deleted query (remove the
+    ``cancelled``; queries still waiting or running are kept whatever their age. A track's frames go with
+    their track (:func:`db.tracks.delete_expired_tracks`). References are not touched. Call inside a
+    transaction; returns the image path of each deleted query (remove the
     files no row refers to any more after commit, see :func:`unreferenced_images`).
     """
     rows = db.execute(
         "SELECT q.id, q.image_path, q.job_id FROM queries q LEFT JOIN jobs j ON j.id = q.job_id"
-        " WHERE q.created_at < ? AND (q.status IN ('done', 'failed') OR j.status IN ('done', 'failed', 'cancelled')"
+        " WHERE q.created_at < ? AND q.track_id IS NULL"
+        " AND (q.status IN ('done', 'failed') OR j.status IN ('done', 'failed', 'cancelled')"
         " OR j.id IS NULL) ORDER BY q.id LIMIT ?",
         (cutoff, limit),
     ).fetchall()

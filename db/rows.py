@@ -98,6 +98,23 @@ class QueryRow(TypedDict):
     error: str | None
     created_at: float
     updated_at: float
+    track_id: int | None
+    """The track this query is a frame of (its photo and answer go with the track), None for a lone query."""
+    frame_index: int | None
+
+
+class TrackRow(TypedDict):
+    """A track (``tracks``): ``params`` and ``result`` (a :class:`contracts.answers.TrackResult`) as JSON."""
+
+    id: int
+    map_id: int
+    params: dict[str, Any]
+    status: str
+    job_id: int | None
+    result: dict[str, Any] | None
+    error: str | None
+    created_at: float
+    updated_at: float
 
 
 class JobRow(TypedDict):

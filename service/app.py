@@ -20,7 +20,7 @@ from db import connect, migrate
 from db.files import open_store
 from db.jobs import QueueFullError
 from db.stats import stored_file_paths
-from service import places, routes_maps, routes_queries, routes_references, routes_system
+from service import places, routes_maps, routes_queries, routes_references, routes_system, routes_tracks
 from service.errors import error_body, error_response, install_error_handlers
 from service.limits import queue_full, rate_limiter_for
 from service.routes_viewer import install_viewer
@@ -193,6 +193,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         path = path.rstrip("/")
         if path == "/v1/maps":
             return settings.max_map_bytes + FORM_OVERHEAD_BYTES
+        if path.startswith("/v1/maps/") and path.endswith("/tracks"):
+            return settings.max_image_bytes * settings.max_track_frames + FORM_OVERHEAD_BYTES
         if path.startswith("/v1/maps/") and path.endswith(("/references", "/queries")):
             return settings.max_image_bytes + FORM_OVERHEAD_BYTES
         return max(settings.max_map_bytes, settings.max_image_bytes) + FORM_OVERHEAD_BYTES
@@ -204,5 +206,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(places.router)
     app.include_router(routes_references.router)
     app.include_router(routes_queries.router)
+    app.include_router(routes_tracks.router)
     install_viewer(app)
     return app

@@ -28,6 +28,7 @@ def _id_in_path(what: str) -> Any:
 MapId = Annotated[int, _id_in_path("map")]
 ReferenceId = Annotated[int, _id_in_path("reference")]
 QueryId = Annotated[int, _id_in_path("query")]
+TrackId = Annotated[int, _id_in_path("track")]
 JobId = Annotated[int, _id_in_path("job")]
 
 BOUNDS: dict[str, tuple[float, float]] = {

@@ -28,7 +28,7 @@ from typing import Annotated, Any, Literal
 from fastapi import Query, Request
 from pyproj import Geod
 
-from service.models import QueryOut, ReferenceList
+from service.models import QueryOut, ReferenceList, TrackOut
 
 GEOJSON_MEDIA_TYPE = "application/geo+json"
 VIEW_CONE_LENGTH_M = 50.0
@@ -186,3 +186,56 @@ def references_collection(page: ReferenceList) -> dict[str, Any]:
         "total": page.total,
         "next_after_id": page.next_after_id,
     }
+
+
+def track_collection(out: TrackOut) -> dict[str, Any]:
+    """A track as a FeatureCollection: its trajectory, a Point and a view cone per located frame.
+
+    The trajectory is one ``LineString`` (``feature_type: "trajectory"``) through the located frames in order
+    (absent with fewer than two); each frame is a ``Point`` (``feature_type: "frame"``: ``index``, ``query_id``,
+    ``heading_deg``, ``uncertainty_radius_m``, ``source``, ``outlier``) and a ``Polygon`` view cone
+    (``feature_type: "view_cone"``, as a query's). Foreign members: ``attribution``, ``track_id``, ``map_id``,
+    ``status`` (and ``error``).
+    """
+    collection: dict[str, Any] = {
+        "type": "FeatureCollection",
+        "features": [],
+        "attribution": out.attribution,
+        "track_id": out.id,
+        "map_id": out.map_id,
+        "status": out.status,
+    }
+    if out.error is not None:
+        collection["error"] = out.error
+    located = [f for f in out.frames if f.lat is not None and f.lon is not None and f.heading_deg is not None]
+    features: list[Feature] = []
+    if len(located) >= 2:
+        line = [[f.lon, f.lat] for f in located]
+        features.append(
+            {
+                "type": "Feature",
+                "geometry": {"type": "LineString", "coordinates": line},
+                "properties": {"feature_type": "trajectory", "frames": [f.index for f in located]},
+            }
+        )
+    keys = ("index", "query_id", "heading_deg", "uncertainty_radius_m", "source", "outlier", "capture_time")
+    for f in located:
+        assert f.lat is not None and f.lon is not None and f.heading_deg is not None
+        props = f.model_dump(mode="json")
+        features.append(
+            {
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": [f.lon, f.lat]},
+                "properties": {"feature_type": "frame", **{k: props[k] for k in keys}},
+            }
+        )
+        fov_deg = float(f.hfov_deg or DEFAULT_FOV_DEG)
+        features.append(
+            {
+                "type": "Feature",
+                "geometry": view_cone(f.lat, f.lon, f.heading_deg, fov_deg, VIEW_CONE_LENGTH_M),
+                "properties": {"feature_type": "view_cone", "index": f.index, "fov_deg": fov_deg},
+            }
+        )
+    collection["features"] = features
+    return collection

@@ -10,7 +10,7 @@ from typing import Annotated, Any, Literal, overload
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from contracts.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon, QueryResult
+from contracts.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon, QueryResult, TrackFrameResult
 from service.errors import ERROR_CODES
 
 
@@ -310,6 +310,23 @@ class QueryOut(BaseModel):
     job_id: int | None = Field(default=None, examples=[93])
     params: dict[str, Any] = Field(examples=[{"top_n": 10, "k": 4, "prior": {"lat": 60.1695, "lon": 24.9412}}])
     result: QueryResult | None = None
+    attribution: Attribution
+    created_at: datetime | None = None
+    updated_at: datetime | None = None
+
+
+class TrackOut(BaseModel):
+    """A track: its status, its frames in order (each with its pose once located) and how it was searched."""
+
+    id: int = Field(examples=[3])
+    map_id: int = Field(examples=[1])
+    status: Literal["queued", "processing", "done", "failed"]
+    error: str | None = None
+    job_id: int | None = Field(default=None, examples=[120])
+    params: dict[str, Any] = Field(examples=[{"order": "sent", "top_n": 10, "k": 4, "preset": "balanced"}])
+    frames: list[TrackFrameResult]
+    search: dict[str, Any] | None = None
+    timings_ms: dict[str, float] | None = None
     attribution: Attribution
     created_at: datetime | None = None
     updated_at: datetime | None = None

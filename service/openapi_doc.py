@@ -279,9 +279,9 @@ class Renderer:
                 lines += _table(["name", "type", "required", "constraints", "description"], parameter_rows) + [""]
         body = op.get("requestBody")
         if body:
-            media, entry = sorted(body.get("content", {}).items())[0]
-            lines += [f"**Request body** (`{media}`{', required' if body.get('required') else ''})", ""]
-            lines += self.fields_table(entry.get("schema", {})) + [""]
+            for media, entry in sorted(body.get("content", {}).items()):  # each form a route takes (tracks: two)
+                lines += [f"**Request body** (`{media}`{', required' if body.get('required') else ''})", ""]
+                lines += self.fields_table(entry.get("schema", {})) + [""]
         rows: list[list[str]] = []
         examples: dict[str, list[str]] = {}  # example JSON -> the statuses it answers
         responses = op.get("responses", {})

@@ -13,6 +13,7 @@ thread for the few milliseconds it takes. While the job queue is full the reques
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from typing import Annotated, Any
@@ -53,7 +54,7 @@ from service.places import resolve_form_place
 from service.spec import QUEUE_FULL_RESPONSE
 from service.tenancy import require_map, require_query
 from service.uploads import ReceivedFile
-from service.waiting import JobWaiter
+from service.waiting import answered, long_poll
 from workers.broker import JobPublisher
 
 router = APIRouter(tags=["queries"])
@@ -154,9 +155,14 @@ class QueryIntake(PhotoIntake):
         self.prior = prior
 
     def insert(self, db: Database, map_id: int, key: str, received: ReceivedFile, info: ImageInfo) -> int:
-        """Insert the queued query with its parameters (:class:`contracts.queries.QueryParams`)."""
+        """Insert the queued query with its parameters (:meth:`params`)."""
+        params = self.params(received, info)
+        return query_store.insert_query(db, map_id=map_id, params=params, image_path=key, sha256=received.sha256)
+
+    def params(self, received: ReceivedFile, info: ImageInfo) -> QueryParams:
+        """The query's parameters from the form, the checked prior and the photo's EXIF (after :meth:`check_photo`)."""
         form = self.form
-        params = QueryParams(
+        return QueryParams(
             top_n=form.top_n,
             k=form.k,
             prior=self.prior,
@@ -166,7 +172,6 @@ class QueryIntake(PhotoIntake):
             original_filename=received.filename,
             preset=form.preset or self.settings.query_preset,
         )
-        return query_store.insert_query(db, map_id=map_id, params=params, image_path=key, sha256=received.sha256)
 
     def payload(self, subject_id: int, map_id: int) -> LocalizeQueryPayload:
         """Answer this query."""
@@ -266,12 +271,9 @@ async def create_query(
     intake = QueryIntake(settings, store, publisher, form)
     accepted = await run_in_threadpool(intake.accept, map_id, image, caller.tenant)
     assert accepted.job_id is not None  # a query is never a duplicate
-    waiter: JobWaiter = request.app.state.job_waiter
-    await waiter.wait(accepted.job_id, wait_s)
-    out = await run_in_threadpool(_query_model, settings, accepted.subject_id, caller.tenant)
-    if out.status in ("done", "failed"):
-        return out
-    return JSONResponse(out.model_dump(mode="json"), status_code=status.HTTP_202_ACCEPTED)
+    return await answered(
+        request, accepted.job_id, wait_s, partial(_query_model, settings, accepted.subject_id, caller.tenant)
+    )
 
 
 @router.get(
@@ -299,11 +301,7 @@ async def get_query(
     buildings' footprints, ``attribution`` as a foreign member; a query not answered (yet) gets the same status
     code with an empty collection whose ``status`` (and ``error``) say why.
     """
-    out = await run_in_threadpool(_query_model, settings, query_id, caller.tenant)
-    if wait_s > 0 and out.status not in ("done", "failed") and out.job_id is not None:
-        waiter: JobWaiter = request.app.state.job_waiter
-        await waiter.wait(out.job_id, wait_s)
-        out = await run_in_threadpool(_query_model, settings, query_id, caller.tenant)
+    out = await long_poll(request, wait_s, partial(_query_model, settings, query_id, caller.tenant))
     if wants_geojson(request, format_name):
         body = await run_in_threadpool(partial(_load_query, settings, query_id, caller.tenant, geojson=True))
         return JSONResponse(body, media_type=GEOJSON_MEDIA_TYPE)
@@ -369,7 +367,7 @@ def get_answer_geojson(
 @router.delete(
     "/v1/queries/{query_id}",
     status_code=status.HTTP_204_NO_CONTENT,
-    responses=error_responses(404),
+    responses=error_responses(404, 409),
     dependencies=[Depends(require_write)],
 )
 def delete_query(
@@ -378,14 +376,36 @@ def delete_query(
     store: FileStore = Depends(get_store),
     caller: Caller = Depends(request_caller),
 ) -> Response:
-    """Delete a query and its stored photo."""
-    with transaction(db):
-        require_query(db, query_id, caller.tenant)
+    """Delete a query and its stored photo; a track's frame is deleted with its track (409 here)."""
+
+    def delete(db: Database) -> list[str | None] | None:
+        row = require_query(db, query_id, caller.tenant)
+        if row.get("track_id") is not None:
+            raise ApiError(
+                409,
+                "conflict",
+                f"query {query_id} is frame {row['frame_index']} of track {row['track_id']}: delete the track",
+                {"track_id": row["track_id"]},
+            )
         deleted = query_store.delete_query(db, query_id)
-    if deleted is None:
-        raise ApiError(404, "not_found", f"query {query_id} not found")
-    with transaction(db):  # the same photo asked again shares the file: remove it only when unreferenced
-        store.delete(*query_store.unreferenced_images(db, [deleted["image_path"]]))
+        return None if deleted is None else [deleted["image_path"]]
+
+    return delete_with_photos(db, store, f"query {query_id}", delete)
+
+
+def delete_with_photos(
+    db: Database, store: FileStore, what: str, delete: Callable[[Database], list[str | None] | None]
+) -> Response:
+    """Delete rows, then their photos that no query uses any more (the same photo asked again shares the file).
+
+    ``delete`` runs in a transaction and returns the rows' photo paths (None: nothing to delete: 404); 204.
+    """
+    with transaction(db):
+        paths = delete(db)
+    if paths is None:
+        raise ApiError(404, "not_found", f"{what} not found")
+    with transaction(db):
+        store.delete(*query_store.unreferenced_images(db, paths))
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 

@@ -1,7 +1,7 @@
 """The routes' lookups for a tenant: a map, a reference, a query or a job the caller may see, else ``404``.
 
-A map belongs to the tenant of the key that uploaded it (``maps.tenant``, None: untenanted); a reference and
-a query belong to their map's tenant (every reference and query has a map); a job to the tenant stamped when
+A map belongs to the tenant of the key that uploaded it (``maps.tenant``, None: untenanted); a reference, a
+query and a track belong to their map's tenant (every one has a map); a job to the tenant stamped when
 it was queued (``jobs.tenant``: the tenant given to :func:`db.jobs.enqueue_job`, else its map's). A caller
 (:class:`service.auth.Caller`) sees only the rows of its own tenant; a key without a tenant, and every request
 while auth is off, sees the untenanted rows. Another tenant's id gets the same ``404`` with the same body as
@@ -15,7 +15,8 @@ from db import jobs as job_store
 from db import maps as map_store
 from db import queries as query_store
 from db import references as reference_store
-from db.rows import JobRow, MapRow, QueryRow, ReferenceRow
+from db import tracks as track_store
+from db.rows import JobRow, MapRow, QueryRow, ReferenceRow, TrackRow
 from service.errors import ApiError
 
 
@@ -50,6 +51,14 @@ def require_query(db: Database, query_id: int, tenant: str | None) -> QueryRow:
     row = query_store.get_query(db, query_id)
     if row is None or not _map_tenant_is(db, row["map_id"], tenant):
         raise _not_found("query", query_id)
+    return row
+
+
+def require_track(db: Database, track_id: int, tenant: str | None) -> TrackRow:
+    """The track row if it exists and its map belongs to ``tenant``, else 404."""
+    row = track_store.get_track(db, track_id)
+    if row is None or not _map_tenant_is(db, row["map_id"], tenant):
+        raise _not_found("track", track_id)
     return row
 
 

@@ -13,9 +13,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, Protocol, TypeVar
 
 import anyio.to_thread
+from fastapi import Request, status
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
 
 from contracts.jobs import FINAL_STATUSES
 from db import Database, connect
@@ -107,3 +112,47 @@ class JobWaiter:
                         if not future.done():
                             future.set_result(None)
             await asyncio.sleep(self.poll_s)
+
+
+class Answer(Protocol):
+    """What a waited-for answer model has: its status and its job."""
+
+    @property
+    def status(self) -> str:
+        """``queued``, ``processing``, ``done`` or ``failed``."""
+        ...
+
+    @property
+    def job_id(self) -> int | None:
+        """The job that answers it."""
+        ...
+
+    def model_dump(self, *, mode: str) -> dict[str, Any]:
+        """Its JSON form (pydantic's)."""
+        ...
+
+
+A = TypeVar("A", bound=Answer)
+
+
+async def answered(request: Request, job_id: int, wait_s: float, load: Callable[[], A]) -> A | JSONResponse:
+    """After an upload: wait up to ``wait_s`` for ``job_id``, then ``load()`` (in a thread) the answer.
+
+    Returns the model (200) when it is done or failed, else a 202 with it (poll its ``GET``).
+    """
+    waiter: JobWaiter = request.app.state.job_waiter
+    await waiter.wait(job_id, wait_s)
+    out = await run_in_threadpool(load)
+    if out.status in ("done", "failed"):
+        return out
+    return JSONResponse(out.model_dump(mode="json"), status_code=status.HTTP_202_ACCEPTED)
+
+
+async def long_poll(request: Request, wait_s: float, load: Callable[[], A]) -> A:
+    """A read's long poll: ``load()`` (in a thread), and if not final wait up to ``wait_s`` for its job and reload."""
+    out = await run_in_threadpool(load)
+    if wait_s > 0 and out.status not in ("done", "failed") and out.job_id is not None:
+        waiter: JobWaiter = request.app.state.job_waiter
+        await waiter.wait(out.job_id, wait_s)
+        out = await run_in_threadpool(load)
+    return out

@@ -43,7 +43,7 @@ from contracts.jobs import (
     LocalizeQueryResult,
     PlaceSequencePayload,
 )
-from contracts.queries import PriorPosition
+from contracts.queries import PriorPosition, QueryParams
 from contracts.settings import data_dir, get_settings
 from db import Database, sbow, transaction
 from db import jobs as job_store
@@ -121,7 +121,7 @@ def position_prior_for(db: Database, map_id: int, city: CityMap, prior: PriorPos
     return PositionPrior.from_radius(x, y, float(prior.radius_m))
 
 
-def _stored_photo(relative_path: str, focal_35mm: float | None) -> Photo:
+def stored_photo(relative_path: str, focal_35mm: float | None) -> Photo:
     """A stored photo (its key in the file store); an unreadable one fails the job for good."""
     try:
         return load_photo(open_store(get_settings().file_store_dir).local_path(relative_path), focal_35mm=focal_35mm)
@@ -191,7 +191,7 @@ class AloneLabel:
 def label_alone(city: CityMap, ref: ReferenceRow) -> AloneLabel:
     """Label a stored reference with its map, alone (the label job's method, and a sequence's first step)."""
     frame = city.frame
-    photo = _stored_photo(ref["image_path"], ref["focal_length_35mm"])
+    photo = stored_photo(ref["image_path"], ref["focal_length_35mm"])
     gps_x, gps_y = (float(v) for v in frame.to_local(ref["gps_lat"], ref["gps_lon"]))
     prior = _heading_prior(frame, ref["prior_heading_deg"], ref["prior_heading_accuracy_deg"], gps_x, gps_y)
     labelled = label_reference_photo(city, photo, (gps_x, gps_y), heading_prior=prior, context=worker_context())
@@ -295,6 +295,15 @@ def _describe_buildings(
     return out
 
 
+def query_priors(
+    db: Database, map_id: int, city: CityMap, params: QueryParams
+) -> tuple[PositionPrior | None, HeadingPrior | None]:
+    """A query's stored priors in the map's frame: position (:func:`position_prior_for`), heading."""
+    position_prior = None if params.prior is None else position_prior_for(db, map_id, city, params.prior)
+    heading = _heading_prior(city.frame, params.prior_heading_deg, params.prior_heading_accuracy_deg)
+    return position_prior, heading
+
+
 @register(LOCALIZE_QUERY, LocalizeQueryPayload)
 def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQueryResult:
     """Answer a query with the query stage (:func:`geoloc.localize.query.geolocate`); store the JSON answer."""
@@ -305,14 +314,12 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         raise PermanentJobError(f"query {query_id} no longer exists")
     params = query["params"]
     city = city_map_for(db, map_id)
-    frame = city.frame
     t0 = time.perf_counter()
     if query["image_path"] is None:
         raise PermanentJobError(f"query {query_id} has no stored photo")
-    photo = _stored_photo(query["image_path"], params.focal_length_35mm)
+    photo = stored_photo(query["image_path"], params.focal_length_35mm)
     evidence = analyze_photo(photo, context=context)
-    position_prior = None if params.prior is None else position_prior_for(db, map_id, city, params.prior)
-    heading_prior = _heading_prior(frame, params.prior_heading_deg, params.prior_heading_accuracy_deg)
+    position_prior, heading_prior = query_priors(db, map_id, city, params)
     answer = geolocate(
         city,
         photo,
@@ -331,14 +338,14 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         "total": round(1e3 * (time.perf_counter() - t0), 1),
     }
     with answer_checked("query answer"):
-        result = _query_result(city, photo, answer, timings_ms)
+        result = query_result(city, photo, answer, timings_ms)
     with transaction(db):
         if not query_store.update_query_result(db, query_id, status="done", result=result.model_dump(mode="json")):
             raise PermanentJobError(f"query {query_id} was deleted while it was answered")
     return LocalizeQueryResult(query_id=query_id, locations=len(result.locations))
 
 
-def _query_result(city: CityMap, photo: Photo, answer: QueryAnswer, timings_ms: dict[str, float]) -> QueryResult:
+def query_result(city: CityMap, photo: Photo, answer: QueryAnswer, timings_ms: dict[str, float]) -> QueryResult:
     """The answer (WGS84 and compass headings) of a :class:`geoloc.localize.query.QueryAnswer`."""
     frame = city.frame
     loc = answer.localization

@@ -5,7 +5,7 @@ A tool package (docs/client.md): the method, the workers and the service never i
 """
 
 from geoloc.client.asynchronous import AsyncClient
-from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, Upload
+from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, TrackFields, Upload
 from geoloc.client.errors import (
     ApiError,
     AuthError,
@@ -30,6 +30,7 @@ from geoloc.client.models import (
     Reference,
     ReferenceAccepted,
     ReferenceList,
+    Track,
 )
 from geoloc.client.retry import RetryPolicy
 from geoloc.client.sync import Client
@@ -53,6 +54,8 @@ __all__ = [
     "NotFoundError",
     "Query",
     "QueryFields",
+    "Track",
+    "TrackFields",
     "RateLimitedError",
     "Readiness",
     "Reference",

@@ -49,11 +49,14 @@ class ClientBase:
     def _request_args(self, call: Call[Any]) -> dict[str, Any]:
         """``httpx`` arguments of one try of ``call`` (a long poll gets its ``wait_s`` on top of the timeout)."""
         args: dict[str, Any] = {"params": call.params or None, "headers": call.headers or None}
-        if call.data:
+        if call.json is not None:
+            args["json"] = call.json
+        elif call.data:
             args["data"] = call.data
         if call.files:
             args["files"] = call.files
-        wait_s = float(call.params.get("wait_s", 0.0) or call.data.get("wait_s", 0.0))
+        body = call.json if call.json is not None else call.data
+        wait_s = float(call.params.get("wait_s", 0.0) or body.get("wait_s", 0.0))
         if wait_s > 0:
             args["timeout"] = httpx.Timeout(self._timeout_s + wait_s + POLL_SLACK_S, connect=10.0)
         return args

@@ -8,6 +8,7 @@ bytes)`` / ``(filename, bytes, media_type)``.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,8 @@ M = TypeVar("M", bound=BaseModel)
 Upload = Path | str | tuple[str, bytes] | tuple[str, bytes, str]
 """A file to upload: a path, or (filename, content) with an optional media type."""
 GEOJSON = "application/geo+json"
+FileTuple = tuple[str, bytes] | tuple[str, bytes, str]
+"""A file as httpx sends it: (filename, content) with an optional media type."""
 
 
 class MapFields(TypedDict, total=False):
@@ -61,6 +64,22 @@ class QueryFields(TypedDict, total=False):
     preset: Literal["fast", "balanced", "accurate"]
 
 
+class TrackFields(TypedDict, total=False):
+    """``POST /v1/maps/{id}/tracks``'s optional fields: order, answer size, ``wait_s`` (s) before 202.
+
+    ``priors`` (multipart only): one entry per frame, None or a dict of ``lat``, ``lon``, ``radius_m``,
+    ``heading_deg``, ``place`` as a query's fields.
+    """
+
+    priors: list[dict[str, Any] | None]
+    use_exif_gps: bool
+    by_capture_time: bool
+    top_n: int
+    k: int
+    wait_s: float
+    preset: Literal["fast", "balanced", "accurate"]
+
+
 @dataclass(frozen=True)
 class Call(Generic[T]):
     """One request and the reader of its 2xx answer (an error answer is raised, never read)."""
@@ -70,8 +89,11 @@ class Call(Generic[T]):
     read: Callable[[httpx.Response], T]
     params: dict[str, Any] = field(default_factory=dict)
     data: dict[str, str] = field(default_factory=dict)
-    files: dict[str, tuple[str, bytes] | tuple[str, bytes, str]] = field(default_factory=dict)
+    files: dict[str, FileTuple] | list[tuple[str, FileTuple]] = field(default_factory=dict)
+    """Files by field, or (field, file) pairs where a field repeats (a track's ``images``)."""
     headers: dict[str, str] = field(default_factory=dict)
+    json: dict[str, Any] | None = None
+    """A JSON body instead of a form."""
 
 
 @dataclass(frozen=True)
@@ -102,7 +124,7 @@ def _form(fields: Any) -> dict[str, str]:
     }
 
 
-def _file(upload: Upload) -> tuple[str, bytes] | tuple[str, bytes, str]:
+def _file(upload: Upload) -> FileTuple:
     if isinstance(upload, str | Path):
         path = Path(upload)
         return (path.name, path.read_bytes())
@@ -125,7 +147,7 @@ def list_maps() -> Call[list[models.Map]]:
     return Call("GET", "/v1/maps", lambda r: [models.Map.model_validate(m) for m in r.json()["maps"]])
 
 
-def delete(kind: Literal["maps", "references", "queries"], item_id: int) -> Call[None]:
+def delete(kind: Literal["maps", "references", "queries", "tracks"], item_id: int) -> Call[None]:
     """``DELETE /v1/{kind}/{id}`` (204)."""
     return Call("DELETE", f"/v1/{kind}/{item_id}", _nothing)
 
@@ -180,6 +202,33 @@ def query_geojson(query_id: int, wait_s: float = 0.0) -> Call[models.FeatureColl
     """The answer as GeoJSON (``format=geojson``); not answered yet: an empty collection with ``status``."""
     params = {"wait_s": wait_s, "format": "geojson"}
     return Call("GET", f"/v1/queries/{query_id}", _model(models.FeatureCollection), params=params)
+
+
+def upload_track(map_id: int, images: list[Upload], fields: TrackFields) -> Call[models.Track]:
+    """``POST /v1/maps/{id}/tracks`` with the photos in frame order: 200 answered within ``wait_s``, else 202."""
+    form: dict[str, Any] = dict(fields)
+    if form.get("priors") is not None:
+        form["priors"] = json.dumps(form["priors"])
+    files = [("images", _file(image)) for image in images]
+    return Call("POST", f"/v1/maps/{map_id}/tracks", _model(models.Track), data=_form(form), files=files)
+
+
+def track_of_queries(map_id: int, query_ids: list[int], fields: TrackFields) -> Call[models.Track]:
+    """``POST /v1/maps/{id}/tracks`` with a JSON body naming earlier queries of the map, in frame order."""
+    body = {"query_ids": query_ids, **{k: v for k, v in fields.items() if v is not None and k != "priors"}}
+    return Call("POST", f"/v1/maps/{map_id}/tracks", _model(models.Track), json=body)
+
+
+def get_track(track_id: int, wait_s: float = 0.0) -> Call[models.Track]:
+    """``GET /v1/tracks/{id}``, a long poll of up to ``wait_s`` seconds for the answer."""
+    params = {"wait_s": wait_s, "format": "json"}
+    return Call("GET", f"/v1/tracks/{track_id}", _model(models.Track), params=params)
+
+
+def track_geojson(track_id: int, wait_s: float = 0.0) -> Call[models.FeatureCollection]:
+    """The track as GeoJSON (``format=geojson``): the trajectory, a point and a view cone per frame."""
+    params = {"wait_s": wait_s, "format": "geojson"}
+    return Call("GET", f"/v1/tracks/{track_id}", _model(models.FeatureCollection), params=params)
 
 
 def get_job(job_id: int) -> Call[models.Job]:

@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict
 
-from contracts.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon, QueryResult
+from contracts.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon, QueryResult, TrackFrameResult
 
 Status = Literal["queued", "processing", "done", "failed"]
 """A reference's or a query's status; ``done`` and ``failed`` are final."""
@@ -114,6 +114,23 @@ class Query(_Model):
     job_id: int | None = None
     params: dict[str, Any]
     result: QueryResult | None = None
+    attribution: str
+    created_at: datetime | None = None
+    updated_at: datetime | None = None
+
+
+class Track(_Model):
+    """A track: its status and its frames in order (``frames``: each with its pose once ``done``)."""
+
+    id: int
+    map_id: int
+    status: Status
+    error: str | None = None
+    job_id: int | None = None
+    params: dict[str, Any]
+    frames: list[TrackFrameResult]
+    search: dict[str, Any] | None = None
+    timings_ms: dict[str, float] | None = None
     attribution: str
     created_at: datetime | None = None
     updated_at: datetime | None = None

@@ -24,7 +24,7 @@ import httpx
 import geoloc.client.calls as calls  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
 import geoloc.client.models as models  # noqa: PLR0402 (as above)
 from geoloc.client.base import ClientBase, ClientOptions, finish, is_final
-from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, Upload
+from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, TrackFields, Upload
 from geoloc.client.errors import RateLimitedError, ServiceUnreachableError
 from geoloc.client.retry import RetryPolicy, WaitLoop
 
@@ -148,6 +148,34 @@ class Client(ClientBase):
         """Until the query is ``done`` or ``failed`` (returned either way), by long polls that grow like a backoff."""
         return self.wait(
             lambda pause: self.get_query(query_id, wait_s=pause), timeout_s=timeout_s, what=f"query {query_id}"
+        )
+
+    # --- tracks -------------------------------------------------------------------------------
+
+    def upload_track(self, map_id: int, images: list[Upload], **fields: Unpack[TrackFields]) -> models.Track:
+        """Locate a walk of photos together (frame order as given): the answer if ready within ``wait_s``."""
+        return self.call(calls.upload_track(map_id, images, fields)).value
+
+    def track_of_queries(self, map_id: int, query_ids: list[int], **fields: Unpack[TrackFields]) -> models.Track:
+        """A track of earlier queries of the map (their photos, in this order)."""
+        return self.call(calls.track_of_queries(map_id, query_ids, fields)).value
+
+    def get_track(self, track_id: int, *, wait_s: float = 0.0) -> models.Track:
+        """The track; with ``wait_s`` the service holds the request until the answer is ready (a long poll)."""
+        return self.call(calls.get_track(track_id, wait_s)).value
+
+    def get_track_geojson(self, track_id: int, *, wait_s: float = 0.0) -> models.FeatureCollection:
+        """The track as GeoJSON: the trajectory, a point and a view cone per frame; ``attribution``."""
+        return self.call(calls.track_geojson(track_id, wait_s)).value
+
+    def delete_track(self, track_id: int) -> None:
+        """Delete a track with its frames' queries and photos."""
+        self.call(calls.delete("tracks", track_id))
+
+    def wait_for_track(self, track_id: int, *, timeout_s: float = 600.0) -> models.Track:
+        """Until the track is ``done`` or ``failed`` (returned either way), by long polls that grow like a backoff."""
+        return self.wait(
+            lambda pause: self.get_track(track_id, wait_s=pause), timeout_s=timeout_s, what=f"track {track_id}"
         )
 
     def get_job(self, job_id: int) -> models.Job:

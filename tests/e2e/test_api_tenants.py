@@ -57,12 +57,21 @@ def _seed(client: httpx.Client, name: str) -> dict[str, int]:
         data={"use_exif_gps": "false", "wait_s": "0"},
     )
     assert query.status_code == 202, query.text
+    track = _post_track(client, f"/v1/maps/{map_id}/tracks", seed=23)
+    assert track.status_code == 202, track.text
     return {
         "map_id": map_id,
         "reference_id": reference.json()["id"],
         "query_id": query.json()["id"],
+        "track_id": track.json()["id"],
         "job_id": reference.json()["job_id"],
     }
+
+
+def _post_track(client: httpx.Client, url: str, seed: int) -> httpx.Response:
+    """A two-frame track of photos with no GPS, not waited for."""
+    files = [("images", (f"f{i}.jpg", jpeg_bytes(seed=seed + i))) for i in range(2)]
+    return client.post(url, files=files, data={"use_exif_gps": "false", "wait_s": "0"})
 
 
 @pytest.fixture(scope="module")
@@ -98,6 +107,8 @@ def _request(client: httpx.Client, method: str, path: str, ids: dict[str, int]) 
     if method == "POST" and path.endswith("/queries"):
         files = {"image": ("x.jpg", jpeg_bytes(seed=32))}
         return client.post(url, files=files, data={"use_exif_gps": "false", "wait_s": "0"})
+    if method == "POST" and path.endswith("/tracks"):
+        return _post_track(client, url, seed=33)
     params = {"q": "hall"} if path.endswith("/places") else {}
     return client.request(method, url, params=params)
 
@@ -130,7 +141,13 @@ def test_another_tenants_ids_are_the_same_404_as_missing_ones_on_every_operation
                 foreign = _shape(_request(stranger, method, path, team_a), team_a)
                 assert foreign == absent, (key, method, path, foreign, absent)
     with service.client(A_READ) as owner:
-        for name, route in (("map_id", "/v1/maps"), ("reference_id", "/v1/references"), ("query_id", "/v1/queries")):
+        routes = (
+            ("map_id", "/v1/maps"),
+            ("reference_id", "/v1/references"),
+            ("query_id", "/v1/queries"),
+            ("track_id", "/v1/tracks"),
+        )
+        for name, route in routes:
             response = owner.get(f"{route}/{team_a[name]}")
             assert response.status_code == 200, f"a foreign DELETE removed {name} {team_a[name]}: {response.text}"
         listed = owner.get(f"/v1/maps/{team_a['map_id']}/references").json()
@@ -213,3 +230,18 @@ def test_the_keys_tenant_is_stamped_on_the_map_and_its_jobs(
     for key, tenant in ((A_WRITE, "team-a"), (B_WRITE, "team-b"), (PLAIN, None)):
         assert tenants[seeded[key]["map_id"]] == tenant
         assert job_tenants[seeded[key]["job_id"]] == tenant
+
+
+def test_a_track_of_another_tenants_query_is_as_if_it_did_not_exist(
+    service: RunningProcess, seeded: dict[str, dict[str, int]]
+) -> None:
+    """A JSON track naming team-a's query on team-b's map: the same 422 as a query that does not exist."""
+    team_a, team_b = seeded[A_WRITE], seeded[B_WRITE]
+    url = f"/v1/maps/{team_b['map_id']}/tracks"
+    with service.client(B_WRITE) as client:
+        foreign = client.post(url, json={"query_ids": [team_a["query_id"]], "wait_s": 0})
+        missing = client.post(url, json={"query_ids": [MISSING_ID], "wait_s": 0})
+        own = client.post(url, json={"query_ids": [team_b["query_id"]], "wait_s": 0})
+    assert foreign.status_code == missing.status_code == 422, (foreign.text, missing.text)
+    assert _shape(foreign, team_a) == _shape(missing, {"query_id": MISSING_ID})
+    assert own.status_code == 202, own.text

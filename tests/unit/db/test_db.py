@@ -17,7 +17,7 @@ from pydantic import ConfigDict
 
 from contracts.jobs import LABEL_REFERENCE, JobPayload, LabelReferencePayload
 from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
-from db import LATEST_VERSION, Database, connect, migrate, sbow, schema_version, transaction
+from db import LATEST_VERSION, Database, connect, migrate, migrations, sbow, schema_version, transaction
 from db import jobs as job_store
 from db import maps as map_store
 from db import references as reference_store
@@ -115,7 +115,7 @@ def test_migrations_are_idempotent(db_path: Path | str) -> None:
     assert migrate(db) == LATEST_VERSION
     assert migrate(db) == LATEST_VERSION
     rows = list(db.query("SELECT version FROM schema_migrations"))
-    assert [r["version"] for r in rows] == list(range(1, LATEST_VERSION + 1))
+    assert [r["version"] for r in rows] == [version for version, _, _ in migrations.MIGRATIONS]
     db.close()
 
 
@@ -140,7 +140,7 @@ def test_concurrent_first_migrations_apply_once(tmp_path: Path, profile: Profile
     assert not errors
     assert results == [LATEST_VERSION] * 4
     database = connect(path)
-    assert database.execute("SELECT COUNT(*) FROM schema_migrations").fetchone()[0] == LATEST_VERSION
+    assert database.execute("SELECT COUNT(*) FROM schema_migrations").fetchone()[0] == len(migrations.MIGRATIONS)
     database.close()
 
 
@@ -148,8 +148,6 @@ def test_migration_5_adds_the_compass_accuracy_to_an_existing_database(
     tmp_path: Path, profile: Profile, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A database at version 4 with a reference keeps it; the reference reads a NULL accuracy (a stated heading)."""
-    from db import migrations
-
     path = profile.postgres.new_empty_database() if profile.postgres else tmp_path / "v4.sqlite3"
     database = connect(path)
     with monkeypatch.context() as patched:
@@ -193,8 +191,6 @@ def test_migration_6_adds_the_map_attribution_to_an_existing_database(
     tmp_path: Path, profile: Profile, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A map stored at version 5 reads no stated attribution (the default applies); a new one keeps what it states."""
-    from db import migrations
-
     path = profile.postgres.new_empty_database() if profile.postgres else tmp_path / "v5.sqlite3"
     database = connect(path)
     with monkeypatch.context() as patched:

@@ -1,7 +1,7 @@
 """One photo loader: the API, the workers and ``geoloc analyze`` see the same pixels and the same EXIF.
 
 The API checks an upload (:func:`service.images.validate_image`) and stores it; a worker reads the stored file
-(:func:`workers.method_handlers._stored_photo`); ``geoloc analyze`` reads a file (:func:`cli.analyze.read_photo`).
+(:func:`workers.method_handlers.stored_photo`); ``geoloc analyze`` reads a file (:func:`cli.analyze.read_photo`).
 All go through :func:`geoloc.photos.photo.load_photo` / :func:`geoloc.photos.exif.read_exif`.
 """
 
@@ -21,7 +21,7 @@ from db.files import open_store
 from geoloc.photos.exif import exif_bytes
 from geoloc.photos.photo import WORKING_MAX_SIDE, load_photo
 from service.images import validate_image
-from workers.method_handlers import _stored_photo
+from workers.method_handlers import stored_photo
 
 ORIENTATION_TAG = 0x0112
 
@@ -72,7 +72,7 @@ def test_the_three_paths_see_the_same_photo(make: Callable[[Path], Path], tmp_pa
     upload = tmp_path / "upload.bin"
     shutil.copyfile(path, upload)
     open_store(store).put(upload, "uploads/photo.bin")  # the API moves the upload into the store
-    stored = _stored_photo("uploads/photo.bin", info.focal_length_35mm)
+    stored = stored_photo("uploads/photo.bin", info.focal_length_35mm)
     np.testing.assert_array_equal(stored.image_rgb, reference.image_rgb)
     assert stored.exif == reference.exif and stored.intrinsics == reference.intrinsics
 

@@ -36,7 +36,8 @@ def test_with_keys_each_v1_operation_has_its_scope_401_403_and_the_rate_limit() 
         if not path.startswith("/v1/"):
             assert "security" not in op, (method, path)
             continue
-        scope = "read" if method == "get" or (method == "post" and path.endswith("/queries")) else "write"
+        # A track is a set of queries: asking where photos were taken needs read, as a query does.
+        scope = "read" if method == "get" or (method == "post" and path.endswith(("/queries", "/tracks"))) else "write"
         assert op["security"] == [{"APIKeyHeader": [scope]}], (method, path)
         assert {"401", "403", "429"} <= set(op["responses"]), (method, path)
         assert "120 requests a minute" in op["responses"]["429"]["description"]

@@ -5,6 +5,7 @@ import { ApiError, apiUrl, getJson, hasApiKey, objectUrl, postForm, setApiKey } 
 import { LocalPlane, angleDiffDeg, buildingColor, formatDistance } from "./geo.js";
 import { MapView } from "./mapview.js";
 import { installPlaceSearch } from "./places.js";
+import { TrackLayer } from "./track.js";
 
 const REFERENCE_POLL_MS = 1500;
 const JOB_POLL_MS = 700;
@@ -19,6 +20,7 @@ const state = {
   references: [],
   counts: { queued: 0, processing: 0, done: 0, failed: 0 },
   query: null,
+  track: null,
   place: null,
   queryJob: null,
   selectedReference: null,
@@ -34,6 +36,7 @@ const view = new MapView($("map"), {
   scaleLine: $("scale-bar-line"),
   scaleLabel: $("scale-bar-label"),
 });
+const trackLayer = new TrackLayer(view, $("layer-overlay"));
 
 let referencePollTimer = 0;
 let referenceLoadToken = 0;
@@ -81,6 +84,7 @@ function updateHash() {
   const parts = [];
   if (state.map) parts.push(`map=${state.map.id}`);
   if (state.query) parts.push(`query=${state.query.id}`);
+  if (state.track) parts.push(`track=${state.track.id}`);
   const hash = parts.length ? `#${parts.join("&")}` : "";
   if (location.hash !== hash) history.replaceState(null, "", hash || location.pathname);
 }
@@ -208,6 +212,7 @@ async function selectMap(mapId) {
     return;
   }
   const queryId = Number(hashParams().get("query")); // an answer to reopen (read before the hash changes)
+  const trackId = Number(hashParams().get("track"));
   state.map = map;
   state.query = null;
   closeReference();
@@ -224,6 +229,58 @@ async function selectMap(mapId) {
   updateHash();
   await loadReferences();
   if (queryId) await loadQuery(queryId);
+  showTrack(null);
+  if (trackId) await loadTrack(trackId);
+}
+
+// --- tracks -------------------------------------------------------------------------------------
+
+async function loadTrack(trackId) {
+  let track;
+  try {
+    track = await getJson(`v1/tracks/${trackId}`);
+  } catch (err) {
+    reportError(err, `Loading track ${trackId}`);
+    return;
+  }
+  if (state.map && track.map_id !== state.map.id) {
+    setStatus(`Track ${trackId} is on map ${track.map_id}: pick that map to see it.`);
+    return;
+  }
+  showTrack(track);
+}
+
+/** Draw a track (TrackOut) and open its stepper; null clears it. */
+function showTrack(track) {
+  state.track = track;
+  trackLayer.setTrack(track);
+  $("section-track").hidden = !track;
+  if (!track) return;
+  setStatus(`Track ${track.id}: ${track.status}, ${track.frames.length} frames, ${trackLayer.frames.length} located.`);
+  if (trackLayer.frames.length) view.fitBox(trackLayer.box(), 60);
+  stepTrack(0);
+  updateHash();
+}
+
+function stepTrack(delta) {
+  const frame = trackLayer.select(trackLayer.selected + delta);
+  const facts = $("track-facts");
+  facts.replaceChildren();
+  const n = trackLayer.frames.length;
+  $("track-prev").disabled = !n || trackLayer.selected === 0;
+  $("track-next").disabled = !n || trackLayer.selected === n - 1;
+  if (!frame) {
+    $("track-frame-label").textContent = "No frame located yet.";
+    return;
+  }
+  $("track-frame-label").textContent = `Frame ${trackLayer.selected + 1} of ${n}`;
+  document.body.dataset.trackFrame = frame.index;
+  fact(facts, "Photo", frame.original_filename || `query ${frame.query_id}`);
+  fact(facts, "Position", `${fixed(frame.lat, 6)}, ${fixed(frame.lon, 6)}`);
+  fact(facts, "Heading", `${fixed(frame.heading_deg, 1)}°`);
+  fact(facts, "Uncertainty (90 %)", formatDistance(Number(frame.uncertainty_radius_m)));
+  fact(facts, "Source", frame.outlier ? `${frame.source} (outlier)` : frame.source);
+  fact(facts, "Buildings", frame.buildings.map(buildingLabel).join(", ") || "–");
 }
 
 async function uploadMap(event) {
@@ -783,6 +840,8 @@ function installForms() {
     });
   }
   for (const id of ["link-json", "link-geojson", "link-heatmap"]) $(id).addEventListener("click", openApiLink);
+  $("track-prev").addEventListener("click", () => stepTrack(-1));
+  $("track-next").addEventListener("click", () => stepTrack(1));
   for (const zone of document.querySelectorAll(".drop[data-drop-for]")) installDrop(zone);
   document.addEventListener("keydown", (event) => {
     if (event.key !== "Escape") return;
@@ -800,6 +859,9 @@ window.viewer = {
   scale: () => view.scale,
   /** Draw a query (QueryOut) as if it had just been answered. */
   showQuery: (query, options) => showQuery(query, options),
+  /** Open a track by id (GET /v1/tracks/{id}) and its frame stepper. */
+  loadTrack: (trackId) => loadTrack(trackId),
+  trackLayer: () => trackLayer,
 };
 
 start();

@@ -14,7 +14,7 @@ const TOP_CONE_PX = 48;
 const OTHER_CONE_PX = 30;
 const LABELLED_RANKS = 3;
 
-function svg(tag, attrs = {}, parent = null) {
+export function svg(tag, attrs = {}, parent = null) {
   const el = document.createElementNS(SVG_NS, tag);
   for (const [k, v] of Object.entries(attrs)) el.setAttribute(k, v);
   if (parent) parent.appendChild(el);
@@ -39,7 +39,7 @@ function heatColor(t) {
   return [...rgb, Math.round(255 * (0.3 + 0.55 * t))];
 }
 
-function wedgePath(x, y, headingDeg, fovDeg, length) {
+export function wedgePath(x, y, headingDeg, fovDeg, length) {
   const a0 = ((headingDeg - fovDeg / 2) * Math.PI) / 180;
   const a1 = ((headingDeg + fovDeg / 2) * Math.PI) / 180;
   const p0 = [x + length * Math.sin(a0), y - length * Math.cos(a0)];
@@ -88,6 +88,7 @@ export class MapView {
     this.highlights = new Map();
     this.handlers = { referenceSelect: () => {}, locationSelect: () => {}, mapClick: () => {} };
     this.pendingFrame = 0;
+    this.layers = []; // more overlays ({render()}), drawn after the answer on every pan or zoom (track.js)
 
     this.streets = new StreetLayer(parts.buildings); // under the footprints
     this.buildingGroup = svg("g", { class: "buildings" }, parts.buildings);
@@ -416,6 +417,7 @@ export class MapView {
     this.renderPrior();
     this.renderReferences();
     this.renderAnswer();
+    for (const layer of this.layers) layer.render();
     this.renderScaleBar();
   }
 
