@@ -145,12 +145,13 @@ def label_frame(
         anchored = alone.source == "anchors"
         sigma = max(alone.uncertainty_radius_m / R90_PER_SIGMA, options.position_floor_m)
         sigma *= 1.0 if anchored else options.likelihood_scale
+        sigma = sigma if math.isfinite(sigma) else options.weak_sigma_m  # a likelihood answer may say "anywhere"
         yaw_sigma = options.anchored_yaw_sigma_deg if anchored else options.likelihood_yaw_sigma_deg
     return SequenceFrame(
         x,
         y,
         yaw,
-        sigma**2 * np.eye(2),
+        np.diag([sigma**2, sigma**2]),
         gps_xy,
         gps_sigma,
         heading_prior,
@@ -192,7 +193,8 @@ def _outliers(answers: Sequence[AnswerPose | None], poses: Sequence[PlacedPose],
         if pose.n_edges > 0:
             off = math.hypot(alone.x_m - pose.x_m, alone.y_m - pose.y_m)
             turn = abs((alone.yaw_deg - pose.yaw_deg + 180.0) % 360.0 - 180.0)
-            limit = max(options.outlier_min_m, options.outlier_sigmas * alone.uncertainty_radius_m / R90_PER_SIGMA)
+            radius = alone.uncertainty_radius_m if math.isfinite(alone.uncertainty_radius_m) else math.inf
+            limit = max(options.outlier_min_m, options.outlier_sigmas * radius / R90_PER_SIGMA)
             flags.append(off > limit or turn > options.outlier_yaw_deg)
             continue
         gaps = [

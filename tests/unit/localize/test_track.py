@@ -1,5 +1,7 @@
-"""The track smoother on synthetic evidence: a wrong frame is flagged and does not pull the others; a frame with
-no answer of its own is placed by its neighbours."""
+"""The track smoother on synthetic evidence.
+
+A wrong frame is flagged and does not pull the others; a frame with no answer of its own is placed by its neighbours.
+"""
 
 from __future__ import annotations
 
@@ -126,3 +128,9 @@ def test_a_likelihood_answer_weighs_less_than_an_anchored_one() -> None:
     assert anchored.position_covariance[0, 0] == sigma**2
     assert likely.position_covariance[0, 0] == (sigma * options.likelihood_scale) ** 2
     assert likely.label_yaw_sigma_deg == options.likelihood_yaw_sigma_deg > anchored.label_yaw_sigma_deg
+
+
+def test_a_likelihood_answer_that_says_anywhere_gets_a_weak_finite_label() -> None:
+    node = _nodes([_answer(3.0, 4.0, 10.0, math.inf, "likelihood")] * len(TRUTH))[0]
+    assert np.isfinite(node.position_covariance).all()
+    assert node.position_covariance[0, 0] == TrackOptions().weak_sigma_m**2 and node.position_covariance[0, 1] == 0
