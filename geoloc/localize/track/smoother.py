@@ -6,7 +6,7 @@ Levenberg-Marquardt on planar poses), fed with a query frame's evidence instead 
 - the frame's own rank-1 answer (the query stage's, :func:`geoloc.localize.query.geolocate`) as the "label":
   position sigma ``uncertainty_radius_m / R90_PER_SIGMA`` (its 90 % radius as a 2D Gaussian's sigma), times
   :attr:`TrackOptions.likelihood_scale` when the likelihood (not the map anchors) answered; heading sigma
-  :attr:`TrackOptions.anchored_yaw_sigma_deg` or :attr:`TrackOptions.likelihood_yaw_sigma_deg`; Cauchy loss;
+  :attr:`TrackOptions.yaw_sigmas_deg`; Cauchy loss;
 - its position prior (the photo's GPS, sigma the prior's) under a Huber loss, its heading prior (compass), Cauchy;
 - relative poses between frames 1 to 3 apart, both ways: PnP of one frame's keypoints on the other frame's
   map anchors cast from that frame's own answer (:mod:`geoloc.localize.sequence.relative`). Consecutive frames
@@ -57,24 +57,24 @@ R90_PER_SIGMA = math.sqrt(-2.0 * math.log(0.1))
 
 @dataclass(frozen=True)
 class TrackOptions:
-    """The track smoother's tuning (module docstring; measured on Helsinki seed 1, docs/measurements.md).
+    """The track smoother's tuning (module docstring; the defaults are the first choice, not yet tuned).
 
-    placement: the shared graph's options (edges, their sigmas, robust losses). position_floor_m: the least
-    position sigma of a frame's own answer (m). likelihood_scale: how much less a likelihood answer's position
-    is trusted than its radius says. anchored_yaw_sigma_deg, likelihood_yaw_sigma_deg: the heading sigma of an
-    anchored / likelihood answer (deg). outlier_sigmas, outlier_min_m, outlier_yaw_deg: the outlier test's
-    thresholds; max_step_m: the farthest a walker moves between consecutive frames (m). weak_sigma_m,
-    weak_yaw_sigma_deg: the label of a frame with no answer, or an outlier's (weak, not absent: a frame whose
-    edges the robust loss all sets aside must stay determined).
+    Every field is described beside it; all sigmas are one standard deviation.
     """
 
+    # The shared graph's options: which edges, their sigmas, the robust losses.
     placement: PlacementOptions = field(default_factory=PlacementOptions)
+    # A frame's own answer: the least position sigma (m), and how much less a likelihood answer's position is
+    # trusted than its radius says.
     position_floor_m: float = 0.5
     likelihood_scale: float = 2.0
-    anchored_yaw_sigma_deg: float = 2.0
-    likelihood_yaw_sigma_deg: float = 10.0
-    weak_sigma_m: float = 30.0
-    weak_yaw_sigma_deg: float = 90.0
+    # The heading sigma (deg) of an anchored and of a likelihood answer.
+    yaw_sigmas_deg: tuple[float, float] = (2.0, 10.0)
+    # The label of a frame with no answer, or of an outlier (position m, heading deg): weak, not absent, since a
+    # frame whose edges the robust loss all sets aside must stay determined.
+    weak_label: tuple[float, float] = (30.0, 90.0)
+    # The outlier test: sigmas of its own radius and metres at least, heading (deg); the farthest a walker
+    # moves between consecutive frames (m).
     outlier_sigmas: float = 3.0
     outlier_min_m: float = 5.0
     outlier_yaw_deg: float = 30.0
@@ -139,14 +139,14 @@ def label_frame(
     gps_sigma = position_prior.sigma_m if position_prior is not None else LOOSE_SIGMA
     if alone is None:
         x, y, yaw = (*gps_xy, 0.0)
-        sigma, yaw_sigma = options.weak_sigma_m, options.weak_yaw_sigma_deg
+        sigma, yaw_sigma = options.weak_label[0], options.weak_label[1]
     else:
         x, y, yaw = alone.x_m, alone.y_m, alone.yaw_deg
         anchored = alone.source == "anchors"
         sigma = max(alone.uncertainty_radius_m / R90_PER_SIGMA, options.position_floor_m)
         sigma *= 1.0 if anchored else options.likelihood_scale
-        sigma = sigma if math.isfinite(sigma) else options.weak_sigma_m  # a likelihood answer may say "anywhere"
-        yaw_sigma = options.anchored_yaw_sigma_deg if anchored else options.likelihood_yaw_sigma_deg
+        sigma = sigma if math.isfinite(sigma) else options.weak_label[0]  # a likelihood answer may say "anywhere"
+        yaw_sigma = options.yaw_sigmas_deg[0 if anchored else 1]
     return SequenceFrame(
         x,
         y,
@@ -233,9 +233,9 @@ def place_track(
         poses = place_sequence(graph, options.placement, edges)
         outliers = _outliers(alone, poses, options)
         if any(flag and pose.n_edges > 0 for flag, pose in zip(outliers, poses, strict=True)):
-            weak = options.weak_sigma_m**2 * np.eye(2)
+            weak = options.weak_label[0] ** 2 * np.eye(2)
             loosened = [
-                replace(g, position_covariance=weak, label_yaw_sigma_deg=options.weak_yaw_sigma_deg) if flag else g
+                replace(g, position_covariance=weak, label_yaw_sigma_deg=options.weak_label[1]) if flag else g
                 for g, flag in zip(graph, outliers, strict=True)
             ]
             poses = place_sequence(loosened, options.placement, edges)

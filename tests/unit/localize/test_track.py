@@ -127,10 +127,10 @@ def test_a_likelihood_answer_weighs_less_than_an_anchored_one() -> None:
     sigma = 4.0 / R90_PER_SIGMA
     assert anchored.position_covariance[0, 0] == sigma**2
     assert likely.position_covariance[0, 0] == (sigma * options.likelihood_scale) ** 2
-    assert likely.label_yaw_sigma_deg == options.likelihood_yaw_sigma_deg > anchored.label_yaw_sigma_deg
+    assert likely.label_yaw_sigma_deg == options.yaw_sigmas_deg[1] > anchored.label_yaw_sigma_deg
 
 
 def test_a_likelihood_answer_that_says_anywhere_gets_a_weak_finite_label() -> None:
     node = _nodes([_answer(3.0, 4.0, 10.0, math.inf, "likelihood")] * len(TRUTH))[0]
     assert np.isfinite(node.position_covariance).all()
-    assert node.position_covariance[0, 0] == TrackOptions().weak_sigma_m ** 2 and node.position_covariance[0, 1] == 0
+    assert node.position_covariance[0, 0] == TrackOptions().weak_label[0] ** 2 and node.position_covariance[0, 1] == 0
