@@ -170,8 +170,17 @@ def world(
     ),
     max_queries: int | None = typer.Option(None, "--max-queries", min=1, help="Only the first N queries."),
     quiet: bool = typer.Option(False, help="No per-image progress."),
+    track_outliers: bool = typer.Option(
+        False,
+        "--track-outliers",
+        help="A world with query tracks: answer each track again with its middle frame replaced by another "
+        "track's (a photo from elsewhere), and report whether it is flagged and the other frames' figures.",
+    ),
 ) -> None:
     """Label a simulated world's references (via EXIF), answer its queries with the service's query stage.
+
+    A world with query tracks: each track answered by the track stage, per prior (gps, none), per frame and per
+    track, beside the same frames answered one by one (docs/measurements.md, tracks).
 
     Prints reference labelling, the paper's Tables I/II, the raw-GPS baseline, and per run (prior, ablation)
     the error at N = 1 for all queries, for those whose buildings some reference shows and per query kind,
@@ -199,6 +208,7 @@ def world(
         max_queries=max_queries,
         progress=None if quiet else (lambda msg: typer.echo(msg, err=True)),
         context=method_context(),
+        track_outliers=track_outliers,
     )
     result["command"] = " ".join(["geoloc", *sys.argv[1:]])
     print_world_summary(result, time.perf_counter() - started)
@@ -245,8 +255,8 @@ def print_world_summary(result: dict[str, Any], seconds: float) -> None:
         )
     gps = result["gps_baseline"]
     typer.echo(
-        f"raw EXIF GPS of the queries: median {gps['median_m']} m, "
-        f"within 5 / 10 m {gps['within_5m']} / {gps['within_10m']}"
+        f"raw EXIF GPS of the queries: median {gps.get('median_m')} m, "
+        f"within 5 / 10 m {gps.get('within_5m')} / {gps.get('within_10m')}"
     )
     columns = ("w1m", "w5m", "w10m", "med m", "shown w5/10", "hd med", "hd<5", "r90 ok", "anch")
     widths = (5, 5, 5, 6, 12, 6, 5, 6, 5)
@@ -262,6 +272,11 @@ def print_world_summary(result: dict[str, Any], seconds: float) -> None:
     for name, run in result["runs"].items():
         errors = " ".join(f"{run['top_n_error_m'][str(n)]['mean']:.1f}" for n in range(1, 11))
         typer.echo(f"{name:22s} best of top N = 1..10, mean error (m): {errors}")
+    if "tracks" in result:
+        from geoloc.evaluation.tracks import track_summary_lines  # lazy: CLI start-up (numpy, the method)
+
+        for line in track_summary_lines(result["tracks"]):
+            typer.echo(line)
 
 
 @app.command("photos")

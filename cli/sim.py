@@ -43,6 +43,10 @@ def world(
     radius_m: float = typer.Option(220.0, "--radius-m", min=0.0, help="World disk radius (m); 0: whole map."),
     pitch_std_deg: float = typer.Option(1.0, "--pitch-std-deg", min=0.0, help="Camera pitch std (deg)."),
     roll_std_deg: float = typer.Option(0.3, "--roll-std-deg", min=0.0, help="Camera roll std (deg)."),
+    query_tracks: int = typer.Option(
+        0, "--query-tracks", min=0, help="Number of query tracks: walks of query photos 3-8 m apart (needs streets)."
+    ),
+    track_length: int = typer.Option(10, "--track-length", min=2, max=200, help="Frames per query track."),
     capture: str = typer.Option(
         "scattered",
         "--capture",
@@ -68,6 +72,7 @@ def world(
         gps_noise_m=gps_noise_m, query_gps_noise_m=query_gps_noise_m,  # the GPS the photos carry
         width=width, height=height, hfov_deg=hfov, pitch_std_deg=pitch_std_deg, roll_std_deg=roll_std_deg,  # camera
         capture="walk" if capture == "walk" else "scattered",  # how people took the references
+        query_tracks=query_tracks, track_length=track_length,  # walks of query photos
     )  # fmt: skip
     try:
         manifest = generate_world(map_path, out, opts, progress=lambda msg: typer.echo(msg, err=True))
@@ -75,4 +80,6 @@ def world(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
     n_ref = sum(r["role"] == "reference" for r in manifest["images"])
-    typer.echo(f"{out}: {n_ref} references, {len(manifest['images']) - n_ref} queries")
+    n_track = sum("track" in r for r in manifest["images"])
+    n_query = len(manifest["images"]) - n_ref - n_track
+    typer.echo(f"{out}: {n_ref} references, {n_query} queries" + (f", {n_track} track frames" if n_track else ""))

@@ -21,6 +21,8 @@ from geoloc.localize.query import QueryConfig, geolocate, retrieve, transfer
 from geoloc.localize.retrieval import Vocabulary
 from geoloc.localize.sequence.stage import compass_prior_at
 from geoloc.maps import CityMap
+from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.photos.photo import Photo
 from geoloc.sim.world import World
 
 KS = (1, 4, 8)
@@ -78,6 +80,18 @@ def transfer_tables(
     }
 
 
+def photo_priors(photo: Photo, city: CityMap, prior: str) -> tuple[PositionPrior | None, HeadingPrior | None]:
+    """A query's (position, heading) priors for a run's ``prior``.
+
+    With "gps", what the service reads from the photo: its EXIF GPS (radius :data:`DEFAULT_PRIOR_RADIUS_M`) and
+    its compass when it has one; otherwise none.
+    """
+    if prior != "gps" or photo.gps is None:
+        return None, None
+    x, y = (float(v) for v in city.frame.to_local(*photo.gps))
+    return PositionPrior.from_radius(x, y, DEFAULT_PRIOR_RADIUS_M), compass_prior_at(photo, city, (x, y))
+
+
 def answer_run(
     world: World,
     city: CityMap,
@@ -99,13 +113,8 @@ def answer_run(
     for i, image in enumerate(queries):
         photo, evidence = labelled.queries[image.name]
         gt = world.gt(image.name)
-        prior, heading_prior = None, None
-        if run.prior == "gps" and photo.gps is not None:
-            # What the service reads from the photo: its EXIF GPS and, when it has one, its compass.
-            x, y = (float(v) for v in city.frame.to_local(*photo.gps))
-            prior = PositionPrior.from_radius(x, y, DEFAULT_PRIOR_RADIUS_M)
-            heading_prior = compass_prior_at(photo, city, (x, y))
-        elif run.prior == "given" and given_priors and image.name in given_priors:
+        prior, heading_prior = photo_priors(photo, city, run.prior)
+        if run.prior == "given" and given_priors and image.name in given_priors:
             prior = given_priors[image.name]  # the compass still counts: the service reads it without GPS
             heading_prior = compass_prior_at(photo, city, (prior.x_m, prior.y_m))
         override = None

@@ -26,6 +26,10 @@ identity accuracy of the transfer for k = 1, 4, 8 with our and with ground-truth
 buildings some reference shows, per query kind), best of top N = 1..10 (Fig. 7), heading errors, how
 often the uncertainty radius holds the truth, and a per-query table.
 
+A world with query tracks (``geoloc sim world --query-tracks``) is also evaluated per track
+(:mod:`geoloc.evaluation.tracks`: the track stage beside the same frames answered one by one); its track frames
+are left out of the runs above (``--queries 0`` with tracks: no runs).
+
 A query's buildings are "shown by some reference" when a reference shares at least 0.1 of the image in
 building pixels with it (:func:`shown_by_references`; the share at the level of facades is reported too).
 """
@@ -44,6 +48,7 @@ from geoloc.evaluation.photos import evaluate_photos
 from geoloc.evaluation.queries import KS, EvalRun, answer_run, transfer_tables
 from geoloc.evaluation.references import LabelledWorld, analyze, label_references
 from geoloc.evaluation.summaries import QUERY_KINDS, TOP_N, angle_error_deg
+from geoloc.evaluation.tracks import evaluate_tracks
 from geoloc.localize.query import QueryConfig
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.sim.world import load_world
@@ -95,10 +100,13 @@ def evaluate_world(
     max_queries: int | None = None,
     progress: Callable[[str], None] | None = None,
     context: MethodContext,
+    track_outliers: bool = False,
 ) -> dict[str, Any]:
     """Run the method on a world folder and compare with its ground truth; returns a JSON-ready dict.
 
     context: the models and threads the method runs with (the figures do not depend on the thread counts).
+    A world with query tracks also gets ``tracks`` (:func:`geoloc.evaluation.tracks.evaluate_tracks`, with
+    ``track_outliers``: the outlier injection); its track frames are not among the single queries.
     """
     say = progress or (lambda _msg: None)
     started = time.perf_counter()
@@ -107,7 +115,9 @@ def evaluate_world(
     world = load_world(world_dir)
     city = world.load_map()
     vocabulary = vocabulary or default_vocabulary(context.models_dir)
-    queries = world.queries[:max_queries] if max_queries else world.queries
+    singles = [q for q in world.queries if "track" not in q.record]
+    queries = singles[:max_queries] if max_queries else singles
+    track_frames = [q for q in world.queries if "track" in q.record]
     reference_names = [r.name for r in world.references]
     shown = {q.name: shown_by_references(world, q.name, reference_names) for q in queries}
 
@@ -117,7 +127,7 @@ def evaluate_world(
         worlds[segmentation] = label_references(world, city, vocabulary, segmentation, say, context)
         worlds[segmentation].queries = {
             q.name: analyze(q.path, world.gt(q.name)["labels"] if segmentation == "gt" else None, context)
-            for q in queries
+            for q in queries + track_frames
         }
 
     result: dict[str, Any] = {
@@ -137,9 +147,14 @@ def evaluate_world(
     result["tables_segmentation"] = table_segmentation
     result.update(transfer_tables(world, worlds[table_segmentation], vocabulary, config, queries, shown))
     result["runs"] = {}
-    for run in runs:
+    for run in runs if queries else []:
         say(f"run {run.name}")
         labelled = worlds[run.segmentation]
         result["runs"][run.name] = answer_run(world, city, labelled, vocabulary, run, queries, shown, say, context)
+    if track_frames:
+        say("tracks")
+        result["tracks"] = evaluate_tracks(
+            world, city, worlds[table_segmentation], vocabulary, config, say, context, inject_outliers=track_outliers
+        )
     result["total_s"] = round(time.perf_counter() - started, 1)
     return result

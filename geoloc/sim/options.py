@@ -33,6 +33,10 @@ class WorldOptions:
     # phone's correlated GPS, compass and capture times (geoloc.sim.walks). Recorded in the manifest's
     # options only when not "scattered", so that scattered worlds stay byte-identical to those made before.
     capture: Literal["scattered", "walk"] = "scattered"
+    # Query tracks (geoloc.sim.tracks): walks of query photos 3-8 m apart. Recorded in the manifest's options
+    # only when there are tracks (the same reason as ``capture``).
+    query_tracks: int = 0
+    track_length: int = 10
 
 
 def camera_for(width: int, height: int, hfov_deg: float) -> tuple[Intrinsics, int, float]:

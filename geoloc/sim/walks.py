@@ -206,18 +206,20 @@ def _walked_path(scene: Scene, walk: Walk, pts: np.ndarray, tan: np.ndarray) -> 
     return pts[:end] + normal[:end] * chosen[:end, None], tan[:end]
 
 
-def _photo_indices(path: np.ndarray, rng: np.random.Generator, n_max: int) -> list[int]:
-    """Indices of ``path`` where photos are taken: 4-12 m of walking apart, at least 4 m apart in a line."""
+def photo_indices(
+    path: np.ndarray, rng: np.random.Generator, n_max: int, step_m: tuple[float, float] = STEP_M
+) -> list[int]:
+    """Indices of ``path`` where photos are taken: ``step_m`` (m) of walking apart, and as far apart in a line."""
     picked = [0]
-    arc, step = 0.0, float(rng.uniform(STEP_M[0] + 1.0, STEP_M[1] - 2.0))
+    arc, step = 0.0, float(rng.uniform(step_m[0] + 1.0, step_m[1] - 2.0))
     for i in range(1, len(path)):
         if len(picked) >= n_max:
             break
         arc += float(np.hypot(*(path[i] - path[i - 1])))
         chord = float(np.hypot(*(path[i] - path[picked[-1]])))
-        if arc >= step and STEP_M[0] <= chord <= STEP_M[1]:
+        if arc >= step and step_m[0] <= chord <= step_m[1]:
             picked.append(i)
-            arc, step = 0.0, float(rng.uniform(STEP_M[0] + 1.0, STEP_M[1] - 2.0))
+            arc, step = 0.0, float(rng.uniform(step_m[0] + 1.0, step_m[1] - 2.0))
     return picked
 
 
@@ -337,44 +339,51 @@ def sample_walks(
         path, path_tan = _walked_path(scene, walk, pts, tan)
         if len(path) < 2:
             continue
-        picked = _photo_indices(path, rng, want)
+        picked = photo_indices(path, rng, want)
         if len(picked) < min(want, 3):
             continue  # a walk cut short by a building on the street: walk somewhere else
         walks.append(walk)
-        xy = path[picked]
         start = FIRST_WALK_START + timedelta(minutes=20 * walk_id, seconds=float(rng.uniform(0.0, 300.0)))
-        start = start.replace(microsecond=(start.microsecond // 1000) * 1000)
-        offset, jump, times = _noise_and_times(walk, xy, start, tall, rng)
-        mode = str(rng.choice(list(HEADING_MIX), p=list(HEADING_MIX.values())))
-        for k, i in enumerate(picked):
-            if k > 0 and rng.random() >= MODE_PERSISTENCE:
-                mode = str(rng.choice(list(HEADING_MIX), p=list(HEADING_MIX.values())))
-            yaw = _yaw(mode, path_tan[i], walk.side, rng)
-            pitch = float(np.clip(rng.normal(0, opts.pitch_std_deg), -3 * opts.pitch_std_deg, 3 * opts.pitch_std_deg))
-            roll = float(np.clip(rng.normal(0, opts.roll_std_deg), -3 * opts.roll_std_deg, 3 * opts.roll_std_deg))
-            err, outlier = compass_error(rng, walk.compass_std_deg, walk.compass_bias_deg)
-            pose = Pose(
-                round(float(xy[k, 0]), 3),
-                round(float(xy[k, 1]), 3),
-                round(yaw, 3),
-                round(pitch, 3),
-                round(roll, 3),
-                walk.camera_height_m,
-            )
-            shots.append(
-                Shot(
-                    pose,
-                    walk_id,
-                    k,
-                    mode,
-                    (float(offset[k, 0]), float(offset[k, 1])),
-                    (float(jump[k, 0]), float(jump[k, 1])),
-                    None if err is None else round(err, 3),
-                    outlier,
-                    times[k],
-                )
-            )
+        shots.extend(walk_shots(walk, path[picked], path_tan[picked], start, tall, opts, rng))
     return shots, walks
+
+
+def walk_shots(
+    walk: Walk,
+    xy: np.ndarray,
+    tangents: np.ndarray,
+    start: datetime,
+    tall: cKDTree | None,
+    opts: WorldOptions,
+    rng: np.random.Generator,
+) -> list[Shot]:
+    """The shots of one walk at its photo points ``xy`` (n, 2) with the path's unit ``tangents`` (n, 2).
+
+    Draws the walk's heading modes, camera tilt, GPS noise, compass and capture times (module docstring);
+    ``start``: the first photo's capture time (truncated to the millisecond).
+    """
+    start = start.replace(microsecond=(start.microsecond // 1000) * 1000)
+    offset, jump, times = _noise_and_times(walk, xy, start, tall, rng)
+    mode = str(rng.choice(list(HEADING_MIX), p=list(HEADING_MIX.values())))
+    shots = []
+    for k in range(len(xy)):
+        if k > 0 and rng.random() >= MODE_PERSISTENCE:
+            mode = str(rng.choice(list(HEADING_MIX), p=list(HEADING_MIX.values())))
+        yaw = _yaw(mode, tangents[k], walk.side, rng)
+        pitch = float(np.clip(rng.normal(0, opts.pitch_std_deg), -3 * opts.pitch_std_deg, 3 * opts.pitch_std_deg))
+        roll = float(np.clip(rng.normal(0, opts.roll_std_deg), -3 * opts.roll_std_deg, 3 * opts.roll_std_deg))
+        err, outlier = compass_error(rng, walk.compass_std_deg, walk.compass_bias_deg)
+        pose = Pose(
+            round(float(xy[k, 0]), 3),
+            round(float(xy[k, 1]), 3),
+            round(yaw, 3),
+            round(pitch, 3),
+            round(roll, 3),
+            walk.camera_height_m,
+        )
+        gps = ((float(offset[k, 0]), float(offset[k, 1])), (float(jump[k, 0]), float(jump[k, 1])))
+        shots.append(Shot(pose, walk.walk_id, k, mode, *gps, None if err is None else round(err, 3), outlier, times[k]))
+    return shots
 
 
 def mapillary_description(

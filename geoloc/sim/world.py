@@ -17,6 +17,10 @@ parameters, pace, sequence UUID) and, per image, ``walk`` (walk id, index in the
 ``compass`` (the heading written, its error, outlier flag, true std and stated accuracy; null: none) and
 ``capture_time``, with the GPS record split into its correlated offset and jump; its photos carry
 sub-second capture times, GPSImgDirection and a Mapillary-style ImageDescription (:mod:`geoloc.sim.phone`).
+A world with query tracks (``WorldOptions.query_tracks``, :mod:`geoloc.sim.tracks`) adds query photos
+``queries/track_TT_II.jpg`` of kind ``track``, each with its ``track`` (number) and ``index`` (place in the
+track), its walk-style GPS record, ``compass``, ``capture_time`` and ``heading_mode``, and records
+``options.query_tracks`` and ``options.track_length``.
 A scattered world has none of these keys, so it is byte-identical to one written before they existed; the
 manifest version is unchanged (the loader needs nothing new).
 
@@ -49,6 +53,7 @@ from geoloc.sim.pose import Pose
 from geoloc.sim.render import Render, render
 from geoloc.sim.sampling import QUERY_KINDS, sample_queries, sample_references, world_centre
 from geoloc.sim.scene import Scene
+from geoloc.sim.tracks import sample_tracks
 from geoloc.sim.walks import Shot, Walk, sample_walks
 
 __all__ = ["MANIFEST_VERSION", "World", "WorldImage", "WorldOptions", "camera_for", "generate_world", "load_world"]
@@ -207,6 +212,7 @@ def generate_world(
         records.append({**_image_record(scene, name, "query", kind, r, f35, fmm, gps, "queries"), **phone})
         if (i + 1) % 10 == 0 or i + 1 == len(queries):
             say(f"queries {i + 1}/{len(queries)} ({time.perf_counter() - t0:.1f} s)")
+    records.extend(_render_tracks(scene, opts, out, intr, f35, fmm, say, t0))
     lat0, lon0 = city_map.frame.to_wgs84(*centre)
     manifest = {
         "version": MANIFEST_VERSION,
@@ -216,7 +222,7 @@ def generate_world(
             "source": city_map.source,
             "origin_wgs84": {"lat": city_map.frame.origin_lat, "lon": city_map.frame.origin_lon},
         },
-        "options": {k: getattr(opts, k) for k in opts.__dataclass_fields__ if k != "capture" or walking},
+        "options": {k: getattr(opts, k) for k in opts.__dataclass_fields__ if _recorded(opts, k)},
         "region": {
             "centre_m": [float(centre[0]), float(centre[1])],
             "centre_wgs84": [float(lat0), float(lon0)],
@@ -240,6 +246,39 @@ def generate_world(
     contact_sheet(out, manifest, scene)
     say(f"wrote {len(records)} images, manifest and contact sheet to {out} ({time.perf_counter() - t0:.1f} s)")
     return manifest
+
+
+def _recorded(opts: WorldOptions, key: str) -> bool:
+    """Whether an option goes into the manifest: the walk and track ones only when used (module docstring)."""
+    if key == "capture":
+        return opts.capture == "walk"
+    return key not in ("query_tracks", "track_length") or opts.query_tracks > 0
+
+
+def _render_tracks(
+    scene: Scene,
+    opts: WorldOptions,
+    out: Path,
+    intr: Intrinsics,
+    f35: int,
+    fmm: float,
+    say: Callable[[str], None],
+    t0: float,
+) -> list[dict[str, Any]]:
+    """Render and write the query tracks' frames (``track_TT_II``, kind ``track``); their manifest records."""
+    shots, walks = sample_tracks(scene, opts, world_centre(scene.map))
+    records = []
+    for j, shot in enumerate(shots):
+        name = f"track_{shot.walk_id:02d}_{shot.index:02d}"
+        r = render(scene, shot.pose, intr, seed=opts.seed * 100_003 + 70_000 + j)
+        gps, extra, phone = walk_photo(scene, shot, walks[shot.walk_id])
+        phone = {k: v for k, v in phone.items() if k != "walk"} | {"track": shot.walk_id, "index": shot.index}
+        phone["heading_mode"] = shot.heading_mode
+        _write(out, "queries", name, r, gps, f35, fmm, opts, 20_000 + j, extra)
+        records.append({**_image_record(scene, name, "query", "track", r, f35, fmm, gps, "queries"), **phone})
+        if (j + 1) % 10 == 0 or j + 1 == len(shots):
+            say(f"track frames {j + 1}/{len(shots)} ({time.perf_counter() - t0:.1f} s)")
+    return records
 
 
 def _write(

@@ -78,7 +78,9 @@ class SequenceFrame:
 
     x_m, y_m, yaw_deg, position_covariance: its label's pose and (2, 2) m^2 covariance. gps_xy, gps_sigma_m:
     its GPS tag and that tag's sigma. heading_prior: its compass (None: none). features, anchors, intrinsics:
-    its keypoints, their 3D points on the map seen from the label's pose, and its camera.
+    its keypoints, their 3D points on the map seen from the label's pose, and its camera. label_yaw_sigma_deg:
+    its label's heading sigma (deg; None: :attr:`PlacementOptions.label_yaw_sigma_deg`; a track's query frames
+    answered by the likelihood alone are less sure of their heading than an anchored one).
     """
 
     x_m: float
@@ -91,6 +93,7 @@ class SequenceFrame:
     features: Features
     anchors: MapAnchors
     intrinsics: Intrinsics
+    label_yaw_sigma_deg: float | None = None
 
 
 @dataclass(frozen=True)
@@ -233,7 +236,8 @@ def place_sequence(
         initial.insert(k, start)
     for k, frame in enumerate(frames):
         label = labels[k]
-        covariance = _local(frame.position_covariance + floor, frame.yaw_deg, options.label_yaw_sigma_deg)
+        yaw_sigma = options.label_yaw_sigma_deg if frame.label_yaw_sigma_deg is None else frame.label_yaw_sigma_deg
+        covariance = _local(frame.position_covariance + floor, frame.yaw_deg, yaw_sigma)
         label_noise = _robust("cauchy", options.cauchy_k, noise.Gaussian.Covariance(covariance))
         graph.add(gtsam.PriorFactorPose2(k, label, label_noise))
         gps_sigmas = np.array([frame.gps_sigma_m, frame.gps_sigma_m, LOOSE_SIGMA])

@@ -1,0 +1,245 @@
+"""A track's frames placed jointly: each frame's own answer, its priors and the motion between frames, one graph.
+
+The graph is the reference walks' (:func:`geoloc.localize.sequence.placement.place_sequence`, gtsam
+Levenberg-Marquardt on planar poses), fed with a query frame's evidence instead of a reference's label:
+
+- the frame's own rank-1 answer (the query stage's, :func:`geoloc.localize.query.geolocate`) as the "label":
+  position sigma ``uncertainty_radius_m / R90_PER_SIGMA`` (its 90 % radius as a 2D Gaussian's sigma), times
+  :attr:`TrackOptions.likelihood_scale` when the likelihood (not the map anchors) answered; heading sigma
+  :attr:`TrackOptions.yaw_sigmas_deg`; Cauchy loss;
+- its position prior (the photo's GPS, sigma the prior's) under a Huber loss, its heading prior (compass), Cauchy;
+- relative poses between frames 1 to 3 apart, both ways: PnP of one frame's keypoints on the other frame's
+  map anchors cast from that frame's own answer (:mod:`geoloc.localize.sequence.relative`). Consecutive frames
+  3-8 m apart overlap heavily; the anchors give the motion its metric scale (an essential matrix would need
+  its scale from them anyway, so the PnP is used directly). Cauchy loss: a frame whose own answer is wrong
+  gives wrong edges, which its neighbours overrule.
+
+A frame with no answer of its own starts where a neighbour's edge puts it and is placed by its neighbours
+(its label factor is loose). Outliers (:func:`_outliers`): a frame whose own answer lies farther from its
+placed pose than :attr:`TrackOptions.outlier_min_m` and ``outlier_sigmas`` of its radius (or whose heading is
+off by more than :attr:`TrackOptions.outlier_yaw_deg`), or a frame no edge joins whose answer lies farther
+from its placed neighbours than walking allows (``max_step_m`` per frame plus both radii). The track is then
+placed again with the outliers' labels loosened, so an outlier's pose is the track's, and it cannot pull its
+neighbours; a frame no edge joins keeps its own answer.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from geoloc.core.camera import Intrinsics
+from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
+from geoloc.localize.grid import PositionPrior
+from geoloc.localize.query.answer import AnswerPose
+from geoloc.localize.sequence.placement import (
+    LOOSE_SIGMA,
+    PlacedPose,
+    PlacementOptions,
+    SequenceFrame,
+    place_sequence,
+    relative_poses,
+)
+from geoloc.localize.sequence.relative import RelativePose
+from geoloc.maps import CityMap
+from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.photos.photo import Photo
+from geoloc.vision.evidence import PhotoEvidence
+from geoloc.vision.features import Features
+from geoloc.vision.ground import DEFAULT_CAMERA_HEIGHT_M
+
+R90_PER_SIGMA = math.sqrt(-2.0 * math.log(0.1))
+"""A 2D isotropic Gaussian's 90 % radius in sigmas (2.146)."""
+
+
+@dataclass(frozen=True)
+class TrackOptions:
+    """The track smoother's tuning (module docstring; the defaults are the first choice, not yet tuned).
+
+    Every field is described beside it; all sigmas are one standard deviation.
+    """
+
+    # The shared graph's options: which edges, their sigmas, the robust losses.
+    placement: PlacementOptions = field(default_factory=PlacementOptions)
+    # A frame's own answer: the least position sigma (m), and how much less a likelihood answer's position is
+    # trusted than its radius says.
+    position_floor_m: float = 0.5
+    likelihood_scale: float = 2.0
+    # The heading sigma (deg) of an anchored and of a likelihood answer.
+    yaw_sigmas_deg: tuple[float, float] = (2.0, 10.0)
+    # The label of a frame with no answer, or of an outlier (position m, heading deg): weak, not absent, since a
+    # frame whose edges the robust loss all sets aside must stay determined.
+    weak_label: tuple[float, float] = (30.0, 90.0)
+    # The outlier test: sigmas of its own radius and metres at least, heading (deg); the farthest a walker
+    # moves between consecutive frames (m).
+    outlier_sigmas: float = 3.0
+    outlier_min_m: float = 5.0
+    outlier_yaw_deg: float = 30.0
+    max_step_m: float = 12.0
+
+
+@dataclass(frozen=True)
+class FrameEvidence:
+    """What the smoother knows of one frame: its photo and evidence, priors, and its own rank-1 answer (or None)."""
+
+    photo: Photo
+    evidence: PhotoEvidence
+    position_prior: PositionPrior | None
+    heading_prior: HeadingPrior | None
+    alone: AnswerPose | None
+
+
+@dataclass(frozen=True)
+class SmoothedTrack:
+    """The smoother's result, per frame in order: placed poses, outlier flags; the edges that joined them."""
+
+    poses: list[PlacedPose]
+    outliers: list[bool]
+    edges: list[RelativePose]
+
+
+def radius_90_m(covariance: np.ndarray) -> float:
+    """The 90 % radius (m) of a (2, 2) position covariance (m^2), taken isotropic at its largest axis."""
+    return R90_PER_SIGMA * math.sqrt(max(float(np.linalg.eigvalsh(covariance)[-1]), 0.0))
+
+
+def _graph_frame(city_map: CityMap, frame: FrameEvidence, options: TrackOptions) -> SequenceFrame:
+    """A frame as the shared graph's :class:`SequenceFrame`: its anchors cast from its own answer, its label."""
+    alone, features = frame.alone, frame.evidence.features
+    if alone is None:
+        n = len(features.xy)
+        anchors = MapAnchors(np.full((n, 3), np.nan), np.full(n, -1), np.full(n, -1), np.full(n, np.nan))
+    else:
+        rotation = frame.evidence.analysis.vanishing_points.rotation_upright_from_cam
+        pose = CameraPose(alone.x_m, alone.y_m, alone.yaw_deg, DEFAULT_CAMERA_HEIGHT_M, rotation)
+        anchors = anchor_keypoints(city_map, pose, frame.photo.intrinsics, features.xy)
+    return label_frame(
+        alone, frame.position_prior, frame.heading_prior, features, anchors, frame.photo.intrinsics, options
+    )
+
+
+def label_frame(
+    alone: AnswerPose | None,
+    position_prior: PositionPrior | None,
+    heading_prior: HeadingPrior | None,
+    features: Features,
+    anchors: MapAnchors,
+    intrinsics: Intrinsics,
+    options: TrackOptions = TrackOptions(),
+) -> SequenceFrame:
+    """A frame's node of the graph: its own answer as the label (module docstring), its priors.
+
+    Without an answer: a weak label at its GPS (at the origin without one), which :func:`place_track` moves to
+    where an edge puts it.
+    """
+    gps_xy = (position_prior.x_m, position_prior.y_m) if position_prior is not None else (0.0, 0.0)
+    gps_sigma = position_prior.sigma_m if position_prior is not None else LOOSE_SIGMA
+    if alone is None:
+        x, y, yaw = (*gps_xy, 0.0)
+        sigma, yaw_sigma = options.weak_label[0], options.weak_label[1]
+    else:
+        x, y, yaw = alone.x_m, alone.y_m, alone.yaw_deg
+        anchored = alone.source == "anchors"
+        sigma = max(alone.uncertainty_radius_m / R90_PER_SIGMA, options.position_floor_m)
+        sigma *= 1.0 if anchored else options.likelihood_scale
+        sigma = sigma if math.isfinite(sigma) else options.weak_label[0]  # a likelihood answer may say "anywhere"
+        yaw_sigma = options.yaw_sigmas_deg[0 if anchored else 1]
+    return SequenceFrame(
+        x,
+        y,
+        yaw,
+        np.diag([sigma**2, sigma**2]),
+        gps_xy,
+        gps_sigma,
+        heading_prior,
+        features,
+        anchors,
+        intrinsics,
+        label_yaw_sigma_deg=yaw_sigma,
+    )
+
+
+def _predicted(source: SequenceFrame, edge: RelativePose) -> tuple[float, float, float]:
+    """Where an edge puts its target from its source's label: (x_m, y_m, yaw_deg)."""
+    yaw = math.radians(source.yaw_deg)
+    x = source.x_m + edge.forward_m * math.sin(yaw) - edge.left_m * math.cos(yaw)
+    y = source.y_m + edge.forward_m * math.cos(yaw) + edge.left_m * math.sin(yaw)
+    return x, y, (source.yaw_deg + edge.turn_deg) % 360.0
+
+
+def _start_unanswered(
+    graph: Sequence[SequenceFrame], alone: Sequence[AnswerPose | None], edges: Sequence[RelativePose]
+) -> list[SequenceFrame]:
+    """Frames with no answer of their own start where an edge from an answered frame puts them."""
+    out = list(graph)
+    for edge in sorted(edges, key=lambda e: -e.n_inliers):
+        if alone[edge.target] is None and alone[edge.source] is not None:
+            x, y, yaw = _predicted(graph[edge.source], edge)
+            if out[edge.target] is graph[edge.target]:
+                out[edge.target] = replace(graph[edge.target], x_m=x, y_m=y, yaw_deg=yaw)
+    return out
+
+
+def _outliers(answers: Sequence[AnswerPose | None], poses: Sequence[PlacedPose], options: TrackOptions) -> list[bool]:
+    """Which frames' own answers the track disagrees with (the module docstring's two tests)."""
+    flags = []
+    for k, (alone, pose) in enumerate(zip(answers, poses, strict=True)):
+        if alone is None:
+            flags.append(False)
+            continue
+        if pose.n_edges > 0:
+            off = math.hypot(alone.x_m - pose.x_m, alone.y_m - pose.y_m)
+            turn = abs((alone.yaw_deg - pose.yaw_deg + 180.0) % 360.0 - 180.0)
+            radius = alone.uncertainty_radius_m if math.isfinite(alone.uncertainty_radius_m) else math.inf
+            limit = max(options.outlier_min_m, options.outlier_sigmas * radius / R90_PER_SIGMA)
+            flags.append(off > limit or turn > options.outlier_yaw_deg)
+            continue
+        gaps = [
+            math.hypot(alone.x_m - poses[j].x_m, alone.y_m - poses[j].y_m)
+            - options.max_step_m * abs(j - k)
+            - alone.uncertainty_radius_m
+            - radius_90_m(poses[j].position_covariance)
+            for j in range(len(poses))
+            if j != k and poses[j].n_edges > 0
+        ]
+        flags.append(bool(gaps) and min(gaps) > 0.0)
+    return flags
+
+
+def smooth_track(
+    city_map: CityMap, frames: Sequence[FrameEvidence], options: TrackOptions = TrackOptions()
+) -> SmoothedTrack:
+    """Place a track's frames jointly and flag its outlier frames (module docstring); poses in frame order."""
+    graph = [_graph_frame(city_map, frame, options) for frame in frames]
+    edges = relative_poses(graph, options.placement) if len(graph) > 1 else []
+    return place_track(graph, [frame.alone for frame in frames], edges, options)
+
+
+def place_track(
+    graph: Sequence[SequenceFrame],
+    alone: Sequence[AnswerPose | None],
+    edges: Sequence[RelativePose],
+    options: TrackOptions = TrackOptions(),
+) -> SmoothedTrack:
+    """The graph's half of :func:`smooth_track`: nodes (:func:`label_frame`), each frame's own answer, the edges.
+
+    gtsam failing on an indeterminate system answers every frame alone (no edges, no outliers) rather than fail.
+    """
+    graph = _start_unanswered(graph, alone, edges)
+    try:
+        poses = place_sequence(graph, options.placement, edges)
+        outliers = _outliers(alone, poses, options)
+        if any(flag and pose.n_edges > 0 for flag, pose in zip(outliers, poses, strict=True)):
+            weak = options.weak_label[0] ** 2 * np.eye(2)
+            loosened = [
+                replace(g, position_covariance=weak, label_yaw_sigma_deg=options.weak_label[1]) if flag else g
+                for g, flag in zip(graph, outliers, strict=True)
+            ]
+            poses = place_sequence(loosened, options.placement, edges)
+    except RuntimeError:  # gtsam's IndeterminateLinearSystemException
+        unjoined = [PlacedPose(g.x_m, g.y_m, g.yaw_deg, g.position_covariance, 0) for g in graph]
+        return SmoothedTrack(unjoined, [False] * len(graph), [])
+    return SmoothedTrack(poses, outliers, list(edges))
