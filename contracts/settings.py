@@ -123,6 +123,12 @@ class Settings(BaseSettings):
         json_schema_extra=_shown("(none)"),
     )
     max_map_bytes: int = Field(default=256 * 1024 * 1024, ge=0, description="largest map upload (413 above)")
+    max_decompressed_bytes: int = Field(
+        default=1024 * 1024 * 1024,
+        ge=0,
+        description="most bytes a compressed map upload (.gz, .bz2, .zip) may inflate to, counted at upload "
+        "(413 above; 4 x the default upload limit)",
+    )
     max_image_bytes: int = Field(default=32 * 1024 * 1024, ge=0, description="largest photo upload (413 above)")
     max_image_pixels: int = Field(
         default=60_000_000,

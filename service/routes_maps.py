@@ -31,6 +31,7 @@ from geoloc.maps import (
     save_city_map,
 )
 from geoloc.maps.crs import parse_crs
+from geoloc.maps.guard import DecompressedTooLargeError, check_decompressed_size, public_message, public_name
 from service.auth import require_read, require_write
 from service.bounds import MapId
 from service.deps import app_settings, get_db, get_store
@@ -142,9 +143,10 @@ def upload_map(
 
     Attribute defaults: ``name``, ``height``, ``building:levels``. 201 with the new map; 200 with the
     existing map when the same file (sha256) was already uploaded with the same options
-    (``duplicate: true``); 413 over the size limit; 422 when the file is not map data, holds no usable
-    buildings, names a layer or attribute it does not have, or has coordinates that cannot be placed
-    (the message says which CRS they look like and how to fix it). ``attribution`` is not part of the
+    (``duplicate: true``); 413 over the size limit, or when a compressed file (.gz, .bz2, .zip) inflates past
+    ``GEOLOC_MAX_DECOMPRESSED_BYTES`` (counted before anything is parsed or stored); 422 when the file is not
+    map data, holds no usable buildings, names a layer or attribute it does not have, or has coordinates that
+    cannot be placed (the message says which CRS they look like and how to fix it). ``attribution`` is not part of the
     duplicate check: the same file sent again gets the existing map with the attribution it was stored with.
     """
     options = _read_options(layer, name_attribute, height_attribute, levels_attribute, crs)
@@ -159,17 +161,20 @@ def upload_map(
         if existing is not None:
             out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
             return JSONResponse(out.model_dump(mode="json"), status_code=200)
-        shown_name = received.filename or "the file"
+        shown_name = public_name(received.filename)
+        try:
+            check_decompressed_size(received.path, settings.max_decompressed_bytes, shown_name)
+        except DecompressedTooLargeError as exc:
+            raise ApiError(413, exc.code, str(exc), exc.details) from exc
         try:
             city_map = load_map(received.path, options)
             content = map_store.map_content_from_city_map(city_map)
         except MapLoadError as exc:
-            raise ApiError(422, exc.code, str(exc).replace(received.path.name, shown_name), exc.details) from exc
+            raise ApiError(422, exc.code, public_message(str(exc), received.path, shown_name), exc.details) from exc
         except Exception as exc:  # the file made a library fail in a way not foreseen: still the file's fault
             log.exception("map upload %s could not be read", shown_name)
-            raise ApiError(
-                422, "invalid_map", f"{shown_name}: cannot read the map ({type(exc).__name__}: {exc})"
-            ) from exc
+            reason = public_message(f"{type(exc).__name__}: {exc}", received.path, shown_name)
+            raise ApiError(422, "invalid_map", f"{shown_name}: cannot read the map ({reason})") from exc
         source_format = city_map.report.format
         relative = f"maps/{received.sha256}{SOURCE_EXTENSIONS.get(source_format, '.map')}"
         with transaction(db):  # the duplicate check and the insert are atomic
