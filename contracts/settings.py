@@ -164,6 +164,12 @@ class Settings(BaseSettings):
         description="extra modules or `.py` files with job handlers, comma-separated",
         json_schema_extra=_shown("(none)"),
     )
+    worker_kinds: Annotated[tuple[str, ...], NoDecode] = Field(
+        default=(),
+        description="job kinds the embedded pool's workers claim, comma-separated (e.g. `load_map` for workers "
+        "that only parse maps)",
+        json_schema_extra=_shown("(all)"),
+    )
     worker_nice: int = Field(
         default=10,
         ge=0,
@@ -173,8 +179,7 @@ class Settings(BaseSettings):
     max_queued_jobs: int = Field(
         default=100,
         ge=1,
-        description="most jobs waiting in the queue; beyond it new references and queries get `429` with "
-        "`Retry-After`",
+        description="most jobs waiting in the queue; beyond it new references and queries get `429` with `Retry-After`",
     )
     rate_limit_per_min: int = Field(
         default=600,
@@ -254,7 +259,7 @@ class Settings(BaseSettings):
     def _parse_api_keys(cls, value: object) -> object:
         return parse_api_keys(value) if isinstance(value, str) else value
 
-    @field_validator("worker_plugins", mode="before")
+    @field_validator("worker_plugins", "worker_kinds", mode="before")
     @classmethod
     def _split_plugins(cls, value: object) -> object:
         return tuple(p.strip() for p in value.split(",") if p.strip()) if isinstance(value, str) else value

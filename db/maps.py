@@ -112,19 +112,48 @@ def insert_map(
     read_options: dict[str, Any] | None = None,
     attribution: str | None = None,
 ) -> int:
-    """Insert a map with its buildings and facades; returns the map id. Call inside a transaction.
+    """Insert a map with its buildings and facades (status ``done``); returns the map id. Call inside a transaction.
 
     read_options: how the file was read (``MapReadOptions.as_dict()``; default ``{}``). attribution: what the
     upload stated, None for none (the column, from migration 6, is then left to its NULL).
     """
-    min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
-    facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
+    map_id = insert_pending_map(
+        db,
+        name=name,
+        source_filename=source_filename,
+        source_format=source_format,
+        source_path=source_path,
+        sha256=sha256,
+        size_bytes=size_bytes,
+        read_options=read_options,
+        attribution=attribution,
+    )
+    store_map_content(db, map_id, content)
+    return map_id
+
+
+def insert_pending_map(
+    db: Database,
+    *,
+    name: str,
+    source_filename: str,
+    source_format: str,
+    source_path: str,
+    sha256: str,
+    size_bytes: int,
+    read_options: dict[str, Any] | None = None,
+    attribution: str | None = None,
+) -> int:
+    """Insert a map whose file is not parsed yet (status ``queued``, no buildings, zeros for box and counts).
+
+    Returns the map id; call inside a transaction. :func:`store_map_content` fills it once parsed.
+    """
     stated = ("attribution",) if attribution is not None else ()
-    columns = ", ".join(("repair_report", "read_options", "created_at", *stated))
-    map_id = db.insert_returning_id(
+    columns = ", ".join(("repair_report", "read_options", "created_at", "status", *stated))
+    return db.insert_returning_id(
         "INSERT INTO maps (name, source_filename, source_format, source_path, sha256, size_bytes,"
         " min_lat, min_lon, max_lat, max_lon, origin_lat, origin_lon, building_count, facade_count,"
-        f" {columns}) VALUES ({', '.join('?' * (17 + len(stated)))})",
+        f" {columns}) VALUES ({', '.join('?' * (18 + len(stated)))})",
         (
             name,
             source_filename,
@@ -132,6 +161,32 @@ def insert_map(
             source_path,
             sha256,
             size_bytes,
+            *(0.0,) * 6,
+            0,
+            0,
+            "{}",
+            _options_json(read_options),
+            time.time(),
+            "queued",
+            *((attribution,) if attribution is not None else ()),
+        ),
+    )
+
+
+def store_map_content(db: Database, map_id: int, content: MapContent) -> bool:
+    """Write a parsed map's buildings, facades, box and counts, and mark it ``done``; call inside a transaction.
+
+    Replace semantics (a parse that runs again after a crash leaves the same rows). False, and nothing
+    written, when the map is gone (deleted while it was parsed): the row's update comes first and holds the
+    row (PostgreSQL) or the database (SQLite) until commit, so a delete cannot slip in between.
+    """
+    min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
+    facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
+    cursor = db.execute(
+        "UPDATE maps SET min_lat = ?, min_lon = ?, max_lat = ?, max_lon = ?, origin_lat = ?, origin_lon = ?,"
+        " building_count = ?, facade_count = ?, repair_report = ?, status = 'done', error = NULL,"
+        " parsed_buildings = ? WHERE id = ?",
+        (
             min_lat,
             min_lon,
             max_lat,
@@ -141,11 +196,14 @@ def insert_map(
             len(content.buildings),
             facade_count,
             json.dumps(content.repair_report),
-            _options_json(read_options),
-            time.time(),
-            *((attribution,) if attribution is not None else ()),
+            len(content.buildings),
+            map_id,
         ),
     )
+    if cursor.rowcount != 1:
+        return False
+    db.execute("DELETE FROM buildings WHERE map_id = ?", (map_id,))
+    db.execute("DELETE FROM facades WHERE map_id = ?", (map_id,))
     db.executemany(
         "INSERT INTO buildings (map_id, building_id, osm_id, name, height_m, footprint_geojson,"
         " footprint_local_wkb) VALUES (?, ?, ?, ?, ?, ?, ?)",
@@ -166,7 +224,25 @@ def insert_map(
         "INSERT INTO facades (map_id, facade_count, arrays_npz) VALUES (?, ?, ?)",
         (map_id, facade_count, pack_arrays(content.facade_arrays, compress=False)),
     )
-    return map_id
+    return True
+
+
+def link_map_job(db: Database, map_id: int, job_id: int) -> None:
+    """Record the ``load_map`` job of a map (inside the transaction that queued it)."""
+    db.execute("UPDATE maps SET job_id = ? WHERE id = ?", (job_id, map_id))
+
+
+def set_map_progress(db: Database, map_id: int, elements: int, buildings: int) -> None:
+    """Record a parse's progress: elements read and buildings found so far (a map not yet done)."""
+    db.execute(
+        "UPDATE maps SET parsed_elements = ?, parsed_buildings = ? WHERE id = ? AND status = 'queued'",
+        (elements, buildings, map_id),
+    )
+
+
+def fail_map(db: Database, map_id: int, error: str) -> None:
+    """Mark a map ``failed`` with the reason (shown to users: no server paths)."""
+    db.execute("UPDATE maps SET status = 'failed', error = ? WHERE id = ? AND status != 'done'", (error, map_id))
 
 
 def get_map(db: Database, map_id: int) -> MapRow | None:
@@ -180,10 +256,13 @@ def _options_json(read_options: dict[str, Any] | None) -> str:
 
 
 def find_map_by_sha256(db: Database, sha256: str, read_options: dict[str, Any] | None = None) -> MapRow | None:
-    """The oldest map uploaded from a file with this checksum and read with these options, or None."""
+    """The oldest map uploaded from a file with this checksum and read with these options, or None.
+
+    A map that failed is not one: the same file sent again is parsed again (by a newer service, say).
+    """
     rows = list(
         db.query(
-            "SELECT * FROM maps WHERE sha256 = ? AND read_options = ? ORDER BY id LIMIT 1",
+            "SELECT * FROM maps WHERE sha256 = ? AND read_options = ? AND status != 'failed' ORDER BY id LIMIT 1",
             (sha256, _options_json(read_options)),
         )
     )

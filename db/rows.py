@@ -37,6 +37,14 @@ class MapRow(TypedDict):
     attribution: str | None
     """The attribution the upload stated, None when it stated none (the default then applies)."""
     created_at: float
+    status: str
+    """``queued`` (its ``load_map`` job waits or runs), ``done`` (usable) or ``failed`` (``error`` says why)."""
+    error: str | None
+    job_id: int | None
+    """The ``load_map`` job that parses it (None for a map stored before maps were jobs)."""
+    parsed_elements: int
+    parsed_buildings: int
+    """The parse's progress: elements read and buildings found so far."""
     bbox_wgs84: tuple[float, float, float, float]
     """(min_lat, min_lon, max_lat, max_lon), from the four columns."""
 

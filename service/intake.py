@@ -49,6 +49,28 @@ def require_map(db: Database, map_id: int) -> MapRow:
     return row
 
 
+def require_ready_map(db: Database, map_id: int) -> MapRow:
+    """The map row, 404 if there is none, or 409 while it is not usable (queued, being parsed, failed)."""
+    row = require_map(db, map_id)
+    check_ready(row)
+    return row
+
+
+def check_ready(row: MapRow) -> None:
+    """409 ``map_not_ready`` unless the map's status is ``done``; the message says what to do."""
+    if row["status"] == "done":
+        return
+    if row["status"] == "failed":
+        raise ApiError(
+            409, "map_not_ready", f"map {row['id']} failed to load: {row['error']}; delete it and upload a fixed file"
+        )
+    raise ApiError(
+        409,
+        "map_not_ready",
+        f"map {row['id']} is still being loaded: wait until GET /v1/maps/{row['id']} reports status done",
+    )
+
+
 @lru_cache(maxsize=2)
 def _cached_map(source: str, cache_dir: str, read_options: str, sha256: str) -> CityMap:
     options = MapReadOptions.from_dict(json.loads(read_options))
@@ -58,8 +80,10 @@ def _cached_map(source: str, cache_dir: str, read_options: str, sha256: str) -> 
 def loaded_map(settings: Settings, store: FileStore, row: MapRow) -> CityMap:
     """The loaded map of a map row (streets, footprints in local metres), from the copy cached at upload.
 
-    Kept in memory for the last two maps asked (the heat map picture, the streets' GeoJSON).
+    Kept in memory for the last two maps asked (the heat map picture, the streets' GeoJSON). 409 while the
+    map is not done.
     """
+    check_ready(row)
     return _cached_map(
         str(store.local_path(row["source_path"])),
         str(map_cache_dir(settings.data_dir)),
@@ -136,7 +160,7 @@ class PhotoIntake(ABC):
         settings = self.settings
         db = connect(settings.database)
         try:
-            map_row = require_map(db, map_id)
+            map_row = require_ready_map(db, map_id)
             self.check_form()
             with received_upload(image, self.store, settings.max_image_bytes, "the image") as received:
                 info = validate_image(

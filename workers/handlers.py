@@ -142,7 +142,7 @@ def load_plugins(specs: tuple[str, ...] | list[str]) -> list[str]:
 
 def load_builtin_handlers() -> None:
     """Import the modules that register the shipped handlers (the method's, when present)."""
-    for module in ("workers.method_handlers", "workers.sequence_handlers"):
+    for module in ("workers.method_handlers", "workers.sequence_handlers", "workers.map_handlers"):
         try:
             importlib.import_module(module)
         except ModuleNotFoundError as exc:

@@ -69,7 +69,8 @@ def client(service: RunningProcess) -> Iterator[httpx.Client]:
 def helsinki(client: httpx.Client) -> dict[str, Any]:
     path = shared_path("data", "osm", "helsinki.osm.pbf")
     with path.open("rb") as f:
-        response = client.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)}, data={"name": "helsinki"})
+        response = client.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)},
+            data={"wait_s": "120", "name": "helsinki"})
     assert response.status_code == 201, response.text
     return response.json()
 
@@ -142,7 +143,7 @@ def test_map_reads(client: httpx.Client, helsinki: dict[str, Any], service: Runn
 
 def test_same_map_file_again_returns_the_existing_map(client: httpx.Client, helsinki: dict[str, Any]) -> None:
     with shared_path("data", "osm", "helsinki.osm.pbf").open("rb") as f:
-        response = client.post("/v1/maps", files={"file": ("copy.pbf", f)}, data={"name": "again"})
+        response = client.post("/v1/maps", files={"file": ("copy.pbf", f)}, data={"wait_s": "120", "name": "again"})
     assert response.status_code == 200
     assert response.json()["id"] == helsinki["id"] and response.json()["duplicate"] is True
 
@@ -156,7 +157,8 @@ GEOJSON_MAP = (
 
 def test_geojson_map_upload_and_delete(client: httpx.Client, service: RunningProcess) -> None:
     before = Unchanged(service)
-    response = client.post("/v1/maps", files={"file": ("town.json", GEOJSON_MAP)}, data={"name": "town"})
+    response = client.post("/v1/maps", files={"file": ("town.json", GEOJSON_MAP)},
+        data={"wait_s": "120", "name": "town"})
     assert response.status_code == 201, response.text
     created = response.json()
     assert created["source_format"] == "geojson" and created["building_count"] == 1
