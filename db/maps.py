@@ -117,18 +117,14 @@ def insert_map(
     read_options: how the file was read (``MapReadOptions.as_dict()``; default ``{}``). attribution: what the
     upload stated, None for none (the column, from migration 6, is then left to its NULL).
     """
-    map_id = insert_pending_map(
+    map_id = _insert_row(
         db,
-        name=name,
-        source_filename=source_filename,
-        source_format=source_format,
-        source_path=source_path,
-        sha256=sha256,
-        size_bytes=size_bytes,
-        read_options=read_options,
-        attribution=attribution,
+        (name, source_filename, source_format, source_path, sha256, size_bytes),
+        read_options,
+        attribution,
+        pending=False,  # the status column's default, done (and no column needed before migration 9)
     )
-    store_map_content(db, map_id, content)
+    _write_content(db, map_id, content)
     return map_id
 
 
@@ -148,26 +144,32 @@ def insert_pending_map(
 
     Returns the map id; call inside a transaction. :func:`store_map_content` fills it once parsed.
     """
+    return _insert_row(
+        db, (name, source_filename, source_format, source_path, sha256, size_bytes), read_options, attribution, True
+    )
+
+
+def _insert_row(
+    db: Database, source: tuple[str, str, str, str, str, int], read_options: dict[str, Any] | None,
+    attribution: str | None, pending: bool,
+) -> int:
+    """Insert a map's row (name, source filename, format, path, sha256, size) with zeros for box and counts."""
     stated = ("attribution",) if attribution is not None else ()
-    columns = ", ".join(("repair_report", "read_options", "created_at", "status", *stated))
+    status = ("status",) if pending else ()
+    columns = ", ".join(("repair_report", "read_options", "created_at", *status, *stated))
     return db.insert_returning_id(
         "INSERT INTO maps (name, source_filename, source_format, source_path, sha256, size_bytes,"
         " min_lat, min_lon, max_lat, max_lon, origin_lat, origin_lon, building_count, facade_count,"
-        f" {columns}) VALUES ({', '.join('?' * (18 + len(stated)))})",
+        f" {columns}) VALUES ({', '.join('?' * (17 + len(status) + len(stated)))})",
         (
-            name,
-            source_filename,
-            source_format,
-            source_path,
-            sha256,
-            size_bytes,
+            *source,
             *(0.0,) * 6,
             0,
             0,
             "{}",
             _options_json(read_options),
             time.time(),
-            "queued",
+            *(("queued",) if pending else ()),
             *((attribution,) if attribution is not None else ()),
         ),
     )
@@ -180,12 +182,23 @@ def store_map_content(db: Database, map_id: int, content: MapContent) -> bool:
     written, when the map is gone (deleted while it was parsed): the row's update comes first and holds the
     row (PostgreSQL) or the database (SQLite) until commit, so a delete cannot slip in between.
     """
+    cursor = db.execute(
+        "UPDATE maps SET status = 'done', error = NULL, parsed_buildings = ? WHERE id = ?",
+        (len(content.buildings), map_id),
+    )
+    if cursor.rowcount != 1:
+        return False
+    _write_content(db, map_id, content)
+    return True
+
+
+def _write_content(db: Database, map_id: int, content: MapContent) -> None:
+    """A map's box, counts and report on its row, and its buildings and facades (replacing any)."""
     min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
     facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
-    cursor = db.execute(
+    db.execute(
         "UPDATE maps SET min_lat = ?, min_lon = ?, max_lat = ?, max_lon = ?, origin_lat = ?, origin_lon = ?,"
-        " building_count = ?, facade_count = ?, repair_report = ?, status = 'done', error = NULL,"
-        " parsed_buildings = ? WHERE id = ?",
+        " building_count = ?, facade_count = ?, repair_report = ? WHERE id = ?",
         (
             min_lat,
             min_lon,
@@ -196,12 +209,9 @@ def store_map_content(db: Database, map_id: int, content: MapContent) -> bool:
             len(content.buildings),
             facade_count,
             json.dumps(content.repair_report),
-            len(content.buildings),
             map_id,
         ),
     )
-    if cursor.rowcount != 1:
-        return False
     db.execute("DELETE FROM buildings WHERE map_id = ?", (map_id,))
     db.execute("DELETE FROM facades WHERE map_id = ?", (map_id,))
     db.executemany(
@@ -224,7 +234,6 @@ def store_map_content(db: Database, map_id: int, content: MapContent) -> bool:
         "INSERT INTO facades (map_id, facade_count, arrays_npz) VALUES (?, ?, ?)",
         (map_id, facade_count, pack_arrays(content.facade_arrays, compress=False)),
     )
-    return True
 
 
 def link_map_job(db: Database, map_id: int, job_id: int) -> None:
