@@ -2,8 +2,9 @@
 
 :func:`check_decompressed_size` inflates a ``.gz``/``.bz2`` file or every member of a zip archive once,
 counting bytes and keeping none, and stops with :class:`DecompressedTooLargeError` as soon as the count passes
-the limit: a 2 MB gzip of 3 GB of spaces is refused after inflating ``limit`` bytes, not 3 GB (about a
-second per few hundred MB on one core). The declared sizes (gzip's trailer, zip headers) are never trusted.
+the limit, or passes :data:`MAX_RATIO` times the compressed bytes read (past :data:`RATIO_FLOOR_BYTES`): a 2 MB
+gzip of 3 GB of spaces is refused after inflating 64 MB, not 3 GB nor the limit (inflating runs at a few
+hundred MB/s on a busy core). The declared sizes (gzip's trailer, zip headers) are never trusted.
 A stream that is broken is not this guard's business: counting stops quietly and the reader reports it.
 
 :func:`public_message` rewrites a reader's message for the user: the file's server path (a temp upload, the
@@ -31,15 +32,32 @@ _GDAL_PREFIX = re.compile(r"/vsi[a-z]+/")
 _ABSOLUTE_PATH = re.compile(r"(?<![\w.~}-])/(?:[^\s/'\"{}():,;]+/)+[^\s/'\"{}():,;]*")
 
 
-class DecompressedTooLargeError(MapLoadError):
-    """A compressed map inflates past the decompressed-size limit (``details``: ``limit_bytes``)."""
+MAX_RATIO = 500
+"""Most decompressed bytes per compressed byte, checked past :data:`RATIO_FLOOR_BYTES` inflated. Map data compresses
+10-30 times (OSM XML, GeoJSON, a Shapefile's padded .dbf up to about 100); a bomb of spaces, 1,000 (gzip) to
+millions (bzip2). It refuses a bomb after :data:`RATIO_FLOOR_BYTES` however high the size limit is set."""
+RATIO_FLOOR_BYTES = 64 * 1024 * 1024
+"""Inflated bytes after which :data:`MAX_RATIO` is checked (small files may compress as they like)."""
 
-    def __init__(self, shown_name: str, limit_bytes: int) -> None:
+
+class DecompressedTooLargeError(MapLoadError):
+    """A compressed map inflates past the limit, or :data:`MAX_RATIO` times its size (``details``: the limits)."""
+
+    def __init__(self, shown_name: str, limit_bytes: int, *, ratio: bool = False) -> None:
+        why = f"{MAX_RATIO} times its size (a decompression bomb)" if ratio else f"the limit of {limit_bytes} bytes"
         super().__init__(
-            f"{shown_name}: decompresses to more than the limit of {limit_bytes} bytes",
+            f"{shown_name}: decompresses to more than {why}",
             code="payload_too_large",
-            details={"limit_bytes": limit_bytes},
+            details={"limit_bytes": limit_bytes, "max_ratio": MAX_RATIO},
         )
+
+
+def _check(total: int, consumed: int, limit_bytes: int, shown_name: str) -> None:
+    """Raise :class:`DecompressedTooLargeError` when ``total`` inflated bytes (from ``consumed``) are too many."""
+    if total > limit_bytes:
+        raise DecompressedTooLargeError(shown_name, limit_bytes)
+    if total > RATIO_FLOOR_BYTES and total > MAX_RATIO * max(consumed, 1):
+        raise DecompressedTooLargeError(shown_name, limit_bytes, ratio=True)
 
 
 def check_decompressed_size(path: Path, limit_bytes: int, shown_name: str) -> int | None:
@@ -69,8 +87,7 @@ def _count_zlib(path: Path, limit_bytes: int, shown_name: str, wbits: int) -> in
             while data := f.read(_CHUNK_BYTES):
                 while data:
                     total += len(inflater.decompress(data, _OUT_BYTES))
-                    if total > limit_bytes:
-                        raise DecompressedTooLargeError(shown_name, limit_bytes)
+                    _check(total, f.tell(), limit_bytes, shown_name)
                     data = inflater.unconsumed_tail
                     if inflater.eof:  # a next gzip member follows
                         data = inflater.unused_data
@@ -84,11 +101,10 @@ def _count_bz2(path: Path, limit_bytes: int, shown_name: str) -> int:
     """Decompressed size of a (multi-stream) bzip2 file, bounded by ``limit_bytes``."""
     total = 0
     try:
-        with bz2.open(path, "rb") as f:
+        with path.open("rb") as raw, bz2.BZ2File(raw, "rb") as f:
             while chunk := f.read(_OUT_BYTES):
                 total += len(chunk)
-                if total > limit_bytes:
-                    raise DecompressedTooLargeError(shown_name, limit_bytes)
+                _check(total, raw.tell(), limit_bytes, shown_name)
     except DecompressedTooLargeError:
         raise
     except (OSError, EOFError, ValueError):
@@ -100,15 +116,14 @@ def _count_zip(path: Path, limit_bytes: int, shown_name: str) -> int:
     """Decompressed size of all members of a zip archive, bounded by ``limit_bytes``."""
     total = 0
     try:
-        with zipfile.ZipFile(path) as archive:
+        with path.open("rb") as raw, zipfile.ZipFile(raw) as archive:
             for info in archive.infolist():
                 if info.is_dir():
                     continue
                 with archive.open(info) as member:
                     while chunk := member.read(_OUT_BYTES):
                         total += len(chunk)
-                        if total > limit_bytes:
-                            raise DecompressedTooLargeError(shown_name, limit_bytes)
+                        _check(total, raw.tell(), limit_bytes, shown_name)
     except DecompressedTooLargeError:
         raise
     except (zipfile.BadZipFile, OSError, EOFError, ValueError, NotImplementedError, zlib.error):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import bz2
+import gzip
 import time
 import zipfile
 from pathlib import Path
@@ -10,7 +11,13 @@ from pathlib import Path
 import pytest
 
 from geoloc.maps import MapLoadError, load_map
-from geoloc.maps.guard import DecompressedTooLargeError, check_decompressed_size, public_message, public_name
+from geoloc.maps.guard import (
+    RATIO_FLOOR_BYTES,
+    DecompressedTooLargeError,
+    check_decompressed_size,
+    public_message,
+    public_name,
+)
 from tests.bombs import gzip_bomb
 
 MIB = 1024 * 1024
@@ -22,17 +29,32 @@ def test_gzip_bomb_stops_at_the_limit_not_at_its_size(tmp_path: Path) -> None:
     assert bomb.stat().st_size < 8 * MIB
     start = time.monotonic()
     with pytest.raises(DecompressedTooLargeError, match=r"city\.osm\.gz: decompresses to more than the limit") as error:
-        check_decompressed_size(bomb, 128 * MIB, "city.osm.gz")
-    assert time.monotonic() - start < 5.0  # 128 MiB inflated, not 3 GiB
-    assert error.value.code == "payload_too_large" and error.value.details == {"limit_bytes": 128 * MIB}
+        check_decompressed_size(bomb, 32 * MIB, "city.osm.gz")
+    assert time.monotonic() - start < 5.0  # 32 MiB inflated, not 3 GiB
+    assert error.value.code == "payload_too_large" and error.value.details["limit_bytes"] == 32 * MIB
     assert isinstance(error.value, MapLoadError)
+    start = time.monotonic()  # a limit as high as the bomb: its ratio stops it after RATIO_FLOOR_BYTES
+    with pytest.raises(DecompressedTooLargeError, match=r"more than 500 times its size \(a decompression bomb\)"):
+        check_decompressed_size(bomb, 4 * 1024 * MIB, "city.osm.gz")
+    assert time.monotonic() - start < 5.0
+
+
+def test_map_data_that_compresses_as_map_data_does_is_not_a_bomb(tmp_path: Path) -> None:
+    rows = [f'<way id="{i}"><nd ref="{i * 7}"/><tag k="building" v="yes"/></way>\n' for i in range(1_500_000)]
+    text = "".join(rows).encode()  # ~90 MB of repetitive OSM-like XML
+    assert len(text) > RATIO_FLOOR_BYTES
+    gz = tmp_path / "city.osm.gz"
+    gz.write_bytes(gzip.compress(text, 6))
+    assert check_decompressed_size(gz, 1024 * MIB, "city.osm.gz") == len(text)
 
 
 def test_sizes_under_the_limit_are_counted_for_every_container(tmp_path: Path) -> None:
     inflated = b"<osm>" + b" " * (3 * MIB)
     gz = tmp_path / "a.gz"
-    gz.write_bytes(gzip_bomb(2 * 64 * MIB, head=b"<osm>"))  # two members: both counted
-    assert check_decompressed_size(gz, 1024 * MIB, "a") == 5 + 2 * 64 * MIB
+    gz.write_bytes(gzip.compress(inflated) + gzip.compress(inflated))  # two members: both counted
+    assert check_decompressed_size(gz, 1024 * MIB, "a") == 2 * len(inflated)
+    with pytest.raises(DecompressedTooLargeError):
+        check_decompressed_size(gz, len(inflated) + 1, "a")
     bz = tmp_path / "a.bz2"
     bz.write_bytes(bz2.compress(inflated))
     assert check_decompressed_size(bz, 4 * MIB, "a") == len(inflated)
