@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, fields
-from typing import Any, cast
+from typing import Any, Required, TypedDict, Unpack, cast
 
 import numpy as np
 
@@ -99,61 +99,39 @@ def _decode_map(row: dict[str, Any]) -> MapRow:
     return cast(MapRow, row)
 
 
-def insert_map(
-    db: Database,
-    *,
-    name: str,
-    source_filename: str,
-    source_format: str,
-    source_path: str,
-    sha256: str,
-    size_bytes: int,
-    content: MapContent,
-    read_options: dict[str, Any] | None = None,
-    attribution: str | None = None,
-) -> int:
-    """Insert a map with its buildings and facades (status ``done``); returns the map id. Call inside a transaction.
+class MapSource(TypedDict, total=False):
+    """A map's row as the upload states it (name, file, checksum, read options, attribution)."""
 
-    read_options: how the file was read (``MapReadOptions.as_dict()``; default ``{}``). attribution: what the
-    upload stated, None for none (the column, from migration 6, is then left to its NULL).
-    """
-    map_id = _insert_row(
-        db,
-        (name, source_filename, source_format, source_path, sha256, size_bytes),
-        read_options,
-        attribution,
-        pending=False,  # the status column's default, done (and no column needed before migration 9)
-    )
+    name: Required[str]
+    source_filename: Required[str]
+    source_format: Required[str]
+    source_path: Required[str]
+    sha256: Required[str]
+    size_bytes: Required[int]
+    read_options: dict[str, Any] | None
+    """How the file was read (``MapReadOptions.as_dict()``; default ``{}``)."""
+    attribution: str | None
+    """What the upload stated, None for none (the column, from migration 6, is then left to its NULL)."""
+
+
+def insert_map(db: Database, *, content: MapContent, **source: Unpack[MapSource]) -> int:
+    """Insert a map with its buildings and facades (status ``done``); returns the map id. Call inside a transaction."""
+    map_id = _insert_row(db, source, pending=False)  # the status column's default, done (none before migration 9)
     _write_content(db, map_id, content)
     return map_id
 
 
-def insert_pending_map(
-    db: Database,
-    *,
-    name: str,
-    source_filename: str,
-    source_format: str,
-    source_path: str,
-    sha256: str,
-    size_bytes: int,
-    read_options: dict[str, Any] | None = None,
-    attribution: str | None = None,
-) -> int:
+def insert_pending_map(db: Database, **source: Unpack[MapSource]) -> int:
     """Insert a map whose file is not parsed yet (status ``queued``, no buildings, zeros for box and counts).
 
     Returns the map id; call inside a transaction. :func:`store_map_content` fills it once parsed.
     """
-    return _insert_row(
-        db, (name, source_filename, source_format, source_path, sha256, size_bytes), read_options, attribution, True
-    )
+    return _insert_row(db, source, pending=True)
 
 
-def _insert_row(
-    db: Database, source: tuple[str, str, str, str, str, int], read_options: dict[str, Any] | None,
-    attribution: str | None, pending: bool,
-) -> int:
-    """Insert a map's row (name, source filename, format, path, sha256, size) with zeros for box and counts."""
+def _insert_row(db: Database, source: MapSource, pending: bool) -> int:
+    """Insert a map's row with zeros for box and counts (``pending``: status ``queued``, else the default)."""
+    attribution = source.get("attribution")
     stated = ("attribution",) if attribution is not None else ()
     status = ("status",) if pending else ()
     columns = ", ".join(("repair_report", "read_options", "created_at", *status, *stated))
@@ -162,12 +140,13 @@ def _insert_row(
         " min_lat, min_lon, max_lat, max_lon, origin_lat, origin_lon, building_count, facade_count,"
         f" {columns}) VALUES ({', '.join('?' * (17 + len(status) + len(stated)))})",
         (
-            *source,
+            *(source[key] for key in ("name", "source_filename", "source_format", "source_path", "sha256")),
+            source["size_bytes"],
             *(0.0,) * 6,
             0,
             0,
             "{}",
-            _options_json(read_options),
+            _options_json(source.get("read_options")),
             time.time(),
             *(("queued",) if pending else ()),
             *((attribution,) if attribution is not None else ()),
