@@ -288,12 +288,6 @@ def deleted_subject(db: Database, job: JobRow) -> str | None:
     return None
 
 
-def delete_finished_job(db: Database, job_id: int) -> bool:
-    """Delete a job that reached a final state (its answer was given and nothing refers to it any more)."""
-    cursor = db.execute("DELETE FROM jobs WHERE id = ? AND status IN ('done', 'failed', 'cancelled')", (job_id,))
-    return cursor.rowcount == 1
-
-
 def release_job(db: Database, job_id: int, worker_id: str) -> bool:
     """Give a running job back to the queue without counting the attempt (graceful shutdown)."""
     now = time.time()

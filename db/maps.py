@@ -18,6 +18,7 @@ from typing import Any, Required, TypedDict, Unpack, cast
 
 import numpy as np
 
+from contracts.jobs import LOAD_MAP
 from db.blobs import pack_arrays, unpack_arrays
 from db.connection import Database
 from db.jobs import cancel_queued_jobs
@@ -95,6 +96,7 @@ def _decode_map(row: dict[str, Any]) -> MapRow:
     row = dict(row)
     row["repair_report"] = json.loads(row["repair_report"] or "{}")
     row["read_options"] = json.loads(row.get("read_options") or "{}")
+    row["error_details"] = json.loads(row.get("error_details") or "{}")
     row["bbox_wgs84"] = (row["min_lat"], row["min_lon"], row["max_lat"], row["max_lon"])
     return cast(MapRow, row)
 
@@ -228,9 +230,15 @@ def set_map_progress(db: Database, map_id: int, elements: int, buildings: int) -
     )
 
 
-def fail_map(db: Database, map_id: int, error: str) -> None:
-    """Mark a map ``failed`` with the reason (shown to users: no server paths)."""
-    db.execute("UPDATE maps SET status = 'failed', error = ? WHERE id = ? AND status != 'done'", (error, map_id))
+def fail_map(
+    db: Database, map_id: int, error: str, code: str = "invalid_map", details: dict[str, Any] | None = None
+) -> None:
+    """Mark a map ``failed`` with the reason (shown to users: no server paths), its code and details (JSON-ready)."""
+    db.execute(
+        "UPDATE maps SET status = 'failed', error = ?, error_code = ?, error_details = ?"
+        " WHERE id = ? AND status != 'done'",
+        (error, code, json.dumps(details or {}), map_id),
+    )
 
 
 def get_map(db: Database, map_id: int) -> MapRow | None:
@@ -301,7 +309,8 @@ def get_facade_arrays(db: Database, map_id: int) -> dict[str, np.ndarray] | None
 def delete_map(db: Database, map_id: int) -> DeletedMap | None:
     """Delete a map and everything under it; call inside a transaction.
 
-    Buildings, facades, references, labels, index and queries cascade; queued jobs are cancelled.
+    Buildings, facades, references, labels, index and queries cascade; queued jobs are cancelled, and the map's
+    finished ``load_map`` job is deleted.
     Returns the deleted map row with the image paths to remove from disk after commit
     (``image_paths``) and whether another map still reads the same source file (``source_shared``),
     or None.
@@ -317,6 +326,11 @@ def delete_map(db: Database, map_id: int) -> DeletedMap | None:
         for r in db.query("SELECT image_path FROM queries WHERE map_id = ? AND image_path IS NOT NULL", (map_id,))
     ]
     cancel_queued_jobs(db, map_id=map_id)
+    # The map's own parse job goes with it once finished (a running one finds the map gone when it stores).
+    db.execute(
+        "DELETE FROM jobs WHERE map_id = ? AND kind = ? AND status IN ('done', 'failed', 'cancelled')",
+        (map_id, LOAD_MAP),
+    )
     db.execute("DELETE FROM maps WHERE id = ?", (map_id,))
     source_shared = (
         db.execute("SELECT 1 FROM maps WHERE source_path = ? LIMIT 1", (map_row["source_path"],)).fetchone() is not None

@@ -36,7 +36,8 @@ Storage decisions (see also the module docstrings of the access modules):
   stated), when it was taken (ISO 8601 as the photo states it: aware, or naive camera time), its camera (EXIF
   make and model), and whether its pose is its own label's (``alone``, every reference stored before) or its
   sequence's joint placement (``sequence``; :mod:`geoloc.localize.sequence`).
-- ``maps.status``, ``error``, ``job_id``, ``parsed_elements``, ``parsed_buildings`` (migration 9): a map is parsed
+- ``maps.status``, ``error`` (with ``error_code`` and ``error_details``, JSON: the reader's machine reason and
+  facts), ``job_id``, ``parsed_elements``, ``parsed_buildings`` (migration 9): a map is parsed
   by a ``load_map`` job (:mod:`workers.map_handlers`); until it is ``done`` its row holds no buildings and zeros
   for its box and counts. ``status`` is ``queued`` (the job waits or runs), ``done`` or ``failed`` (``error``
   says why, without server paths); every map stored before is ``done``. The parsed counts are the parse's
@@ -268,6 +269,8 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         """
         ALTER TABLE maps ADD COLUMN status TEXT NOT NULL DEFAULT 'done';
         ALTER TABLE maps ADD COLUMN error TEXT;
+        ALTER TABLE maps ADD COLUMN error_code TEXT;
+        ALTER TABLE maps ADD COLUMN error_details TEXT;
         ALTER TABLE maps ADD COLUMN job_id INTEGER;
         ALTER TABLE maps ADD COLUMN parsed_elements INTEGER NOT NULL DEFAULT 0;
         ALTER TABLE maps ADD COLUMN parsed_buildings INTEGER NOT NULL DEFAULT 0;

@@ -40,6 +40,9 @@ class MapRow(TypedDict):
     status: str
     """``queued`` (its ``load_map`` job waits or runs), ``done`` (usable) or ``failed`` (``error`` says why)."""
     error: str | None
+    error_code: str | None
+    error_details: dict[str, Any]
+    """A failed map's machine reason (``invalid_map``, ``crs_not_lonlat`` ...) and the facts behind it."""
     job_id: int | None
     """The ``load_map`` job that parses it (None for a map stored before maps were jobs)."""
     parsed_elements: int

@@ -102,6 +102,10 @@ class MapOut(BaseModel):
         "box, origin and counts are zeros until done",
     )
     error: str | None = Field(default=None, description="Why the map failed (or its job's last error)")
+    error_code: str | None = Field(
+        default=None, description="A failed map's machine reason, as a 422 of the upload gives it (invalid_map ...)"
+    )
+    error_details: dict[str, Any] = Field(default_factory=dict, description="The facts behind a failed map's error")
     job_id: int | None = Field(default=None, description="The load_map job that parses the file")
     progress: MapProgressOut = Field(default_factory=MapProgressOut, description="The parse's progress")
     source_filename: str

@@ -72,6 +72,8 @@ def map_out(db: Database, row: MapRow, *, reference_count: int = 0, duplicate: b
         name=row["name"],
         status=reported,
         error=error,
+        error_code=row["error_code"] if reported == "failed" and row["status"] == "failed" else None,
+        error_details=row["error_details"] if reported == "failed" and row["status"] == "failed" else {},
         job_id=row["job_id"],
         progress=MapProgressOut(elements=row["parsed_elements"], buildings=row["parsed_buildings"]),
         source_filename=row["source_filename"],
@@ -187,8 +189,9 @@ async def upload_map(
     if out.status == "done":
         return JSONResponse(out.model_dump(mode="json"), status_code=201)
     if out.status == "failed" and wait_s > 0:  # answered now: nothing is kept, as when nothing was stored
-        await run_in_threadpool(_delete_map, settings, store, accepted.map_id, None, accepted.job_id)
-        raise ApiError(422, "invalid_map", out.error or "the map file cannot be read")
+        code, details = out.error_code or "invalid_map", out.error_details
+        await run_in_threadpool(_delete_map, settings, store, accepted.map_id)
+        raise ApiError(422, code, out.error or "the map file cannot be read", details or None)
     return JSONResponse(out.model_dump(mode="json"), status_code=202)
 
 
@@ -396,10 +399,8 @@ def delete_map(
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
-def _delete_map(
-    settings: Settings, store: FileStore, map_id: int, db: Database | None = None, job_id: int | None = None
-) -> bool:
-    """Delete a map and its files (its queued job is cancelled, its finished ``job_id`` deleted); False if none.
+def _delete_map(settings: Settings, store: FileStore, map_id: int, db: Database | None = None) -> bool:
+    """Delete a map, its files and its finished parse job (a queued one is cancelled); False if there was none.
 
     Blocking: run in a worker thread; on ``db``, or a connection of its own.
     """
@@ -408,8 +409,6 @@ def _delete_map(
     try:
         with transaction(db):
             deleted = map_store.delete_map(db, map_id)
-            if job_id is not None:
-                job_store.delete_finished_job(db, job_id)
     finally:
         if own:
             db.close()

@@ -77,8 +77,9 @@ def load_map_job(db: Database, payload: LoadMapPayload) -> LoadMapResult:
         content = map_store.map_content_from_city_map(city_map)
     except Exception as exc:
         reason = _reason(exc, source, shown)
+        code, details = (exc.code, exc.details) if isinstance(exc, MapLoadError) else ("invalid_map", {})
         with transaction(db):  # committed before the job fails (a failing attempt's writes may be rolled back)
-            map_store.fail_map(db, row["id"], reason)
+            map_store.fail_map(db, row["id"], reason, code, details)
         raise PermanentJobError(reason) from None  # the same file fails the same way: no retries
     cache = map_cache_path(map_cache_dir(data_dir()), row["sha256"], options)
     _save_copy(city_map, cache, row["id"])
