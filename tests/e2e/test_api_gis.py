@@ -71,7 +71,7 @@ def answering(tmp_path_factory: pytest.TempPathFactory, built_models: Path, prof
 
 @pytest.fixture(scope="module")
 def idle(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Iterator[httpx.Client]:
-    """A service without workers: uploads stay queued."""
+    """A service whose only worker parses maps: photo uploads stay queued."""
     data_dir = tmp_path_factory.mktemp("gis-idle") / "data"
     with running_service(data_dir, workers=0, **profile.new_env()) as service, service.client(WRITE_KEY) as client:
         yield client
