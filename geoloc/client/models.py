@@ -33,6 +33,8 @@ class Map(_Model):
     status: str = "done"
     """``queued``, ``processing``, ``done`` (usable) or ``failed`` (``error`` says why)."""
     error: str | None = None
+    error_code: str | None = None
+    error_details: dict[str, Any] = {}
     job_id: int | None = None
     progress: dict[str, int] = {}
     """The parse's progress: ``elements`` read, ``buildings`` so far."""
