@@ -157,7 +157,7 @@ def db_file_bytes(db_path: Path) -> int:
 def upload_map(service: LocalService, path: Path, name: str) -> dict[str, Any]:
     t0 = time.perf_counter()
     try:
-        sent = service.client.call(calls.upload_map(path, name, {}))
+        sent = service.client.call(calls.upload_map(path, name, {"wait_s": 600.0}))  # upload to usable
     except ApiError as exc:
         raise SystemExit(f"upload of {path.name} failed: {exc}") from exc
     seconds = time.perf_counter() - t0

@@ -51,15 +51,22 @@ NO_RETRY = RetryPolicy(retries=0)
 
 
 def fetch_map(client: Client, map_id: int) -> Map:
-    """The map (checks reachability, the API key and the map id before anything is uploaded)."""
+    """The map (checks reachability, the API key and the map id before anything is uploaded), once usable.
+
+    A map still being parsed is waited for (with backoff); one that failed aborts the run with its error.
+    """
     try:
-        return client.get_map(map_id)
+        found = client.get_map(map_id)
+        found = found if found.status in FINAL_REFERENCE_STATES else client.wait_for_map(map_id)
     except ServiceUnreachableError as exc:
         raise IngestAbortError(f"cannot reach the service at {client.base_url}: {exc}") from exc
     except ApiError as exc:
         raise IngestAbortError(
             f"GET /v1/maps/{map_id} answered {exc.status} {exc.code or ''}: {exc.message}".replace("  ", " ")
         ) from exc
+    if found.status == "failed":
+        raise IngestAbortError(f"map {map_id} failed to load: {found.error}")
+    return found
 
 
 def _alive(client: Client) -> bool:

@@ -37,7 +37,7 @@ def serve(
             err=True,
         )
         raise typer.Exit(2)
-    if workers > 0:
+    if workers > 0 and _needs_models(settings):
         _require_models()
     _prepare_database(settings.database)
     typer.echo(
@@ -61,7 +61,8 @@ def worker(
     from workers.supervisor import Supervisor  # lazy: keeps `geoloc --help` fast
 
     settings = _start(log_level)
-    _require_models()
+    if _needs_models(settings):
+        _require_models()
     _prepare_database(settings.database)
     typer.echo(f"geoloc: {concurrency} worker(s), {_profile(settings)}", err=True)
     specs = _worker_specs(settings, concurrency, log_level)
@@ -96,6 +97,13 @@ def _start(log_level: str) -> Settings:
     except SettingsError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
+
+
+def _needs_models(settings: Settings) -> bool:
+    """Whether the workers run the method's jobs (not when GEOLOC_WORKER_KINDS names only ``load_map``)."""
+    from workers.context import needs_models  # lazy: keeps `geoloc --help` fast
+
+    return needs_models(settings)
 
 
 def _require_models() -> None:

@@ -40,6 +40,10 @@ LOCATE_TRACK: Final = "locate_track"
 """Kind of the job the API enqueues for each new track (payload :class:`LocateTrackPayload`): its frames' photos,
 which are the track's query rows, located together by the track stage."""
 
+LOAD_MAP: Final = "load_map"
+"""Kind of the job the API enqueues for each new map (payload :class:`LoadMapPayload`): the map file parsed
+into buildings and facades in the workers, not in the API."""
+
 
 class JobPayload(BaseModel):
     """Base of job payloads: frozen, unknown fields are errors (a payload is read back by its own model)."""
@@ -95,6 +99,20 @@ class PlaceSequenceResult(JobResult):
     placed: int
     edges: int
     waiting: int
+
+
+class LoadMapPayload(JobPayload):
+    """Parse the stored file of map ``map_id`` into its buildings and facades."""
+
+    map_id: int
+
+
+class LoadMapResult(JobResult):
+    """What parsing a map reports on its job: its buildings and facades (0 when it was deleted meanwhile)."""
+
+    map_id: int
+    buildings: int
+    facades: int
 
 
 class LabelReferenceResult(JobResult):

@@ -89,6 +89,12 @@ class Settings(BaseSettings):
         json_schema_extra=_shown("(none)"),
     )
     max_map_bytes: int = Field(default=256 * 1024 * 1024, ge=0, description="largest map upload (413 above)")
+    max_decompressed_bytes: int = Field(
+        default=1024 * 1024 * 1024,
+        ge=0,
+        description="most bytes a compressed map upload (.gz, .bz2, .zip) may inflate to, counted at upload "
+        "(413 above; 4 x the default upload limit)",
+    )
     max_image_bytes: int = Field(default=32 * 1024 * 1024, ge=0, description="largest photo upload (413 above)")
     max_image_pixels: int = Field(
         default=60_000_000,
@@ -126,6 +132,12 @@ class Settings(BaseSettings):
         default=(),
         description="extra modules or `.py` files with job handlers, comma-separated",
         json_schema_extra=_shown("(none)"),
+    )
+    worker_kinds: Annotated[tuple[str, ...], NoDecode] = Field(
+        default=(),
+        description="job kinds the embedded pool's workers claim, comma-separated (e.g. `load_map` for workers "
+        "that only parse maps)",
+        json_schema_extra=_shown("(all)"),
     )
     worker_nice: int = Field(
         default=10,
@@ -216,7 +228,7 @@ class Settings(BaseSettings):
     def _parse_api_keys(cls, value: object) -> object:
         return parse_api_keys(value) if isinstance(value, str) else value
 
-    @field_validator("worker_plugins", mode="before")
+    @field_validator("worker_plugins", "worker_kinds", mode="before")
     @classmethod
     def _split_plugins(cls, value: object) -> object:
         return tuple(p.strip() for p in value.split(",") if p.strip()) if isinstance(value, str) else value

@@ -14,10 +14,11 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, fields
-from typing import Any, cast
+from typing import Any, Required, TypedDict, Unpack, cast
 
 import numpy as np
 
+from contracts.jobs import LOAD_MAP
 from db.blobs import pack_arrays, unpack_arrays
 from db.connection import Database
 from db.jobs import cancel_queued_jobs
@@ -95,46 +96,93 @@ def _decode_map(row: dict[str, Any]) -> MapRow:
     row = dict(row)
     row["repair_report"] = json.loads(row["repair_report"] or "{}")
     row["read_options"] = json.loads(row.get("read_options") or "{}")
+    row["error_details"] = json.loads(row.get("error_details") or "{}")
     row["bbox_wgs84"] = (row["min_lat"], row["min_lon"], row["max_lat"], row["max_lon"])
     return cast(MapRow, row)
 
 
-def insert_map(
-    db: Database,
-    *,
-    name: str,
-    source_filename: str,
-    source_format: str,
-    source_path: str,
-    sha256: str,
-    size_bytes: int,
-    content: MapContent,
-    read_options: dict[str, Any] | None = None,
-    attribution: str | None = None,
-    tenant: str | None = None,
-) -> int:
-    """Insert a map with its buildings and facades; returns the map id. Call inside a transaction.
+class MapSource(TypedDict, total=False):
+    """A map's row as the upload states it (name, file, checksum, read options, attribution)."""
 
-    read_options: how the file was read (``MapReadOptions.as_dict()``; default ``{}``). attribution: what the
-    upload stated, None for none (the column, from migration 6, is then left to its NULL). tenant: the
-    uploading key's tenant (migration 8), None for untenanted (the column is then left to its NULL).
+    name: Required[str]
+    source_filename: Required[str]
+    source_format: Required[str]
+    source_path: Required[str]
+    sha256: Required[str]
+    size_bytes: Required[int]
+    read_options: dict[str, Any] | None
+    """How the file was read (``MapReadOptions.as_dict()``; default ``{}``)."""
+    attribution: str | None
+    """What the upload stated, None for none (the column, from migration 6, is then left to its NULL)."""
+    tenant: str | None
+    """The uploading key's tenant (migration 8), None for untenanted (the column is then left to its NULL)."""
+
+
+def insert_map(db: Database, *, content: MapContent, **source: Unpack[MapSource]) -> int:
+    """Insert a map with its buildings and facades (status ``done``); returns the map id. Call inside a transaction."""
+    map_id = _insert_row(db, source, pending=False)  # the status column's default, done (none before migration 9)
+    _write_content(db, map_id, content)
+    return map_id
+
+
+def insert_pending_map(db: Database, **source: Unpack[MapSource]) -> int:
+    """Insert a map whose file is not parsed yet (status ``queued``, no buildings, zeros for box and counts).
+
+    Returns the map id; call inside a transaction. :func:`store_map_content` fills it once parsed.
     """
-    min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
-    facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
-    optional = {"attribution": attribution, "tenant": tenant}
+    return _insert_row(db, source, pending=True)
+
+
+def _insert_row(db: Database, source: MapSource, pending: bool) -> int:
+    """Insert a map's row with zeros for box and counts (``pending``: status ``queued``, else the default)."""
+    optional = {"attribution": source.get("attribution"), "tenant": source.get("tenant")}
     stated = tuple(name for name, value in optional.items() if value is not None)
-    columns = ", ".join(("repair_report", "read_options", "created_at", *stated))
-    map_id = db.insert_returning_id(
+    status = ("status",) if pending else ()
+    columns = ", ".join(("repair_report", "read_options", "created_at", *status, *stated))
+    return db.insert_returning_id(
         "INSERT INTO maps (name, source_filename, source_format, source_path, sha256, size_bytes,"
         " min_lat, min_lon, max_lat, max_lon, origin_lat, origin_lon, building_count, facade_count,"
-        f" {columns}) VALUES ({', '.join('?' * (17 + len(stated)))})",
+        f" {columns}) VALUES ({', '.join('?' * (17 + len(status) + len(stated)))})",
         (
-            name,
-            source_filename,
-            source_format,
-            source_path,
-            sha256,
-            size_bytes,
+            *(source[key] for key in ("name", "source_filename", "source_format", "source_path", "sha256")),
+            source["size_bytes"],
+            *(0.0,) * 6,
+            0,
+            0,
+            "{}",
+            _options_json(source.get("read_options")),
+            time.time(),
+            *(("queued",) if pending else ()),
+            *(optional[name] for name in stated),
+        ),
+    )
+
+
+def store_map_content(db: Database, map_id: int, content: MapContent) -> bool:
+    """Write a parsed map's buildings, facades, box and counts, and mark it ``done``; call inside a transaction.
+
+    Replace semantics (a parse that runs again after a crash leaves the same rows). False, and nothing
+    written, when the map is gone (deleted while it was parsed): the row's update comes first and holds the
+    row (PostgreSQL) or the database (SQLite) until commit, so a delete cannot slip in between.
+    """
+    cursor = db.execute(
+        "UPDATE maps SET status = 'done', error = NULL, parsed_buildings = ? WHERE id = ?",
+        (len(content.buildings), map_id),
+    )
+    if cursor.rowcount != 1:
+        return False
+    _write_content(db, map_id, content)
+    return True
+
+
+def _write_content(db: Database, map_id: int, content: MapContent) -> None:
+    """A map's box, counts and report on its row, and its buildings and facades (replacing any)."""
+    min_lat, min_lon, max_lat, max_lon = content.bbox_wgs84
+    facade_count = len(next(iter(content.facade_arrays.values()))) if content.facade_arrays else 0
+    db.execute(
+        "UPDATE maps SET min_lat = ?, min_lon = ?, max_lat = ?, max_lon = ?, origin_lat = ?, origin_lon = ?,"
+        " building_count = ?, facade_count = ?, repair_report = ? WHERE id = ?",
+        (
             min_lat,
             min_lon,
             max_lat,
@@ -144,11 +192,11 @@ def insert_map(
             len(content.buildings),
             facade_count,
             json.dumps(content.repair_report),
-            _options_json(read_options),
-            time.time(),
-            *(optional[name] for name in stated),
+            map_id,
         ),
     )
+    db.execute("DELETE FROM buildings WHERE map_id = ?", (map_id,))
+    db.execute("DELETE FROM facades WHERE map_id = ?", (map_id,))
     db.executemany(
         "INSERT INTO buildings (map_id, building_id, osm_id, name, height_m, footprint_geojson,"
         " footprint_local_wkb) VALUES (?, ?, ?, ?, ?, ?, ?)",
@@ -169,7 +217,30 @@ def insert_map(
         "INSERT INTO facades (map_id, facade_count, arrays_npz) VALUES (?, ?, ?)",
         (map_id, facade_count, pack_arrays(content.facade_arrays, compress=False)),
     )
-    return map_id
+
+
+def link_map_job(db: Database, map_id: int, job_id: int) -> None:
+    """Record the ``load_map`` job of a map (inside the transaction that queued it)."""
+    db.execute("UPDATE maps SET job_id = ? WHERE id = ?", (job_id, map_id))
+
+
+def set_map_progress(db: Database, map_id: int, elements: int, buildings: int) -> None:
+    """Record a parse's progress: elements read and buildings found so far (a map not yet done)."""
+    db.execute(
+        "UPDATE maps SET parsed_elements = ?, parsed_buildings = ? WHERE id = ? AND status = 'queued'",
+        (elements, buildings, map_id),
+    )
+
+
+def fail_map(
+    db: Database, map_id: int, error: str, code: str = "invalid_map", details: dict[str, Any] | None = None
+) -> None:
+    """Mark a map ``failed`` with the reason (shown to users: no server paths), its code and details (JSON-ready)."""
+    db.execute(
+        "UPDATE maps SET status = 'failed', error = ?, error_code = ?, error_details = ?"
+        " WHERE id = ? AND status != 'done'",
+        (error, code, json.dumps(details or {}), map_id),
+    )
 
 
 def get_map(db: Database, map_id: int) -> MapRow | None:
@@ -195,12 +266,14 @@ def find_map_by_sha256(
 ) -> MapRow | None:
     """The tenant's oldest map uploaded from a file with this checksum and read with these options, or None.
 
+    A map that failed is not one: the same file sent again is parsed again (by a newer service, say).
     tenant: None for the untenanted maps; another tenant's upload of the same file is another map.
     """
     condition, tenant_args = tenant_condition(tenant)
     rows = list(
         db.query(
-            f"SELECT * FROM maps WHERE sha256 = ? AND read_options = ? AND {condition} ORDER BY id LIMIT 1",
+            "SELECT * FROM maps WHERE sha256 = ? AND read_options = ? AND status != 'failed'"
+            f" AND {condition} ORDER BY id LIMIT 1",
             (sha256, _options_json(read_options), *tenant_args),
         )
     )
@@ -252,7 +325,8 @@ def get_facade_arrays(db: Database, map_id: int) -> dict[str, np.ndarray] | None
 def delete_map(db: Database, map_id: int) -> DeletedMap | None:
     """Delete a map and everything under it; call inside a transaction.
 
-    Buildings, facades, references, labels, index and queries cascade; queued jobs are cancelled.
+    Buildings, facades, references, labels, index and queries cascade; queued jobs are cancelled, and the map's
+    finished ``load_map`` job is deleted.
     Returns the deleted map row with the image paths to remove from disk after commit
     (``image_paths``) and whether another map still reads the same source file (``source_shared``),
     or None.
@@ -268,6 +342,11 @@ def delete_map(db: Database, map_id: int) -> DeletedMap | None:
         for r in db.query("SELECT image_path FROM queries WHERE map_id = ? AND image_path IS NOT NULL", (map_id,))
     ]
     cancel_queued_jobs(db, map_id=map_id)
+    # The map's own parse job goes with it once finished (a running one finds the map gone when it stores).
+    db.execute(
+        "DELETE FROM jobs WHERE map_id = ? AND kind = ? AND status IN ('done', 'failed', 'cancelled')",
+        (map_id, LOAD_MAP),
+    )
     db.execute("DELETE FROM maps WHERE id = ?", (map_id,))
     source_shared = (
         db.execute("SELECT 1 FROM maps WHERE source_path = ? LIMIT 1", (map_row["source_path"],)).fetchone() is not None

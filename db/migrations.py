@@ -41,6 +41,12 @@ Storage decisions (see also the module docstrings of the access modules):
   (``service/tenancy.py``); every query and reference has a map (``map_id NOT NULL``). ``jobs.tenant``
   (migration 8) is stamped when the job is queued (the tenant given, else its map's), so a job keeps its
   tenant without a map (one queued before its map exists, or after its map is deleted).
+- ``maps.status``, ``error`` (with ``error_code`` and ``error_details``, JSON: the reader's machine reason and
+  facts), ``job_id``, ``parsed_elements``, ``parsed_buildings`` (migration 9): a map is parsed
+  by a ``load_map`` job (:mod:`workers.map_handlers`); until it is ``done`` its row holds no buildings and zeros
+  for its box and counts. ``status`` is ``queued`` (the job waits or runs), ``done`` or ``failed`` (``error``
+  says why, without server paths); every map stored before is ``done``. The parsed counts are the parse's
+  progress (elements read, buildings so far), written at most once a second.
 """
 
 from __future__ import annotations
@@ -269,6 +275,19 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         ALTER TABLE maps ADD COLUMN tenant TEXT;
         CREATE INDEX maps_tenant ON maps(tenant);
         ALTER TABLE jobs ADD COLUMN tenant TEXT;
+        """,
+    ),
+    (
+        9,
+        "maps as jobs: a map's status, error, job and parse progress",
+        """
+        ALTER TABLE maps ADD COLUMN status TEXT NOT NULL DEFAULT 'done';
+        ALTER TABLE maps ADD COLUMN error TEXT;
+        ALTER TABLE maps ADD COLUMN error_code TEXT;
+        ALTER TABLE maps ADD COLUMN error_details TEXT;
+        ALTER TABLE maps ADD COLUMN job_id INTEGER;
+        ALTER TABLE maps ADD COLUMN parsed_elements INTEGER NOT NULL DEFAULT 0;
+        ALTER TABLE maps ADD COLUMN parsed_buildings INTEGER NOT NULL DEFAULT 0;
         """,
     ),
     (

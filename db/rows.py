@@ -39,6 +39,17 @@ class MapRow(TypedDict):
     created_at: float
     tenant: str | None
     """The tenant of the key that uploaded it (migration 8); None: untenanted."""
+    status: str
+    """``queued`` (its ``load_map`` job waits or runs), ``done`` (usable) or ``failed`` (``error`` says why)."""
+    error: str | None
+    error_code: str | None
+    error_details: dict[str, Any]
+    """A failed map's machine reason (``invalid_map``, ``crs_not_lonlat`` ...) and the facts behind it."""
+    job_id: int | None
+    """The ``load_map`` job that parses it (None for a map stored before maps were jobs)."""
+    parsed_elements: int
+    parsed_buildings: int
+    """The parse's progress: elements read and buildings found so far."""
     bbox_wgs84: tuple[float, float, float, float]
     """(min_lat, min_lon, max_lat, max_lon), from the four columns."""
 

@@ -32,7 +32,7 @@ from db.rows import JobRow, MapRow
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from service.images import ImageInfo, validate_image
 from service.models import error_responses
-from service.tenancy import require_map
+from service.tenancy import check_ready, require_ready_map
 from service.uploads import ReceivedFile, received_upload
 from workers.broker import JobPublisher
 
@@ -49,8 +49,10 @@ def _cached_map(source: str, cache_dir: str, read_options: str, sha256: str) -> 
 def loaded_map(settings: Settings, store: FileStore, row: MapRow) -> CityMap:
     """The loaded map of a map row (streets, footprints in local metres), from the copy cached at upload.
 
-    Kept in memory for the last two maps asked (the heat map picture, the streets' GeoJSON).
+    Kept in memory for the last two maps asked (the heat map picture, the streets' GeoJSON). 409 while the
+    map is not done.
     """
+    check_ready(row)
     return _cached_map(
         str(store.local_path(row["source_path"])),
         str(map_cache_dir(settings.data_dir)),
@@ -127,7 +129,7 @@ class PhotoIntake(ABC):
         settings = self.settings
         db = connect(settings.database)
         try:
-            map_row = require_map(db, map_id, tenant)
+            map_row = require_ready_map(db, map_id, tenant)
             self.check_form()
             with received_upload(image, self.store, settings.max_image_bytes, "the image") as received:
                 info = validate_image(

@@ -11,6 +11,7 @@ from typing import Annotated, Any, Literal, overload
 from pydantic import BaseModel, ConfigDict, Field
 
 from contracts.answers import BoundingBox, BuildingInPhoto, EstimatedPose, LatLon, QueryResult, TrackFrameResult
+from contracts.jobs import WorkStatus
 from service.errors import ERROR_CODES
 
 
@@ -56,6 +57,13 @@ class ErrorResponse(BaseModel):
     error: ErrorDetail
 
 
+class MapProgressOut(BaseModel):
+    """How far a map's parse got: elements read (OSM objects, GIS features) and buildings found so far."""
+
+    elements: int = 0
+    buildings: int = 0
+
+
 class MapOut(BaseModel):
     """A stored map."""
 
@@ -65,6 +73,10 @@ class MapOut(BaseModel):
                 {
                     "id": 1,
                     "name": "helsinki-centre",
+                    "status": "done",
+                    "error": None,
+                    "job_id": 12,
+                    "progress": {"elements": 120000, "buildings": 464},
                     "source_filename": "helsinki.osm.pbf",
                     "source_format": "pbf",
                     "sha256": "9f2c...",
@@ -84,6 +96,18 @@ class MapOut(BaseModel):
 
     id: int
     name: str
+    status: WorkStatus = Field(
+        default="done",
+        description="queued, processing (its job parses the file), done (usable) or failed (error says why); "
+        "box, origin and counts are zeros until done",
+    )
+    error: str | None = Field(default=None, description="Why the map failed (or its job's last error)")
+    error_code: str | None = Field(
+        default=None, description="A failed map's machine reason, as a 422 of the upload gives it (invalid_map ...)"
+    )
+    error_details: dict[str, Any] = Field(default_factory=dict, description="The facts behind a failed map's error")
+    job_id: int | None = Field(default=None, description="The load_map job that parses the file")
+    progress: MapProgressOut = Field(default_factory=MapProgressOut, description="The parse's progress")
     source_filename: str
     source_format: str = Field(
         description="Detected from the content: osm, osm.bz2, osm.gz, pbf, geojson, geojson.gz, gpkg, fgb or "

@@ -1,48 +1,51 @@
-"""Maps: upload (loaded with ``geoloc.maps.load_map``), list, get, buildings and streets as GeoJSON, delete.
+"""Maps: upload (parsed by a ``load_map`` job in the workers), list, get, buildings and streets as GeoJSON, delete.
 
-An upload is read once, in the API process; its buildings become rows and the loaded map is also
-written to ``DATA_DIR/cache/maps`` (:mod:`geoloc.maps.store`) so that workers start from that copy
-instead of parsing the source again (they rebuild it from the source if it is missing).
+An upload is stored (after the size and decompressed-size checks) with a ``queued`` row and a job; the workers
+parse it (:mod:`workers.map_handlers`), store its buildings and write the loaded map to ``DATA_DIR/cache/maps``
+(:mod:`geoloc.maps.store`) so that other jobs start from that copy. The API never parses a map file: a request
+holds a worker thread only to receive and check the upload, and waits (``wait_s``) on the event loop.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+from dataclasses import dataclass
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, File, Form, Response, UploadFile, status
+from fastapi import APIRouter, Depends, File, Form, Request, Response, UploadFile, status
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
 from contracts.answers import BoundingBox, LatLon
+from contracts.jobs import LOAD_MAP, LoadMapPayload
 from contracts.licenses import map_attribution
 from contracts.settings import Settings
-from db import Database, transaction
+from db import Database, connect, transaction
+from db import jobs as job_store
 from db import maps as map_store
 from db.files import FileStore
 from db.rows import MapRow
-from geoloc.maps import (
-    MapLoadError,
-    MapReadOptions,
-    load_map,
-    map_cache_dir,
-    map_cache_path,
-    remove_cached_map,
-    save_city_map,
-)
+from geoloc.maps import MapLoadError, MapReadOptions, map_cache_dir, remove_cached_map
 from geoloc.maps.crs import parse_crs
+from geoloc.maps.guard import DecompressedTooLargeError, check_decompressed_size, public_message, public_name
+from geoloc.maps.sniff import sniff_format
 from service.auth import Caller, request_caller, require_read, require_write
 from service.bounds import MapId
-from service.deps import app_settings, get_db, get_store
+from service.deps import app_settings, get_db, get_publisher, get_store
 from service.errors import ApiError
-from service.intake import loaded_map
-from service.models import MapList, MapOut, error_responses, timestamp
-from service.tenancy import require_map
+from service.intake import loaded_map, work_status
+from service.models import MapList, MapOut, MapProgressOut, error_responses, timestamp
+from service.tenancy import require_map, require_ready_map
 from service.uploads import received_upload
+from service.waiting import JobWaiter
+from workers.broker import JobPublisher
 
 log = logging.getLogger("geoloc.api")
 router = APIRouter(prefix="/v1/maps", tags=["maps"])
 
+MAX_MAP_WAIT_S = 600.0
+"""The longest ``wait_s`` of a map upload."""
 SOURCE_EXTENSIONS = {
     "osm": ".osm",
     "osm.bz2": ".osm.bz2",
@@ -61,11 +64,19 @@ FILE_DESCRIPTION = (
 )
 
 
-def map_out(row: MapRow, *, reference_count: int = 0, duplicate: bool = False) -> MapOut:
-    """A map row as its API model."""
+def map_out(db: Database, row: MapRow, *, reference_count: int = 0, duplicate: bool = False) -> MapOut:
+    """A map row as its API model; its status through :func:`service.intake.work_status` (row and job)."""
+    job = job_store.get_job(db, row["job_id"]) if row["job_id"] is not None else None
+    reported, error = work_status(row["status"], row["error"], job)
     return MapOut(
         id=row["id"],
         name=row["name"],
+        status=reported,
+        error=error,
+        error_code=row["error_code"] if reported == "failed" and row["status"] == "failed" else None,
+        error_details=row["error_details"] if reported == "failed" and row["status"] == "failed" else {},
+        job_id=row["job_id"],
+        progress=MapProgressOut(elements=row["parsed_elements"], buildings=row["parsed_buildings"]),
         source_filename=row["source_filename"],
         source_format=row["source_format"],
         sha256=row["sha256"],
@@ -90,11 +101,13 @@ def map_out(row: MapRow, *, reference_count: int = 0, duplicate: bool = False) -
     status_code=status.HTTP_201_CREATED,
     responses={
         200: {"model": MapOut, "description": "The same file was already uploaded"},
+        202: {"model": MapOut, "description": "Stored and queued: poll GET /v1/maps/{id} until its status is done"},
         **error_responses(413, 422),
     },
     dependencies=[Depends(require_write)],
 )
-def upload_map(
+async def upload_map(
+    request: Request,
     file: Annotated[UploadFile, File(description=FILE_DESCRIPTION)],
     name: Annotated[
         str, Form(min_length=1, max_length=200, pattern=r"\S", description="A name for the map (not blank)")
@@ -135,19 +148,30 @@ def upload_map(
             "and every answer on it",
         ),
     ] = None,
-    db: Database = Depends(get_db),
+    wait_s: Annotated[
+        float,
+        Form(
+            ge=0,
+            le=MAX_MAP_WAIT_S,
+            description="How long to wait for the parse before answering 202 (0: answer at once); within it, 201 "
+            "with the map done, or 422 with the reason the file cannot be read",
+        ),
+    ] = 0.0,
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
+    publisher: JobPublisher = Depends(get_publisher),
     caller: Caller = Depends(request_caller),
 ) -> MapOut | JSONResponse:
-    """Upload a map: buildings and facades are extracted and stored.
+    """Upload a map: the file is stored and parsed into buildings and facades by a ``load_map`` job.
 
-    Attribute defaults: ``name``, ``height``, ``building:levels``. 201 with the new map; 200 with the
-    existing map when the same file (sha256) was already uploaded with the same options
-    (``duplicate: true``); 413 over the size limit; 422 when the file is not map data, holds no usable
-    buildings, names a layer or attribute it does not have, or has coordinates that cannot be placed
-    (the message says which CRS they look like and how to fix it). ``attribution`` is not part of the
-    duplicate check: the same file sent again gets the existing map with the attribution it was stored with.
+    202 with the map (``status`` ``queued``, its ``job_id`` and ``progress``): poll ``GET /v1/maps/{id}`` until
+    its status is ``done`` (usable) or ``failed`` (``error`` says why); with ``wait_s``, 201 with the map done
+    if the parse ends within it, or 422 with the reason (the failed map is then deleted: nothing is kept).
+    200 with the existing map when the same file (sha256) was already uploaded with the same options
+    (``duplicate: true``; a failed one does not count). 413 over the size limit, or when a compressed file
+    (.gz, .bz2, .zip) inflates past ``GEOLOC_MAX_DECOMPRESSED_BYTES`` (counted before anything is stored);
+    422 at once when the file is not map data by its content, or names an unknown CRS. Attribute defaults:
+    ``name``, ``height``, ``building:levels``. ``attribution`` is not part of the duplicate check.
     """
     options = _read_options(layer, name_attribute, height_attribute, levels_attribute, crs)
     if options.crs is not None:
@@ -155,54 +179,109 @@ def upload_map(
             parse_crs(options.crs)
         except MapLoadError as exc:
             raise ApiError(422, "invalid_request", f"crs: {exc}") from exc
+    stated = attribution.strip() if attribution and attribution.strip() else None
+    accepted = await run_in_threadpool(
+        _accept_map, settings, store, publisher, file, name.strip(), options, stated, caller.tenant
+    )
+    if accepted.duplicate:
+        out = await run_in_threadpool(_map_model, settings, accepted.map_id, True, caller.tenant)
+        return JSONResponse(out.model_dump(mode="json"), status_code=200)
+    if accepted.job_id is not None and wait_s > 0:
+        waiter: JobWaiter = request.app.state.job_waiter
+        await waiter.wait(accepted.job_id, wait_s)
+    out = await run_in_threadpool(_map_model, settings, accepted.map_id, False, caller.tenant)
+    if out.status == "done":
+        return JSONResponse(out.model_dump(mode="json"), status_code=201)
+    if out.status == "failed" and wait_s > 0:  # answered now: nothing is kept, as when nothing was stored
+        code, details = out.error_code or "invalid_map", out.error_details
+        await run_in_threadpool(_delete_map, settings, store, accepted.map_id)
+        raise ApiError(422, code, out.error or "the map file cannot be read", details or None)
+    return JSONResponse(out.model_dump(mode="json"), status_code=202)
+
+
+@dataclass(frozen=True)
+class AcceptedMap:
+    """What a map upload stored: the map's id, its job's (None for a duplicate), whether it was one."""
+
+    map_id: int
+    job_id: int | None
+    duplicate: bool
+
+
+def _accept_map(
+    settings: Settings,
+    store: FileStore,
+    publisher: JobPublisher,
+    file: UploadFile,
+    name: str,
+    options: MapReadOptions,
+    attribution: str | None,
+    tenant: str | None,
+) -> AcceptedMap:
+    """Receive the file (413), check what it inflates to (413) and what it is (422), store it with its job.
+
+    The map is ``tenant``'s (the duplicate check looks at its maps only).
+
+    Blocking: run in a worker thread. The parse itself is the job's (:mod:`workers.map_handlers`).
+    """
     read_options = options.as_dict()
-    with received_upload(file, store, settings.max_map_bytes, "the map file") as received:
-        existing = map_store.find_map_by_sha256(db, received.sha256, read_options, caller.tenant)
-        if existing is not None:
-            out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
-            return JSONResponse(out.model_dump(mode="json"), status_code=200)
-        shown_name = received.filename or "the file"
-        try:
-            city_map = load_map(received.path, options)
-            content = map_store.map_content_from_city_map(city_map)
-        except MapLoadError as exc:
-            raise ApiError(422, exc.code, str(exc).replace(received.path.name, shown_name), exc.details) from exc
-        except Exception as exc:  # the file made a library fail in a way not foreseen: still the file's fault
-            log.exception("map upload %s could not be read", shown_name)
-            raise ApiError(
-                422, "invalid_map", f"{shown_name}: cannot read the map ({type(exc).__name__}: {exc})"
-            ) from exc
-        source_format = city_map.report.format
-        relative = f"maps/{received.sha256}{SOURCE_EXTENSIONS.get(source_format, '.map')}"
-        with transaction(db):  # the duplicate check and the insert are atomic
-            db.lock(f"geoloc:map:{received.sha256}")  # the same file sent twice at once
-            existing = map_store.find_map_by_sha256(db, received.sha256, read_options, caller.tenant)
-            if existing is None:
+    db = connect(settings.database)
+    try:
+        with received_upload(file, store, settings.max_map_bytes, "the map file") as received:
+            shown_name = public_name(received.filename)
+            existing = map_store.find_map_by_sha256(db, received.sha256, read_options, tenant)
+            if existing is not None:
+                return AcceptedMap(existing["id"], None, duplicate=True)
+            try:
+                check_decompressed_size(received.path, settings.max_decompressed_bytes, shown_name)
+                source_format = sniff_format(received.path)
+            except DecompressedTooLargeError as exc:
+                raise ApiError(413, exc.code, str(exc), exc.details) from exc
+            except MapLoadError as exc:
+                raise ApiError(422, exc.code, public_message(str(exc), received.path, shown_name), exc.details) from exc
+            relative = f"maps/{received.sha256}{SOURCE_EXTENSIONS.get(source_format, '.map')}"
+            with transaction(db):  # the duplicate check, the row and its job are atomic
+                db.lock(f"geoloc:map:{received.sha256}")  # the same file sent twice at once
+                existing = map_store.find_map_by_sha256(db, received.sha256, read_options, tenant)
+                if existing is not None:
+                    return AcceptedMap(existing["id"], None, duplicate=True)
                 received.move_to(relative)
-                map_id = map_store.insert_map(
+                map_id = map_store.insert_pending_map(
                     db,
-                    name=name.strip(),
+                    name=name,
                     source_filename=received.filename or "upload",
                     source_format=source_format,
                     source_path=relative,
                     sha256=received.sha256,
                     size_bytes=received.size_bytes,
-                    content=content,
                     read_options=read_options,
-                    attribution=attribution.strip() if attribution and attribution.strip() else None,
-                    tenant=caller.tenant,
+                    attribution=attribution,
+                    tenant=tenant,
                 )
-        if existing is not None:
-            out = map_out(existing, reference_count=_reference_total(db, existing["id"]), duplicate=True)
-            return JSONResponse(out.model_dump(mode="json"), status_code=200)
-    try:  # a cache: the workers rebuild it from the source if this fails
-        save_city_map(city_map, map_cache_path(map_cache_dir(settings.data_dir), received.sha256, options))
-    except OSError:
-        log.warning("map %d: could not write its cached copy", map_id, exc_info=True)
-    log.info("map %d stored: %d buildings, %d facades", map_id, len(content.buildings), len(city_map.facades))
-    row = map_store.get_map(db, map_id)
-    assert row is not None
-    return map_out(row)
+                job_id = job_store.enqueue_job(
+                    db,
+                    LOAD_MAP,
+                    LoadMapPayload(map_id=map_id),
+                    max_attempts=settings.job_max_attempts,
+                    map_id=map_id,
+                    max_queued=settings.max_queued_jobs,
+                )
+                map_store.link_map_job(db, map_id, job_id)
+        publisher.publish(db, [job_id])
+        log.info("map %d stored, queued as job %d", map_id, job_id)
+        return AcceptedMap(map_id, job_id, duplicate=False)
+    finally:
+        db.close()
+
+
+def _map_model(settings: Settings, map_id: int, duplicate: bool, tenant: str | None) -> MapOut:
+    """The map's API model, read on a connection of its own (blocking: run in a worker thread)."""
+    db = connect(settings.database)
+    try:
+        row = require_map(db, map_id, tenant)
+        return map_out(db, row, reference_count=_reference_total(db, map_id), duplicate=duplicate)
+    finally:
+        db.close()
 
 
 def _read_options(
@@ -231,18 +310,22 @@ def _reference_total(db: Database, map_id: int) -> int:
 def list_maps(db: Database = Depends(get_db), caller: Caller = Depends(request_caller)) -> MapList:
     """The caller's maps (its key's tenant's; all untenanted ones for a key without a tenant), oldest first."""
     rows = map_store.list_maps(db, caller.tenant)
-    return MapList(maps=[map_out(row, reference_count=_reference_total(db, row["id"])) for row in rows])
+    return MapList(maps=[map_out(db, row, reference_count=_reference_total(db, row["id"])) for row in rows])
 
 
 @router.get("/{map_id}", response_model=MapOut, responses=error_responses(404), dependencies=[Depends(require_read)])
 def get_map(map_id: MapId, db: Database = Depends(get_db), caller: Caller = Depends(request_caller)) -> MapOut:
-    """One map."""
-    return map_out(require_map(db, map_id, caller.tenant), reference_count=_reference_total(db, map_id))
+    """One map, with its ``status``.
+
+    ``queued``, ``processing`` (its job runs; ``progress`` counts the parse), ``done`` (usable) or ``failed``
+    (``error`` says why).
+    """
+    return map_out(db, require_map(db, map_id, caller.tenant), reference_count=_reference_total(db, map_id))
 
 
 GEOJSON_RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {"content": {"application/geo+json": {}}, "description": "GeoJSON FeatureCollection"},
-    **error_responses(404),
+    **error_responses(404, 409),
 }
 """The answers of a map's GeoJSON layers (buildings, streets)."""
 
@@ -256,9 +339,9 @@ GEOJSON_RESPONSES: dict[int | str, dict[str, Any]] = {
 def get_buildings(map_id: MapId, db: Database = Depends(get_db), caller: Caller = Depends(request_caller)) -> Response:
     """The map's buildings as a GeoJSON FeatureCollection (WGS84, lon/lat), with the map's ``attribution``.
 
-    Each feature has its building id, OSM id, name and height.
+    409 while the map is not done. Each feature has its building id, OSM id, name and height.
     """
-    attribution = json.dumps(map_attribution(require_map(db, map_id, caller.tenant)["attribution"]))
+    attribution = json.dumps(map_attribution(require_ready_map(db, map_id, caller.tenant)["attribution"]))
     # The stored geometry text goes out as it is: no decoding and re-encoding of a city's footprints.
     features = ",".join(
         f'{{"type":"Feature","id":{b["building_id"]},"geometry":{b["footprint_geojson"]},"properties":'
@@ -286,9 +369,10 @@ def get_streets(
     """The map's streets as a GeoJSON FeatureCollection of LineStrings (WGS84, lon/lat), with ``attribution``.
 
     Each feature's properties: ``street_id`` (its index) and ``name`` (the OSM ``name`` tag, null when it has
-    none). OSM maps' ``highway=*`` ways; GIS maps have no streets (an empty collection).
+    none). OSM maps' ``highway=*`` ways; GIS maps have no streets (an empty collection). 409 while the map is
+    not done.
     """
-    row = require_map(db, map_id, caller.tenant)
+    row = require_ready_map(db, map_id, caller.tenant)
     city_map = loaded_map(settings, store, row)
     bounds = city_map.street_offsets.tolist()
     names = city_map.street_names or [""] * (len(bounds) - 1)  # "" is an unnamed street
@@ -318,12 +402,28 @@ def delete_map(
     store: FileStore = Depends(get_store),
     caller: Caller = Depends(request_caller),
 ) -> Response:
-    """Delete a map with its buildings, references, labels, index entries and queries."""
-    with transaction(db):
-        require_map(db, map_id, caller.tenant)
-        deleted = map_store.delete_map(db, map_id)
-    if deleted is None:
+    """Delete a map with its buildings, references, labels, index entries and queries (also while it is parsed)."""
+    require_map(db, map_id, caller.tenant)
+    if not _delete_map(settings, store, map_id, db):
         raise ApiError(404, "not_found", f"map {map_id} not found")
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+def _delete_map(settings: Settings, store: FileStore, map_id: int, db: Database | None = None) -> bool:
+    """Delete a map, its files and its finished parse job (a queued one is cancelled); False if there was none.
+
+    Blocking: run in a worker thread; on ``db``, or a connection of its own.
+    """
+    own = db is None
+    db = connect(settings.database) if db is None else db
+    try:
+        with transaction(db):
+            deleted = map_store.delete_map(db, map_id)
+    finally:
+        if own:
+            db.close()
+    if deleted is None:
+        return False
     store.delete(*deleted["image_paths"])
     if not deleted["source_shared"]:  # the same file read with other options is another map
         store.delete(deleted["source_path"])
@@ -331,4 +431,4 @@ def delete_map(
         map_cache_dir(settings.data_dir), deleted["sha256"], MapReadOptions.from_dict(deleted["read_options"])
     )
     store.remove_empty_folders(f"images/{map_id}", f"queries/{map_id}")
-    return Response(status_code=status.HTTP_204_NO_CONTENT)
+    return True

@@ -38,6 +38,28 @@ def require_map(db: Database, map_id: int, tenant: str | None) -> MapRow:
     return row
 
 
+def require_ready_map(db: Database, map_id: int, tenant: str | None) -> MapRow:
+    """The map row as :func:`require_map`, or 409 while it is not usable (queued, being parsed, failed)."""
+    row = require_map(db, map_id, tenant)
+    check_ready(row)
+    return row
+
+
+def check_ready(row: MapRow) -> None:
+    """409 ``map_not_ready`` unless the map's status is ``done``; the message says what to do."""
+    if row["status"] == "done":
+        return
+    if row["status"] == "failed":
+        raise ApiError(
+            409, "map_not_ready", f"map {row['id']} failed to load: {row['error']}; delete it and upload a fixed file"
+        )
+    raise ApiError(
+        409,
+        "map_not_ready",
+        f"map {row['id']} is still being loaded: wait until GET /v1/maps/{row['id']} reports status done",
+    )
+
+
 def require_reference(db: Database, reference_id: int, tenant: str | None) -> ReferenceRow:
     """The reference row if it exists and its map belongs to ``tenant``, else 404."""
     row = reference_store.get_reference(db, reference_id)

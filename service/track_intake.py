@@ -35,7 +35,7 @@ from db.rows import MapRow, QueryRow
 from service.errors import ApiError
 from service.images import validate_image
 from service.routes_queries import QueryForm, QueryIntake
-from service.tenancy import require_map, require_query
+from service.tenancy import require_query, require_ready_map
 from service.uploads import ReceivedFile, received_upload
 from workers.broker import JobPublisher
 
@@ -158,7 +158,7 @@ class TrackIntake:
         form = replace(form, priors=form.priors or [None] * len(images))
         db = connect(self.settings.database)
         try:
-            map_row = require_map(db, map_id, tenant)
+            map_row = require_ready_map(db, map_id, tenant)
             with contextlib.ExitStack() as stack:
                 frames = [self._frame(map_row, form, i, image, stack) for i, image in enumerate(images)]
                 return self._store(db, map_id, frames, form.by_capture_time, form.top_n, form.k, form.preset)
@@ -173,7 +173,7 @@ class TrackIntake:
         check_frame_count(self.settings, len(body.query_ids))
         db = connect(self.settings.database)
         try:
-            require_map(db, map_id, tenant)
+            require_ready_map(db, map_id, tenant)
             frames = []
             for index, query_id in enumerate(body.query_ids):
                 try:

@@ -48,7 +48,7 @@ def ask(client: httpx.Client, map_id: int, seed: int = QUERY_SEED) -> dict[str, 
 def fill(client: httpx.Client) -> Filled:
     """A map, three references labelled (waited for) and one query answered."""
     files = {"file": ("one.geojson", json.dumps(ONE_BUILDING).encode())}
-    response = client.post("/v1/maps", files=files, data={"name": "one building"})
+    response = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "one building"})
     assert response.status_code == 201, response.text
     map_id = int(response.json()["id"])
     reference_ids = []

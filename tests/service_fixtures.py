@@ -234,11 +234,16 @@ def running_service(
     """``geoloc serve`` on a free loopback port (with ``api_keys``, none if None); yields once /healthz answers.
 
     Workers need the built models: pass ``models`` (the ``built_models`` fixture) to link them into
-    ``data_dir`` when ``workers`` > 0. ``cwd``: as for :func:`start_process`.
+    ``data_dir`` when ``workers`` > 0. ``workers=0`` still runs one worker that claims only ``load_map`` jobs
+    (``GEOLOC_WORKER_KINDS``), so that maps are parsed and every other job stays queued. ``cwd``: as for
+    :func:`start_process`.
     """
     port = free_port()
     if models is not None:
         _link_models(data_dir, models)
+    if workers == 0:  # maps are parsed by load_map jobs: one worker that claims nothing else (needs no models)
+        workers = 1
+        env_overrides.setdefault("GEOLOC_WORKER_KINDS", "load_map")
     env = service_env(data_dir, **env_overrides)
     if api_keys is not None:
         env["GEOLOC_API_KEYS"] = api_keys

@@ -13,7 +13,7 @@ import os
 import sys
 
 from contracts.settings import SettingsError, get_settings
-from workers.context import model_problems
+from workers.context import model_problems, needs_models
 from workers.handlers import load_builtin_handlers, load_plugins
 from workers.worker import Worker, install_signal_handlers
 
@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
         level=(args.log_level or settings.log_level).upper(),
         format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s",
     )
-    problems = model_problems()
+    problems = model_problems() if needs_models(settings) else []
     if problems:
         print("error: the worker cannot run jobs:\n  " + "\n  ".join(problems), file=sys.stderr)
         return 2

@@ -40,7 +40,7 @@ from contracts.settings import Settings, SettingsError, get_settings
 from db import Database, connect, migrate
 from db import jobs as job_store
 from workers.broker import RECONCILE_INTERVAL_S, RUN_JOB_TASK, CeleryPublisher, celery_app, reconcile
-from workers.context import model_problems
+from workers.context import model_problems, needs_models
 from workers.handlers import load_builtin_handlers, load_plugins
 from workers.retention import purge_interval_s
 from workers.worker import Worker
@@ -113,6 +113,9 @@ class ProcessState:
         """Claim job ``job_id`` and run it to its outcome; returns what happened (for the log)."""
         db = connect(self.settings.database)
         try:
+            kinds = self.settings.worker_kinds
+            if kinds and (row := job_store.get_job(db, job_id)) is not None and row["kind"] not in kinds:
+                return "not a kind this worker claims (GEOLOC_WORKER_KINDS): left queued"
             job = job_store.claim_job_by_id(db, job_id, self.worker.worker_id, self.settings.job_lease_s)
             if job is None:
                 return "not claimable (duplicate, finished, or waiting for its retry)"
@@ -214,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     level = (args.log_level or settings.log_level).upper()
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s")
-    problems = model_problems()
+    problems = model_problems() if needs_models(settings) else []
     if problems:
         print("error: the worker cannot run jobs:\n  " + "\n  ".join(problems), file=sys.stderr)
         return 2

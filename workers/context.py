@@ -15,7 +15,8 @@ import os
 from functools import lru_cache
 from pathlib import Path
 
-from contracts.settings import default_threads, get_settings, models_dir, shared_dir
+from contracts.jobs import LOAD_MAP
+from contracts.settings import Settings, default_threads, get_settings, models_dir, shared_dir
 from geoloc.core.context import MethodContext
 from geoloc.core.parallel import JobThreads
 from geoloc.vision import model_files
@@ -57,3 +58,12 @@ def worker_context() -> MethodContext:
 def model_problems(size: tuple[int, int] | None = None) -> list[str]:
     """:func:`geoloc.vision.model_files.model_problems` for the settings' models folder and shared weights."""
     return model_files.model_problems(models_dir(), shared_dir() / "models", size)
+
+
+MODEL_FREE_KINDS = (LOAD_MAP,)
+"""Job kinds whose handlers need no built models (a map's parse)."""
+
+
+def needs_models(settings: Settings) -> bool:
+    """Whether this process's workers run the method's jobs: all do, but those that claim only model-free kinds."""
+    return not settings.worker_kinds or any(kind not in MODEL_FREE_KINDS for kind in settings.worker_kinds)

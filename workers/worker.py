@@ -107,7 +107,8 @@ class Worker:
                 if self.settings.query_retention_s > 0 and now >= next_purge:
                     self.apply_retention(db)
                     next_purge = now + purge_interval_s(self.settings.query_retention_s)
-                job = job_store.claim_job(db, self.worker_id, self.settings.job_lease_s)
+                kinds = list(self.settings.worker_kinds) or None
+                job = job_store.claim_job(db, self.worker_id, self.settings.job_lease_s, kinds)
                 if job is None:
                     self.stop_event.wait(sleep_s)
                     sleep_s = min(sleep_s * 2, self.settings.worker_poll_max_s)

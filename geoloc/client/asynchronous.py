@@ -79,9 +79,23 @@ class AsyncClient(ClientBase):
 
     # --- maps ---------------------------------------------------------------------------------
 
-    async def upload_map(self, file: Upload, name: str, **fields: Unpack[MapFields]) -> models.Map:
-        """Upload a map file (OSM, GeoJSON, GeoPackage, ...) with its read options and ``attribution``."""
-        return (await self.call(calls.upload_map(file, name, fields))).value
+    async def upload_map(
+        self, file: Upload, name: str, *, timeout_s: float = 600.0, **fields: Unpack[MapFields]
+    ) -> models.Map:
+        """Upload a map file (OSM, GeoJSON, GeoPackage, ...) with its read options and ``attribution``.
+
+        Returns once the map is parsed: the service waits ``wait_s`` (default 60 s; a file it cannot read is
+        an :class:`~geoloc.client.errors.InvalidRequestError` then), and a map still queued after it is polled
+        with backoff (:meth:`wait_for_map`, at most ``timeout_s``). The map is returned ``done`` or ``failed``.
+        """
+        uploaded = (await self.call(calls.upload_map(file, name, {"wait_s": 60.0, **fields}))).value
+        if is_final(uploaded):
+            return uploaded
+        return await self.wait_for_map(uploaded.id, timeout_s=timeout_s)
+
+    async def wait_for_map(self, map_id: int, *, timeout_s: float = 600.0) -> models.Map:
+        """Poll until the map is ``done`` or ``failed`` (returned either way), at most ``timeout_s``."""
+        return await self.wait(lambda _: self.get_map(map_id), timeout_s=timeout_s, what=f"map {map_id}")
 
     async def get_map(self, map_id: int) -> models.Map:
         """One map (``GET /v1/maps/{id}``)."""

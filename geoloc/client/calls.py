@@ -37,6 +37,7 @@ class MapFields(TypedDict, total=False):
     levels_attribute: str
     crs: str
     attribution: str
+    wait_s: float
 
 
 class ReferenceFields(TypedDict, total=False):
@@ -132,7 +133,7 @@ def _file(upload: Upload) -> FileTuple:
 
 
 def upload_map(file: Upload, name: str, fields: MapFields) -> Call[models.Map]:
-    """``POST /v1/maps``: 201 a new map, 200 the same file again (``duplicate``)."""
+    """``POST /v1/maps``: 201 a new map parsed within ``wait_s``, 202 one still queued, 200 the same file again."""
     data = _form({"name": name, **fields})
     return Call("POST", "/v1/maps", _model(models.Map), data=data, files={"file": _file(file)})
 

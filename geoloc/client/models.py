@@ -30,6 +30,14 @@ class Map(_Model):
 
     id: int
     name: str
+    status: str = "done"
+    """``queued``, ``processing``, ``done`` (usable) or ``failed`` (``error`` says why)."""
+    error: str | None = None
+    error_code: str | None = None
+    error_details: dict[str, Any] = {}
+    job_id: int | None = None
+    progress: dict[str, int] = {}
+    """The parse's progress: ``elements`` read, ``buildings`` so far."""
     source_filename: str
     source_format: str
     sha256: str

@@ -16,19 +16,20 @@ import numpy as np
 from geoloc.core.geo import LocalFrame
 from geoloc.maps.build import RawMap, build_city_map
 from geoloc.maps.gis_reader import read_gis
-from geoloc.maps.model import CityMap, LoadReport, MapLoadError, MapReadOptions
+from geoloc.maps.model import CityMap, LoadReport, MapLoadError, MapProgress, MapReadOptions
 from geoloc.maps.osm_reader import read_osm
 from geoloc.maps.sniff import OSM_FORMATS, sniff_format
 from geoloc.maps.store import map_cache_path, read_city_map, save_city_map
 
 
-def load_map(path: str | Path, options: MapReadOptions | None = None) -> CityMap:
+def load_map(path: str | Path, options: MapReadOptions | None = None, progress: MapProgress | None = None) -> CityMap:
     """Load the buildings (with facades), trees and streets of a map file.
 
     Accepted, told from the content: OSM XML (plain, .bz2, .gz), .osm.pbf, GeoJSON (plain, .gz),
     GeoPackage, FlatGeobuf and zipped Shapefiles (see :mod:`geoloc.maps`). ``options`` choose the GIS
     layer, the attributes holding names and heights, and the CRS. Raises :class:`MapLoadError` with a
     reason when the file is not map data, holds no usable buildings or cannot be placed on the globe.
+    progress: told (elements read, buildings so far) while the file is read (:data:`MapProgress`).
     """
     path = Path(path)
     options = options or MapReadOptions()
@@ -40,9 +41,12 @@ def load_map(path: str | Path, options: MapReadOptions | None = None) -> CityMap
             raise MapLoadError(f"{path.name}: OSM data has no layers (the layer option is for GIS files)")
         if options.crs is not None:
             raise MapLoadError(f"{path.name}: OSM data is always WGS84 (the crs option is for GIS files)")
-        raw = read_osm(path, kind)
+        raw = read_osm(path, kind, progress)
     else:
         raw = read_gis(path, kind, options)
+    if progress is not None:  # read: the building candidates (ways, relations, features) are known
+        candidates = len(raw.relations) + len(raw.way_ids) + len(raw.feature_ids)
+        progress(candidates, candidates)
     return build_city_map(raw, path.name, options)
 
 

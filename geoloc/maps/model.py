@@ -11,6 +11,7 @@ footprints, a cell index of the facades), so that work near one place costs the 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from typing import Any
@@ -23,6 +24,12 @@ from shapely.ops import unary_union
 
 from geoloc.core.geo import LocalFrame
 from geoloc.maps.spatial import FacadeIndex
+
+MapProgress = Callable[[int, int], None]
+"""A parse's progress callback: ``(elements read, buildings found so far)``, called every
+:data:`PROGRESS_EVERY` elements (OSM) or once per layer read (GIS); the caller bounds how often it records it."""
+PROGRESS_EVERY = 50_000
+"""OSM objects read between two progress calls."""
 
 
 class MapLoadError(ValueError):

@@ -14,6 +14,7 @@ only for the ways used); a relation with member ways missing from the extract is
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ import osmium
 import shapely
 
 from geoloc.maps.build import RawMap, RawRelation
-from geoloc.maps.model import LoadReport, MapLoadError
+from geoloc.maps.model import PROGRESS_EVERY, LoadReport, MapLoadError, MapProgress
 from geoloc.maps.sniff import check_compressed_stream
 
 _OSMIUM_FORMATS = {"osm": "osm", "osm.bz2": "osm.bz2", "osm.gz": "osm.gz", "pbf": "pbf"}
@@ -31,10 +32,13 @@ LANDMARK_KEYS = ("tourism", "historic", "amenity", "leisure", "shop", "office", 
 public_transport ``station``); stops and platforms, named after their street, are not."""
 
 
-def read_osm(path: Path, kind: str) -> RawMap:
-    """Buildings, trees and streets of an OSM file of format ``kind`` (``osm``, ``osm.bz2``, ``osm.gz``, ``pbf``)."""
+def read_osm(path: Path, kind: str, progress: MapProgress | None = None) -> RawMap:
+    """Buildings, trees and streets of an OSM file of format ``kind`` (``osm``, ``osm.bz2``, ``osm.gz``, ``pbf``).
+
+    progress: called with (objects read, building ways so far) every :data:`PROGRESS_EVERY` objects.
+    """
     try:
-        return _read(path, kind)
+        return _read(path, kind, progress)
     except (RuntimeError, ValueError, OSError) as exc:  # osmium's parse and decompression errors
         check_compressed_stream(path, kind)
         raise MapLoadError(f"{path.name}: cannot read OSM data: {exc}") from exc
@@ -61,7 +65,16 @@ def _building_relations(osm_file: Any) -> list[_Relation]:
     return relations
 
 
-def _read(path: Path, kind: str) -> RawMap:
+def _counted(objects: Iterable[Any], progress: MapProgress | None, read: int, buildings: list[Any]) -> Iterator[Any]:
+    """``objects`` as they come, telling ``progress`` (objects read, ``len(buildings)``) every PROGRESS_EVERY."""
+    for obj in objects:
+        read += 1
+        if progress is not None and read % PROGRESS_EVERY == 0:
+            progress(read, len(buildings))
+        yield obj
+
+
+def _read(path: Path, kind: str, progress: MapProgress | None) -> RawMap:
     report = LoadReport(format=kind)
     osm_file = osmium.io.File(str(path), _OSMIUM_FORMATS[kind])
 
@@ -83,7 +96,7 @@ def _read(path: Path, kind: str) -> RawMap:
     natural_nodes.enable_for(osmium.osm.NODE)  # ways all pass
     processor = osmium.FileProcessor(osm_file, osmium.osm.NODE | osmium.osm.WAY).with_locations()
     obj: Any
-    for obj in processor.with_filter(natural_nodes):
+    for obj in _counted(processor.with_filter(natural_nodes), progress, len(relations), building_ways):
         if obj.is_node():
             node_tags = obj.tags
             if not obj.location.valid():

@@ -57,7 +57,7 @@ def client(service: RunningProcess) -> Iterator[httpx.Client]:
 @pytest.fixture(scope="module")
 def map_id(client: httpx.Client) -> int:
     files = {"file": ("one.geojson", json.dumps(ONE_BUILDING).encode())}
-    response = client.post("/v1/maps", files=files, data={"name": "one building"})
+    response = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "one building"})
     assert response.status_code == 201, response.text
     return int(response.json()["id"])
 

@@ -71,14 +71,14 @@ def answering(tmp_path_factory: pytest.TempPathFactory, built_models: Path, prof
 
 @pytest.fixture(scope="module")
 def idle(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Iterator[httpx.Client]:
-    """A service without workers: uploads stay queued."""
+    """A service whose only worker parses maps: photo uploads stay queued."""
     data_dir = tmp_path_factory.mktemp("gis-idle") / "data"
     with running_service(data_dir, workers=0, **profile.new_env()) as service, service.client(WRITE_KEY) as client:
         yield client
 
 
 def _upload_map(client: httpx.Client, name: str, content: bytes, **fields: str) -> dict[str, Any]:
-    response = client.post("/v1/maps", files={"file": (name, content)}, data={"name": name, **fields})
+    response = client.post("/v1/maps", files={"file": (name, content)}, data={"wait_s": "120", "name": name, **fields})
     assert response.status_code == 201, response.text
     return dict(response.json())
 
@@ -101,11 +101,11 @@ def test_maps_carry_the_stated_attribution_else_openstreetmaps(answering: httpx.
     again = answering.post(
         "/v1/maps",
         files={"file": ("stated.geojson", json.dumps(stated_file).encode())},
-        data={"name": "again", "attribution": "something else"},
+        data={"wait_s": "120", "name": "again", "attribution": "something else"},
     )
     assert again.status_code == 200 and again.json()["attribution"] == STATED  # the stored map, as it was stored
     too_long = answering.post(
-        "/v1/maps", files={"file": ("x.osm", TINY_OSM)}, data={"name": "x", "attribution": "©" * 501}
+        "/v1/maps", files={"file": ("x.osm", TINY_OSM)}, data={"wait_s": "120", "name": "x", "attribution": "©" * 501}
     )
     assert too_long.status_code == 422 and too_long.json()["error"]["code"] == "invalid_request"
 

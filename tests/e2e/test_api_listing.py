@@ -60,7 +60,7 @@ def client(service: RunningProcess) -> Iterator[httpx.Client]:
 
 def _new_map(client: httpx.Client, name: str) -> int:
     body = json.dumps({**TOWN, "name": name}).encode()  # a distinct file per map (maps are deduplicated)
-    response = client.post("/v1/maps", files={"file": (f"{name}.geojson", body)}, data={"name": name})
+    response = client.post("/v1/maps", files={"file": (f"{name}.geojson", body)}, data={"wait_s": "120", "name": name})
     assert response.status_code == 201, response.text
     return int(response.json()["id"])
 

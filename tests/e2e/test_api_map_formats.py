@@ -54,7 +54,7 @@ def client(service: RunningProcess) -> Iterator[httpx.Client]:
 
 
 def upload(client: httpx.Client, path: Path, name: str, options: dict[str, str] | None = None) -> httpx.Response:
-    data = {"name": name, **(options or {})}
+    data = {"wait_s": "120", "name": name, **(options or {})}
     return client.post("/v1/maps", files={"file": (path.name, path.read_bytes())}, data=data)
 
 

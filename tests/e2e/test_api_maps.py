@@ -69,7 +69,8 @@ def client(service: RunningProcess) -> Iterator[httpx.Client]:
 def helsinki(client: httpx.Client) -> dict[str, Any]:
     path = shared_path("data", "osm", "helsinki.osm.pbf")
     with path.open("rb") as f:
-        response = client.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)}, data={"name": "helsinki"})
+        response = client.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)},
+            data={"wait_s": "120", "name": "helsinki"})
     assert response.status_code == 201, response.text
     return response.json()
 
@@ -142,7 +143,7 @@ def test_map_reads(client: httpx.Client, helsinki: dict[str, Any], service: Runn
 
 def test_same_map_file_again_returns_the_existing_map(client: httpx.Client, helsinki: dict[str, Any]) -> None:
     with shared_path("data", "osm", "helsinki.osm.pbf").open("rb") as f:
-        response = client.post("/v1/maps", files={"file": ("copy.pbf", f)}, data={"name": "again"})
+        response = client.post("/v1/maps", files={"file": ("copy.pbf", f)}, data={"wait_s": "120", "name": "again"})
     assert response.status_code == 200
     assert response.json()["id"] == helsinki["id"] and response.json()["duplicate"] is True
 
@@ -156,7 +157,8 @@ GEOJSON_MAP = (
 
 def test_geojson_map_upload_and_delete(client: httpx.Client, service: RunningProcess) -> None:
     before = Unchanged(service)
-    response = client.post("/v1/maps", files={"file": ("town.json", GEOJSON_MAP)}, data={"name": "town"})
+    response = client.post("/v1/maps", files={"file": ("town.json", GEOJSON_MAP)},
+        data={"wait_s": "120", "name": "town"})
     assert response.status_code == 201, response.text
     created = response.json()
     assert created["source_format"] == "geojson" and created["building_count"] == 1
@@ -266,15 +268,16 @@ OSM_WITHOUT_BUILDINGS = b"<?xml version='1.0'?><osm version='0.6'><node id='1' l
 
 # (case, target, files, form data, api key, status, error code, message fragment)
 BAD_INPUTS: list[tuple[str, str, Any, dict[str, str], str | None, int, str, str]] = [
-    ("map: not map data", "maps", lambda: {"file": ("x.osm", b"hello, world")}, {"name": "x"},
+    ("map: not map data", "maps", lambda: {"file": ("x.osm", b"hello, world")}, {"name": "x", "wait_s": "60"},
      WRITE_KEY, 422, "invalid_map", "not map data"),
-    ("map: broken pbf", "maps", lambda: {"file": ("x.osm.pbf", BROKEN_PBF)}, {"name": "x"},
+    ("map: broken pbf", "maps", lambda: {"file": ("x.osm.pbf", BROKEN_PBF)}, {"name": "x", "wait_s": "60"},
      WRITE_KEY, 422, "invalid_map", "x.osm.pbf"),
-    ("map: xml without buildings", "maps", lambda: {"file": ("x.osm", OSM_WITHOUT_BUILDINGS)}, {"name": "x"},
+    ("map: xml without buildings", "maps", lambda: {"file": ("x.osm", OSM_WITHOUT_BUILDINGS)},
+     {"name": "x", "wait_s": "60"},
      WRITE_KEY, 422, "invalid_map", "no buildings"),
-    ("map: jpeg named .osm", "maps", lambda: {"file": ("x.osm", jpeg_bytes())}, {"name": "x"},
+    ("map: jpeg named .osm", "maps", lambda: {"file": ("x.osm", jpeg_bytes())}, {"name": "x", "wait_s": "60"},
      WRITE_KEY, 422, "invalid_map", "not map data"),
-    ("map: empty file", "maps", lambda: {"file": ("x.osm", b"")}, {"name": "x"},
+    ("map: empty file", "maps", lambda: {"file": ("x.osm", b"")}, {"name": "x", "wait_s": "60"},
      WRITE_KEY, 422, "empty_file", "empty"),
     ("map: no name", "maps", lambda: {"file": ("x.osm", b"<osm/>")}, {},
      WRITE_KEY, 422, "invalid_request", "name"),
@@ -282,11 +285,11 @@ BAD_INPUTS: list[tuple[str, str, Any, dict[str, str], str | None, int, str, str]
      {"name": "x"}, WRITE_KEY, 413, "payload_too_large", "limit"),
     ("map: too large (file)", "maps", lambda: {"file": ("big.osm", b"<" * (MAX_MAP_BYTES + 1000))},
      {"name": "x"}, WRITE_KEY, 413, "payload_too_large", str(MAX_MAP_BYTES)),
-    ("map: no API key", "maps", lambda: {"file": ("x.osm", GEOJSON_MAP)}, {"name": "x"},
+    ("map: no API key", "maps", lambda: {"file": ("x.osm", GEOJSON_MAP)}, {"name": "x", "wait_s": "60"},
      None, 401, "unauthorized", "X-API-Key"),
-    ("map: wrong API key", "maps", lambda: {"file": ("x.osm", GEOJSON_MAP)}, {"name": "x"},
+    ("map: wrong API key", "maps", lambda: {"file": ("x.osm", GEOJSON_MAP)}, {"name": "x", "wait_s": "60"},
      "not-a-key", 401, "unauthorized", "invalid API key"),
-    ("map: read-only key", "maps", lambda: {"file": ("x.osm", GEOJSON_MAP)}, {"name": "x"},
+    ("map: read-only key", "maps", lambda: {"file": ("x.osm", GEOJSON_MAP)}, {"name": "x", "wait_s": "60"},
      READ_KEY, 403, "forbidden", "write"),
     ("ref: not an image", "refs", lambda: {"image": ("a.jpg", b"just some text, not pixels")}, {},
      WRITE_KEY, 415, "not_an_image", "not an image"),

@@ -44,7 +44,7 @@ def world_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _upload_map(client: httpx.Client) -> int:
     path = shared_path("data", "osm", "helsinki.osm.pbf")
     with path.open("rb") as f:
-        response = client.post("/v1/maps", files={"file": (path.name, f)}, data={"name": "helsinki"})
+        response = client.post("/v1/maps", files={"file": (path.name, f)}, data={"wait_s": "120", "name": "helsinki"})
     assert response.status_code in (200, 201), response.text
     return response.json()["id"]
 

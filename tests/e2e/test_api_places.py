@@ -36,7 +36,7 @@ def client(service: RunningProcess) -> Iterator[httpx.Client]:
 
 def _upload(client: httpx.Client, path: Path, name: str) -> int:
     with path.open("rb") as f:
-        response = client.post("/v1/maps", files={"file": (path.name, f)}, data={"name": name})
+        response = client.post("/v1/maps", files={"file": (path.name, f)}, data={"wait_s": "120", "name": name})
     assert response.status_code == 201, response.text
     return int(response.json()["id"])
 

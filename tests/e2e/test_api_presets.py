@@ -21,7 +21,7 @@ pytestmark = pytest.mark.slow
 
 def _upload_map(client: httpx.Client) -> int:
     files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-    response = client.post("/v1/maps", files=files, data={"name": "hall"})
+    response = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "hall"})
     assert response.status_code == 201, response.text
     return int(response.json()["id"])
 

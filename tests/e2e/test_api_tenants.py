@@ -39,7 +39,7 @@ def service(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Itera
 
 def _upload_map(client: httpx.Client, name: str) -> httpx.Response:
     files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-    return client.post("/v1/maps", files=files, data={"name": name})
+    return client.post("/v1/maps", files=files, data={"name": name, "wait_s": "120"})
 
 
 def _seed(client: httpx.Client, name: str) -> dict[str, int]:
@@ -190,7 +190,7 @@ def _seed_fresh(client: httpx.Client) -> dict[str, int]:
     collection: dict[str, Any] = json.loads(json.dumps(ONE_BUILDING))
     collection["features"][0]["properties"]["name"] = "fresh hall"
     files = {"file": ("fresh.geojson", json.dumps(collection).encode())}
-    created = client.post("/v1/maps", files=files, data={"name": "fresh"})
+    created = client.post("/v1/maps", files=files, data={"name": "fresh", "wait_s": "120"})
     assert created.status_code == 201, created.text
     map_id = created.json()["id"]
     reference = client.post(

@@ -45,7 +45,7 @@ def _map(client: httpx.Client, shift: float = 0.0) -> int:
     ring = collection["features"][0]["geometry"]["coordinates"][0]
     collection["features"][0]["geometry"]["coordinates"][0] = [[x + shift, y] for x, y in ring]
     files = {"file": (f"hall{shift}.geojson", json.dumps(collection).encode())}
-    response = client.post("/v1/maps", files=files, data={"name": f"hall {shift}"})
+    response = client.post("/v1/maps", files=files, data={"name": f"hall {shift}", "wait_s": "120"})
     assert response.status_code in (200, 201), response.text
     return int(response.json()["id"])
 

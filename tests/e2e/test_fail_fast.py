@@ -80,7 +80,7 @@ def test_a_model_gone_at_run_time_fails_the_job_at_once(tmp_path: Path, built_mo
         wait_for(lambda: client.get("/readyz").status_code == 200, timeout=60, what="the worker to start")
         next((data_dir / "cache" / "models").glob("*.onnx")).unlink()
         files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-        map_id = client.post("/v1/maps", files=files, data={"name": "hall"}).json()["id"]
+        map_id = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "hall"}).json()["id"]
         accepted = client.post(
             f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=1))}, data=INSIDE_ONE_BUILDING
         ).json()

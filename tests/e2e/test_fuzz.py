@@ -41,7 +41,7 @@ RUN_TIMEOUT_S = 600
 def _seed(client: httpx.Client) -> dict[str, int]:
     """A map, a reference and a query: ids the fuzzer can use on the operations that need one."""
     files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-    map_id = client.post("/v1/maps", files=files, data={"name": "fuzz"}).json()["id"]
+    map_id = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "fuzz"}).json()["id"]
     reference = client.post(
         f"/v1/maps/{map_id}/references",
         files={"image": ("r.jpg", jpeg_bytes(seed=11))},

@@ -39,9 +39,13 @@ QUEUE_LIMIT = WAITING_QUERIES + 4
 WAIT_S = 12.0
 
 
+QUERY_JOBS = "SELECT COUNT(*) AS n FROM jobs WHERE kind = 'localize_query'"
+"""The query jobs (the map's own load_map job is done before any query)."""
+
+
 def _upload_map(client: httpx.Client) -> int:
     files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-    response = client.post("/v1/maps", files=files, data={"name": "hall"})
+    response = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "hall"})
     assert response.status_code == 201, response.text
     return int(response.json()["id"])
 
@@ -74,7 +78,7 @@ def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_servi
     with ThreadPoolExecutor(WAITING_QUERIES) as pool, queue_service.client(READ_KEY) as reader:
         waiting = [pool.submit(ask, seed) for seed in range(WAITING_QUERIES)]
         wait_for(
-            lambda: read_rows(queue_service.database, "SELECT COUNT(*) AS n FROM jobs")[0]["n"] == WAITING_QUERIES,
+            lambda: read_rows(queue_service.database, QUERY_JOBS)[0]["n"] == WAITING_QUERIES,  # not the map's
             timeout=60,
             what="every query to be stored and waiting",
         )

@@ -43,7 +43,9 @@ def test_the_viewer_draws_a_track_and_steps_through_its_frames(
     link_models(data_dir, built_models)
     with running_service(data_dir, workers=1) as service, service.client(WRITE_KEY, timeout=300.0) as api:
         osm = shared_path("data", "osm", "helsinki.osm.pbf")
-        map_id = api.post("/v1/maps", files={"file": (osm.name, osm.read_bytes())}, data={"name": "h"}).json()["id"]
+        upload = {"file": (osm.name, osm.read_bytes())}
+        created = api.post("/v1/maps", files=upload, data={"name": "h", "wait_s": "120"})
+        map_id = created.json()["id"]
         files = [("images", (im.path.name, im.path.read_bytes(), "image/jpeg")) for im in photos]
         track = api.post(f"/v1/maps/{map_id}/tracks", files=files, data={"wait_s": "280"}).json()
         assert track["status"] == "done", track

@@ -97,7 +97,7 @@ def test_workers_apply_the_retention(tmp_path: Path, built_models: Path, profile
         service.client(WRITE_KEY) as client,
     ):
         files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-        map_id = client.post("/v1/maps", files=files, data={"name": "hall"}).json()["id"]
+        map_id = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "hall"}).json()["id"]
         reference = client.post(
             f"/v1/maps/{map_id}/references", files={"image": ("r.jpg", jpeg_bytes(seed=1))}, data=INSIDE_ONE_BUILDING
         ).json()

@@ -176,7 +176,8 @@ async function loadMaps(selectId = null) {
   for (const m of state.maps) {
     const option = document.createElement("option");
     option.value = m.id;
-    option.textContent = `${m.id}: ${m.name} (${m.building_count} buildings)`;
+    option.textContent =
+      m.status === "done" ? `${m.id}: ${m.name} (${m.building_count} buildings)` : `${m.id}: ${m.name} (${m.status})`;
     select.appendChild(option);
   }
   select.disabled = state.maps.length === 0;
@@ -202,8 +203,12 @@ async function selectMap(mapId) {
   let buildings;
   let streets;
   try {
-    [map, buildings, streets] = await Promise.all([
-      getJson(`v1/maps/${mapId}`),
+    map = await waitForMap(await getJson(`v1/maps/${mapId}`)); // usable once its parse is done
+    if (map.status === "failed") {
+      setStatus(`Map ${map.id} could not be loaded: ${map.error}`, "error");
+      return;
+    }
+    [buildings, streets] = await Promise.all([
       getJson(`v1/maps/${mapId}/buildings`),
       getJson(`v1/maps/${mapId}/streets`),
     ]);
@@ -297,19 +302,45 @@ async function uploadMap(event) {
   const attribution = $("map-attribution-input").value.trim();
   if (attribution) form.append("attribution", attribution);
   setStatus(`Uploading ${file.name} (${(file.size / 1e6).toFixed(1)} MB)…`);
+  form.append("wait_s", "2"); // a file the workers cannot read is a 422 within these seconds
   try {
     const { status, body } = await postForm("v1/maps", form);
+    const map = status === 200 ? body : await waitForMap(body);
+    if (map.status === "failed") {
+      setStatus(`Map ${map.id} could not be loaded: ${map.error}`, "error");
+      return;
+    }
     setStatus(
       status === 200
-        ? `This file is already map ${body.id} “${body.name}”.`
-        : `Map ${body.id} stored: ${body.building_count} buildings, ${body.facade_count} facades.`,
+        ? `This file is already map ${map.id} “${map.name}”.`
+        : `Map ${map.id} stored: ${map.building_count} buildings, ${map.facade_count} facades.`,
     );
     $("section-map").open = false;
     history.replaceState(null, "", location.pathname);
-    await loadMaps(body.id);
+    await loadMaps(map.id);
   } catch (err) {
     reportError(err, "Map upload");
   }
+}
+
+/** Poll a map until its parse is done or failed, showing its progress; returns the map as it ended. */
+async function waitForMap(map) {
+  let pauseMs = 250;
+  while (map.status === "queued" || map.status === "processing") {
+    const { elements = 0, buildings = 0 } = map.progress || {};
+    setStatus(
+      map.status === "queued"
+        ? `Map ${map.id} “${map.name}” is queued for parsing…`
+        : `Parsing map ${map.id} “${map.name}”: ${elements.toLocaleString()} elements read, ` +
+            `${buildings.toLocaleString()} buildings so far…`,
+    );
+    document.body.dataset.mapStatus = map.status;
+    await sleep(pauseMs);
+    pauseMs = Math.min(pauseMs * 2, 2000);
+    map = await getJson(`v1/maps/${map.id}`);
+  }
+  document.body.dataset.mapStatus = map.status;
+  return map;
 }
 
 // --- references ---------------------------------------------------------------------------------
