@@ -65,7 +65,8 @@ class RankedLocation(_Answer):
     )
     source: str = Field(
         description="'anchors': PnP on reference keypoints anchored on the map's facades, refined on the map; "
-        "'likelihood': the map likelihood's probability map",
+        "'likelihood': the map likelihood's probability map; 'track': a track's frame placed jointly with its "
+        "neighbours (docs/tracks.md)",
         examples=["anchors"],
     )
     inliers: int = Field(description="PnP inliers of an anchored answer (0 for likelihood answers)", examples=[46])

@@ -75,6 +75,20 @@ def _files_not_empty(schema: Schema) -> None:
             prop["minLength"] = 1
 
 
+def _file_lists_required(schema: Schema) -> None:
+    """Mark a form's repeated file field (a track's ``images``) required, at least one: none is a ``422``.
+
+    Such a field is optional in the route's signature only because the operation also takes a JSON body.
+    """
+    for name, prop in schema.get("properties", {}).items():
+        items = prop.get("items", {})
+        if prop.get("type") == "array" and ("contentMediaType" in items or items.get("format") == "binary"):
+            prop["minItems"] = 1
+            prop.pop("default", None)
+            if name not in schema.setdefault("required", []):
+                schema["required"].append(name)
+
+
 def _form_schema(spec: Schema, operation: Schema) -> Schema | None:
     content = operation.get("requestBody", {}).get("content", {})
     ref = content.get("multipart/form-data", {}).get("schema", {}).get("$ref")
@@ -93,6 +107,7 @@ def adjust(spec: Schema, settings: Settings) -> Schema:
             if form is not None:
                 _strip_null(form)
                 _files_not_empty(form)
+                _file_lists_required(form)
                 responses.setdefault("400", error_response("The body is not valid `multipart/form-data`"))
             if method in WRITE_METHODS:
                 responses.setdefault("507", error_response("The server's storage is full: nothing was stored"))

@@ -181,9 +181,8 @@ class TrackIntake:
                 except ApiError:
                     row = None
                 if row is None or row["image_path"] is None:
-                    raise ApiError(
-                        422, "invalid_request", f"frame {index}: query {query_id} not found", {"frame": index}
-                    )
+                    # a named resource that does not exist (or another tenant's) is a 404, as in a path
+                    raise ApiError(404, "not_found", f"frame {index}: query {query_id} not found", {"frame": index})
                 if row["map_id"] != map_id:
                     raise ApiError(
                         422,

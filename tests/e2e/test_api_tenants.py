@@ -235,13 +235,13 @@ def test_the_keys_tenant_is_stamped_on_the_map_and_its_jobs(
 def test_a_track_of_another_tenants_query_is_as_if_it_did_not_exist(
     service: RunningProcess, seeded: dict[str, dict[str, int]]
 ) -> None:
-    """A JSON track naming team-a's query on team-b's map: the same 422 as a query that does not exist."""
+    """A JSON track naming team-a's query on team-b's map: the same 404 as a query that does not exist."""
     team_a, team_b = seeded[A_WRITE], seeded[B_WRITE]
     url = f"/v1/maps/{team_b['map_id']}/tracks"
     with service.client(B_WRITE) as client:
         foreign = client.post(url, json={"query_ids": [team_a["query_id"]], "wait_s": 0})
         missing = client.post(url, json={"query_ids": [MISSING_ID], "wait_s": 0})
         own = client.post(url, json={"query_ids": [team_b["query_id"]], "wait_s": 0})
-    assert foreign.status_code == missing.status_code == 422, (foreign.text, missing.text)
+    assert foreign.status_code == missing.status_code == 404, (foreign.text, missing.text)
     assert _shape(foreign, team_a) == _shape(missing, {"query_id": MISSING_ID})
     assert own.status_code == 202, own.text

@@ -110,7 +110,7 @@ def test_bad_tracks_get_a_clear_4xx_and_store_nothing(service: RunningProcess) -
         malformed = client.post(f"/v1/maps/{map_id}/tracks", json={"query_ids": "all"})
         assert malformed.status_code == 422 and "query_ids" in _error(malformed)["message"]
         missing = client.post(f"/v1/maps/{map_id}/tracks", json={"query_ids": [987654]})
-        assert missing.status_code == 422 and "987654" in _error(missing)["message"]
+        assert missing.status_code == 404 and "987654" in _error(missing)["message"]
         assert client.get("/v1/tracks/987654").status_code == 404
 
 

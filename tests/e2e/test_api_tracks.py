@@ -71,7 +71,8 @@ def test_a_walk_is_located_as_a_track(tmp_path: Path, built_models: Path, walk_d
         assert [f.index for f in track.frames] == [0, 1, 2]
         assert [f.original_filename for f in track.frames] == [im.path.name for im in track_photos]
         for frame, image in zip(track.frames, track_photos, strict=True):
-            assert frame.lat is not None and frame.heading_deg is not None and frame.source in ("anchors", "likelihood")
+            assert frame.lat is not None and frame.heading_deg is not None
+            assert frame.source in ("track", "anchors", "likelihood")  # track: placed jointly with its neighbours
             assert frame.uncertainty_radius_m is not None and frame.uncertainty_radius_m > 0
             assert frame.capture_time is not None and frame.capture_time.startswith("20")
             assert _error_m(frame, image.record["pose"]) < 100.0, (frame, image.record["pose"])
