@@ -108,14 +108,20 @@ def _job_states(database: str) -> list[tuple[Any, ...]]:
 
 
 def _api_child_pid(service: RunningProcess) -> int | None:
-    """The uvicorn process under a ``geoloc serve --workers 0`` supervisor (None while it is being restarted)."""
+    """The API process (``python -m service``) under a ``geoloc serve`` supervisor (None while it is restarted).
+
+    Its other children are workers (the test services' map-only worker: maps are parsed by jobs).
+    """
     children = []
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
             fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[1]) != service.process.pid:  # the field after the state is the parent's pid
+                continue
+            argv = (stat.parent / "cmdline").read_bytes().decode(errors="replace").split("\0")
         except OSError:
             continue
-        if int(fields[1]) == service.process.pid:  # the field after the state is the parent's pid
+        if "service" in argv:
             children.append(int(stat.parent.name))
     assert len(children) <= 1, children
     return children[0] if children else None
@@ -197,7 +203,8 @@ def test_two_api_processes_same_photo_at_once_and_an_api_restart(
             what=lambda: f"10 references done\n{workers.log_tail(80)}",
         )
         ready = one.get("/readyz").json()
-        assert ready["profile"] == "distributed" and ready["broker"] == "ok" and ready["live_workers"] == 1
+        # the worker process, and the map-only worker each API service starts (tests.service_fixtures, workers=0)
+        assert ready["profile"] == "distributed" and ready["broker"] == "ok" and ready["live_workers"] == 1 + 2
     _assert_each_done_exactly_once(first.database, ids)
     runs = (tmp_path / "labels.log").read_text().split("\n")[:-1]
     assert sorted(int(line.split()[0]) for line in runs) == sorted(set(ids)), "each reference labelled once"
