@@ -58,7 +58,8 @@ class Settings(BaseSettings):
         default=Path.home() / ".local" / "share" / "geoloc",
         description="the embedded database (`geoloc.sqlite3`), stored maps and photos (unless "
         "`GEOLOC_STORE_DIR`), temporary uploads (`tmp/`), and caches (`cache/models`: ONNX, vocabulary; "
-        "`cache/maps`: loaded maps for the workers)",
+        "`cache/maps`: loaded maps for the workers, memory-mapped; `cache/sbow`: each map's SBoW base segment, "
+        "mapped by every worker process of the machine)",
         json_schema_extra=_shown("`~/.local/share/geoloc`"),
     )
     database_url: str | None = Field(

@@ -68,6 +68,7 @@ from geoloc.vision.segmentation import ModelNotBuiltError
 from workers.context import worker_context
 from workers.handlers import PermanentJobError, answer_checked, register, treat_as_permanent
 from workers.reference_store import DatabaseReferenceStore, database_key
+from workers.sbow_share import sbow_cache_dir
 
 treat_as_permanent(ModelNotBuiltError)  # a missing model stays missing until `geoloc models build` runs
 
@@ -105,6 +106,11 @@ def _map_key(db: Database, map_id: int) -> tuple[str, str, str]:
 def city_map_for(db: Database, map_id: int) -> CityMap:
     """The CityMap of map ``map_id`` (cached per process); a permanent job error if the map is gone."""
     return _city_map(*_map_key(db, map_id))
+
+
+def reference_store_for(db: Database, map_id: int) -> DatabaseReferenceStore:
+    """The map's references for the query stage, on the machine's shared SBoW base (:mod:`workers.sbow_share`)."""
+    return DatabaseReferenceStore(db, map_id, shared_dir=sbow_cache_dir(data_dir()))
 
 
 def position_prior_for(db: Database, map_id: int, city: CityMap, prior: PriorPosition) -> PositionPrior:
@@ -324,7 +330,7 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         city,
         photo,
         evidence,
-        DatabaseReferenceStore(db, map_id),
+        reference_store_for(db, map_id),
         vocabulary_for(db, map_id),
         preset_config(params.preset_name, k=params.k),
         position_prior=position_prior,

@@ -16,6 +16,10 @@ once per process and kept (:data:`DECODED_CACHE_SIZE` of them, least recently us
 stored keypoints row is unchanged (its ``created_at``); positions are read without the features and kept
 the same way (:data:`POSITION_CACHE_SIZE`), so that filtering the shortlist by the query's prior reads only
 the keypoints rows' times.
+
+Shared: given a folder (``shared_dir``, the workers pass ``DATA_DIR/cache/sbow``), the base segment of a map's
+index is not built per process but mapped from one file per machine (:mod:`workers.sbow_share`); the documents
+changed since that file's mark are read from the log as above, per process.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -31,7 +36,7 @@ from db import Database, sbow
 from db import references as reference_store
 from geoloc.localize.sbow_index import SbowIndex
 from geoloc.localize.store import StoredReference
-from geoloc.vision.model_files import DEFAULT_WORDS
+from workers.sbow_share import index_words, shared_base, shared_base_path
 
 LOOKBACK_CHANGES = 256
 """Change-log rows re-read behind the high-water mark (see the module docstring)."""
@@ -68,11 +73,16 @@ def database_key(db: Database) -> str:
 
 
 class DatabaseReferenceStore:
-    """Labelled references of one map, read from the database."""
+    """Labelled references of one map, read from the database.
 
-    def __init__(self, db: Database, map_id: int) -> None:
+    shared_dir: where the machine's shared SBoW base segments live (:mod:`workers.sbow_share`); None: this
+    process builds its own from the database.
+    """
+
+    def __init__(self, db: Database, map_id: int, shared_dir: Path | None = None) -> None:
         self.db = db
         self.map_id = map_id
+        self.shared_dir = shared_dir
         self._database = database_key(db)
 
     def shortlist(self, words: np.ndarray, n: int) -> list[tuple[Hashable, float]]:
@@ -92,7 +102,7 @@ class DatabaseReferenceStore:
         with _LOCK:
             live = _INDEXES.get(key)
             if live is None:
-                live = self._load_index()
+                live = self._load_index(key[2])
                 _INDEXES[key] = live
                 while len(_INDEXES) > CACHED_MAP_INDEXES:
                     _INDEXES.popitem(last=False)
@@ -101,12 +111,15 @@ class DatabaseReferenceStore:
             _INDEXES.move_to_end(key)
             return live
 
-    def _load_index(self) -> _LiveIndex:
+    def _load_index(self, created_at: float) -> _LiveIndex:
+        if self.shared_dir is not None:
+            path = shared_base_path(self.shared_dir, self._database, self.map_id, created_at)
+            shared = shared_base(self.db, self.map_id, path, LOOKBACK_CHANGES)
+            live = _LiveIndex(shared.index, shared.mark, shared.applied)
+            self._catch_up(live)  # the file may be behind the log: the rest as recent documents
+            return live
         snapshot = sbow.index_snapshot(self.db, self.map_id, lookback=LOOKBACK_CHANGES)
-        n_words = sbow.vocabulary_size(self.db, self.map_id) or DEFAULT_WORDS
-        if len(snapshot.word):
-            n_words = max(n_words, int(snapshot.word.max()) + 1)
-        index = SbowIndex(n_words)
+        index = SbowIndex(index_words(self.db, self.map_id, snapshot))
         index.load(snapshot.ids, snapshot.lengths, snapshot.word, snapshot.doc, snapshot.weight)
         live = _LiveIndex(index, snapshot.mark)
         # Changes already in the snapshot (a later read of the window must not apply them twice).

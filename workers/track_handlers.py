@@ -27,8 +27,14 @@ from geoloc.photos.photo import Photo
 from geoloc.vision.evidence import analyze_photo
 from workers.context import worker_context
 from workers.handlers import PermanentJobError, answer_checked, register
-from workers.method_handlers import city_map_for, query_priors, query_result, stored_photo, vocabulary_for
-from workers.reference_store import DatabaseReferenceStore
+from workers.method_handlers import (
+    city_map_for,
+    query_priors,
+    query_result,
+    reference_store_for,
+    stored_photo,
+    vocabulary_for,
+)
 
 
 def capture_seconds(value: str | None) -> float | None:
@@ -92,7 +98,7 @@ def locate_track_job(db: Database, payload: LocateTrackPayload) -> LocateTrackRe
     answer = locate_track(
         city,
         frames,
-        DatabaseReferenceStore(db, map_id),
+        reference_store_for(db, map_id),
         vocabulary_for(db, map_id),
         preset_config(preset, k=int(params.get("k", 4))),
         top_n=int(params.get("top_n", 10)),

@@ -121,8 +121,20 @@ class SbowIndex:
         ids = np.asarray(ids, np.int64)
         if len(np.unique(ids)) != len(ids):
             raise ValueError("document ids must be distinct")
-        self._base = Segment.from_postings(self.n_words, ids, lengths, post_word, post_doc, post_weight)
-        self._base_row = {int(d): i for i, d in enumerate(ids.tolist())}
+        self.load_segment(Segment.from_postings(self.n_words, ids, lengths, post_word, post_doc, post_weight))
+
+    def load_segment(self, segment: Segment) -> None:
+        """Replace the contents with a base segment built earlier (:meth:`load`'s, or one mapped from a file).
+
+        The segment's arrays are only read (but ``live``, which removals write), so read-only memory-mapped ones
+        stay shared between the processes that map the same file.
+        """
+        if len(segment.word_ptr) != self.n_words + 1:
+            raise ValueError(f"the segment has {len(segment.word_ptr) - 1} words, the index {self.n_words}")
+        if not segment.live.all():
+            raise ValueError("a base segment to load holds live documents only")
+        self._base = segment
+        self._base_row = {int(d): i for i, d in enumerate(segment.ids.tolist())}
         self._base_df = self._base.word_counts().astype(np.int64)
         self._dead = 0
         self._recent = RecentDocuments(self.n_words)

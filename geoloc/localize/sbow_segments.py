@@ -85,6 +85,23 @@ class Segment:
             doc_word,
         )
 
+    ARRAY_NAMES = ("ids", "length", "live", "word_ptr", "doc", "weight", "doc_ptr", "doc_word")
+    """The segment's arrays, as :meth:`arrays` names them."""
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The segment as named arrays (to be written to a file and read back by :meth:`from_arrays`)."""
+        return {name: getattr(self, name) for name in self.ARRAY_NAMES}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> Segment:
+        """A segment from :meth:`arrays` output, used as it is (read-only memory-mapped arrays stay shared).
+
+        Only ``live`` is copied: removing a document writes to it, and that is the process's own business.
+        """
+        values = {name: arrays[name] for name in cls.ARRAY_NAMES}
+        values["live"] = np.array(values["live"], dtype=bool)
+        return cls(**values)
+
     def words_of(self, row: int) -> np.ndarray:
         """The distinct words of document ``row`` (int64, in no particular order)."""
         return self.doc_word[self.doc_ptr[row] : self.doc_ptr[row + 1]].astype(np.int64)

@@ -3,6 +3,8 @@
 Every segment is entered in each square cell its bounding box touches. Only occupied cells are
 stored (sorted cell keys with the start of each cell's run of segment ids), so memory grows with
 the number of segments, not with the map's extent, and a query looks up only the cells it covers.
+The index is built once, when the map's binary copy is written (:mod:`geoloc.maps.store` keeps its arrays,
+:meth:`FacadeIndex.arrays` and :meth:`FacadeIndex.from_arrays`), not by every process that reads the map.
 """
 
 from __future__ import annotations
@@ -39,6 +41,27 @@ class FacadeIndex:
         first = np.flatnonzero(np.r_[True, np.diff(key) != 0]) if len(key) else np.zeros(0, dtype=np.int64)
         self.cell_keys = key[first]
         self.cell_start = np.r_[first, len(key)].astype(np.int64)
+
+    ARRAY_NAMES = ("origin", "cell_keys", "cell_start", "cell_facades")
+    """The arrays of :meth:`arrays` (with ``cell_m`` and ``rows`` as a (2,) float64 ``shape``)."""
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The index as named arrays, for :meth:`from_arrays` (what :mod:`geoloc.maps.store` writes)."""
+        return {
+            **{name: getattr(self, name) for name in self.ARRAY_NAMES},
+            "shape": np.array([self.cell_m, self.rows], dtype=np.float64),
+        }
+
+    @classmethod
+    def from_arrays(cls, facades: Any, arrays: dict[str, np.ndarray]) -> FacadeIndex:
+        """The index of ``facades`` from :meth:`arrays` output (no work: the arrays are used as they are)."""
+        index = cls.__new__(cls)
+        index.facades = facades
+        index.cell_m, rows = (float(v) for v in arrays["shape"])
+        index.rows = int(rows)
+        for name in cls.ARRAY_NAMES:
+            setattr(index, name, arrays[name])
+        return index
 
     def facades_near(self, center: np.ndarray, radius_m: float) -> np.ndarray:
         """Sorted ids of facades whose bounding box may lie within ``radius_m`` of any of the (P, 2) ``center``s."""

@@ -1,11 +1,15 @@
 """A loaded :class:`CityMap` as one binary file, so a process that needs a map does not parse its source again.
 
-The file is an uncompressed ``.npz`` (no pickle): the facade, tree, street and landmark arrays as they
-are, the footprints as concatenated WKB, and the rest (frame origin, names, street and landmark names, ids,
-tags, heights, report) as JSON. Reading it back takes a fraction of a second for a 100,000-building map,
-where parsing the OSM extract takes tens of seconds. :func:`load_map_cached` keeps such a file per (source checksum,
-read options, :data:`CACHE_VERSION`) in a cache folder; the name changes whenever the loader's
-output could, so a stale file is never read.
+The file is an uncompressed ``.npz`` (no pickle, :mod:`geoloc.core.array_file`): the facade, tree, street and
+landmark arrays as they are, the facades' cell index (:class:`geoloc.maps.spatial.FacadeIndex`, built once when
+the file is written), the footprints as concatenated WKB, and the rest (frame origin, bounds, names, street and
+landmark names, ids, tags, heights, report) as JSON. :func:`read_city_map` memory-maps it: the arrays are
+read-only views of the file's pages, shared by every worker process of the machine through the page cache, and
+only the buildings (footprints, names, tags) are decoded: under a second for a 100,000-building map, where
+parsing the OSM extract takes a minute. The map job writes the file when it stores the map
+(:mod:`workers.map_handlers`); :func:`load_map_cached` keeps such a file per (source checksum, read options,
+:data:`CACHE_VERSION`) in a cache folder; the name changes whenever the loader's output could, so a stale file
+is never read (an older version's file is left alone and the map parsed again).
 """
 
 from __future__ import annotations
@@ -13,21 +17,21 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
-import os
-import secrets
-import zipfile
 from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 import shapely
 
+from geoloc.core.array_file import map_arrays, write_arrays
 from geoloc.core.geo import LocalFrame
 from geoloc.maps.model import Building, CityMap, Facades, LoadReport, MapReadOptions
+from geoloc.maps.spatial import FacadeIndex
 
-CACHE_VERSION = 3
-"""Bumped whenever loading could give a different map for the same file and options (2, 3: street names,
-landmarks, all address tags; 3 because two unreleased branches each wrote a different version 2)."""
+CACHE_VERSION = 4
+"""Bumped whenever loading could give a different map for the same file and options, or the file's layout
+changes (2, 3: street names, landmarks, all address tags; 3 because two unreleased branches each wrote a
+different version 2; 4: memory-mapped, with the facade index and the bounds)."""
 
 
 def map_cache_dir(data_dir: Path) -> Path:
@@ -51,6 +55,7 @@ def save_city_map(city_map: CityMap, path: Path) -> None:
     offsets = np.r_[0, np.cumsum([len(b) for b in wkb])].astype(np.int64)
     meta = {
         "version": CACHE_VERSION,
+        "bounds_m": list(city_map.bounds_m),
         "origin": [city_map.frame.origin_lat, city_map.frame.origin_lon],
         "bbox_wgs84": list(city_map.bbox_wgs84),
         "report": city_map.report.as_dict(),
@@ -72,23 +77,19 @@ def save_city_map(city_map: CityMap, path: Path) -> None:
         "street_offsets": city_map.street_offsets,
         "landmark_lonlat": np.asarray(city_map.landmark_lonlat, dtype=float).reshape(-1, 2),
         **{f"facades_{f.name}": getattr(city_map.facades, f.name) for f in fields(Facades)},
+        **{f"facade_index_{name}": a for name, a in city_map.facade_index.arrays().items()},
     }
-    temp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
-    try:
-        with temp.open("wb") as out:
-            np.savez(out, **arrays)
-        os.replace(temp, path)
-    finally:
-        temp.unlink(missing_ok=True)
+    write_arrays(path, arrays)
 
 
 def read_city_map(path: Path) -> CityMap:
-    """The map written by :func:`save_city_map`; ``ValueError`` if the file is not one (or another version)."""
-    try:
-        with np.load(Path(path), allow_pickle=False) as npz:
-            arrays = {name: npz[name] for name in npz.files}
-    except (OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"{path}: not a stored map ({exc})") from exc
+    """The map written by :func:`save_city_map`, its arrays memory-mapped read-only (module docstring).
+
+    ``ValueError`` if the file is not one (or another version).
+    """
+    arrays = map_arrays(Path(path))
+    if "meta" not in arrays:
+        raise ValueError(f"{Path(path).name}: not a stored map")
     meta = json.loads(arrays["meta"].tobytes())
     if meta.get("version") != CACHE_VERSION:
         raise ValueError(f"{path}: stored map version {meta.get('version')}, expected {CACHE_VERSION}")
@@ -110,7 +111,7 @@ def read_city_map(path: Path) -> CityMap:
         )
     ]
     facades = Facades(**{f.name: arrays[f"facades_{f.name}"] for f in fields(Facades)})
-    return CityMap(
+    city_map = CityMap(
         LocalFrame(*meta["origin"]),
         buildings,
         facades,
@@ -125,6 +126,11 @@ def read_city_map(path: Path) -> CityMap:
         landmark_lonlat=arrays["landmark_lonlat"],
         landmark_names=meta["landmark_names"],
     )
+    # The indexes computed when the file was written, where the cached properties look first (instance dict).
+    index = {name.removeprefix("facade_index_"): a for name, a in arrays.items() if name.startswith("facade_index_")}
+    vars(city_map)["facade_index"] = FacadeIndex.from_arrays(facades, index)
+    vars(city_map)["bounds_m"] = tuple(float(v) for v in meta["bounds_m"])
+    return city_map
 
 
 def remove_cached_map(cache_dir: Path, sha256: str, options: MapReadOptions | None = None) -> None:

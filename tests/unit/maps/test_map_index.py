@@ -6,6 +6,7 @@ not see the rest of a larger map, and a stored map reads back equal.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 import shapely
 
 from contracts.settings import shared_path
+from geoloc.core.array_file import is_mapped, map_arrays, write_arrays
 from geoloc.localize.posterior import make_grid
 from geoloc.maps import (
     CityMap,
@@ -147,8 +149,6 @@ def test_stored_map_reads_back_equal(helsinki: CityMap, tmp_path: Path) -> None:
 def test_load_map_cached_parses_once(tmp_path: Path) -> None:
     source = tmp_path / "helsinki.geojson"
     city = load_map(shared_path("data", "osm", "helsinki.osm.pbf"))
-    import json
-
     features = [
         {"type": "Feature", "properties": {"name": b.name}, "geometry": json.loads(shapely.to_geojson(g))}
         for b, g in zip(city.buildings, helsinki_wgs84(city), strict=True)
@@ -165,3 +165,32 @@ def test_load_map_cached_parses_once(tmp_path: Path) -> None:
     source.write_text(json.dumps({"type": "FeatureCollection", "features": features[:10]}))
     assert len(load_map_cached(source, cache, sha256="ab" * 32).buildings) == 10
     assert len(read_city_map(stored).buildings) == 10
+
+
+def test_stored_map_is_mapped_read_only_with_its_indexes_and_casts_the_same(helsinki: CityMap, tmp_path: Path) -> None:
+    path = map_cache_path(tmp_path, "cd" * 32)
+    assert path.name.endswith("-v4.citymap.npz")  # format 4: an older version's file is never read
+    save_city_map(helsinki, path)
+    again = read_city_map(path)
+    assert not again.facades.start.flags.writeable and is_mapped(again.facades.start)
+    assert "facade_index" in vars(again) and "bounds_m" in vars(again)  # stored, not rebuilt
+    fresh = FacadeIndex(helsinki.facades)
+    for name in ("origin", "cell_keys", "cell_start", "cell_facades"):
+        assert np.array_equal(getattr(again.facade_index, name), getattr(fresh, name)), name
+    assert (again.facade_index.rows, again.facade_index.cell_m) == (fresh.rows, fresh.cell_m)
+    assert again.bounds_m == helsinki.bounds_m
+    positions = make_grid(helsinki, helsinki.bounds_m, 40.0).positions[:300]
+    a, b = cast_panoramas(again, positions), cast_panoramas(helsinki, positions)
+    assert a.building_id.tobytes() == b.building_id.tobytes() and a.distance_m.tobytes() == b.distance_m.tobytes()
+
+
+def test_a_stored_map_of_another_version_is_refused(helsinki: CityMap, tmp_path: Path) -> None:
+    path = tmp_path / "m.citymap.npz"
+    save_city_map(helsinki, path)
+    arrays = dict(map_arrays(path))
+    meta = json.loads(arrays["meta"].tobytes())
+    meta["version"] = 3
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+    write_arrays(path, arrays)
+    with pytest.raises(ValueError, match="version 3"):
+        read_city_map(path)
