@@ -80,8 +80,11 @@ def _answer_track(
     config: QueryConfig,
     prior: str,
     context: MethodContext,
-) -> tuple[list[dict[str, Any]], float]:
-    """Answer one track whose frame k shows ``photos[k]`` (a replaced frame shows another); rows and seconds."""
+) -> tuple[list[dict[str, Any]], dict[str, float]]:
+    """Answer one track whose frame k shows ``photos[k]`` (a replaced frame shows another); rows and seconds.
+
+    seconds: the stage's ``total``, ``frames`` (answering each frame alone) and ``smoother``.
+    """
     track_frames = []
     for image in photos:
         photo, evidence = labelled.queries[image.name]
@@ -110,7 +113,7 @@ def _answer_track(
                 "outlier": frame.outlier,
             }
         )
-    return rows, answer.timings_ms["total"] / 1e3
+    return rows, {key: answer.timings_ms[key] / 1e3 for key in ("total", "frames", "smoother")}
 
 
 def evaluate_tracks(
@@ -134,7 +137,8 @@ def evaluate_tracks(
             track_rows, s = _answer_track(frames, frames, city, labelled, vocabulary, config, prior, context)
             rows += track_rows
             seconds.append(s)
-            say(f"  track {t} [{prior}]: {_block(track_rows, '')} alone {_block(track_rows, 'alone_')} ({s:.1f} s)")
+            figures = f"{_block(track_rows, '')} alone {_block(track_rows, 'alone_')}"
+            say(f"  track {t} [{prior}]: {figures} ({s['total']:.1f} s)")
         result[prior] = _summary(rows, seconds)
     if inject_outliers and len(tracks) > 1:
         rows = []
@@ -155,8 +159,13 @@ def evaluate_tracks(
     return result
 
 
-def _summary(rows: list[dict[str, Any]], seconds: list[float]) -> dict[str, Any]:
-    """One prior's figures (module docstring) from its per-frame rows and the stage's seconds per track."""
+def _summary(rows: list[dict[str, Any]], seconds: list[dict[str, float]]) -> dict[str, Any]:
+    """One prior's figures (module docstring) from its per-frame rows and the stage's seconds per track.
+
+    ``seconds_per_track``: the median and max of the total, and the medians of its split (``frames_median``:
+    answering each frame alone, evidence already analysed; ``smoother_median``: motions, edges and the graph).
+    """
+    totals = [s["total"] for s in seconds]
     track, alone = _block(rows, ""), _block(rows, "alone_")
     by_track: dict[int, list[dict[str, Any]]] = defaultdict(list)
     for row in rows:
@@ -173,8 +182,12 @@ def _summary(rows: list[dict[str, Any]], seconds: list[float]) -> dict[str, Any]
             str(t): {"track": _block(r, ""), "alone": _block(r, "alone_")} for t, r in sorted(by_track.items())
         },
         "seconds_per_track": {
-            "median": round(float(np.median(seconds)), 2) if seconds else None,
-            "max": round(float(np.max(seconds)), 2) if seconds else None,
+            "median": round(float(np.median(totals)), 2) if seconds else None,
+            "max": round(float(np.max(totals)), 2) if seconds else None,
+            **{
+                f"{key}_median": round(float(np.median([s[key] for s in seconds])), 2) if seconds else None
+                for key in ("frames", "smoother")
+            },
         },
         "per_frame": rows,
     }

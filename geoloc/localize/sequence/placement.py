@@ -30,6 +30,7 @@ import numpy as np
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.sequence.relative import DEFAULT_MIN_ANCHORED, DEFAULT_RATIO, RelativePose, relative_pose
+from geoloc.localize.sequence.twoview import MotionFactor
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.vision.features import Features
 
@@ -221,10 +222,15 @@ def place_sequence(
     frames: Sequence[SequenceFrame],
     options: PlacementOptions = PlacementOptions(),
     edges: Sequence[RelativePose] | None = None,
+    motions: Sequence[MotionFactor] = (),
+    start_yaws_deg: Sequence[float] | None = None,
 ) -> list[PlacedPose]:
     """Each frame's pose placed jointly (the module docstring's graph), in the frames' order.
 
     edges: the relative poses when already computed (:func:`relative_poses`), else they are computed here.
+    motions: relative poses with their own covariance (a track's two-view motions,
+    :mod:`geoloc.localize.sequence.twoview`), Cauchy; they count among a frame's edges. start_yaws_deg: each
+    frame's starting heading for the optimiser, replacing the consensus start's (a track's, from its motions).
     """
     edges = list(edges) if edges is not None else relative_poses(frames, options)
     noise = gtsam.noiseModel
@@ -233,7 +239,8 @@ def place_sequence(
     floor = options.label_position_floor_m**2 * np.eye(2)
     labels = [_pose2(frame.x_m, frame.y_m, frame.yaw_deg) for frame in frames]
     for k, start in enumerate(_consensus_start(labels, edges, options)):
-        initial.insert(k, start)
+        yaw = _bearing_deg(start) if start_yaws_deg is None else start_yaws_deg[k]
+        initial.insert(k, _pose2(start.x(), start.y(), yaw))
     for k, frame in enumerate(frames):
         label = labels[k]
         yaw_sigma = options.label_yaw_sigma_deg if frame.label_yaw_sigma_deg is None else frame.label_yaw_sigma_deg
@@ -259,6 +266,11 @@ def place_sequence(
             )
         )
         n_edges[[edge.source, edge.target]] += 1
+    for motion in motions:
+        motion_noise = _robust("cauchy", options.cauchy_k, noise.Gaussian.Covariance(motion.covariance))
+        measured = gtsam.Pose2(motion.forward_m, motion.left_m, math.radians(-motion.turn_deg))
+        graph.add(gtsam.BetweenFactorPose2(motion.source, motion.target, measured, motion_noise))
+        n_edges[[motion.source, motion.target]] += 1
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(options.max_iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()

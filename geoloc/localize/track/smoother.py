@@ -44,6 +44,8 @@ from geoloc.localize.sequence.placement import (
     relative_poses,
 )
 from geoloc.localize.sequence.relative import RelativePose
+from geoloc.localize.sequence.twoview import MotionFactor, motion_factor, two_view_motion
+from geoloc.localize.track.starts import start_headings
 from geoloc.maps import CityMap
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.photos.photo import Photo
@@ -68,17 +70,31 @@ class TrackOptions:
     # trusted than its radius says.
     position_floor_m: float = 0.5
     likelihood_scale: float = 2.0
-    # The heading sigma (deg) of an anchored and of a likelihood answer.
-    yaw_sigmas_deg: tuple[float, float] = (2.0, 10.0)
+    # The heading sigma (deg) of an anchored and of a likelihood answer (a likelihood answer's heading is right
+    # to half a degree or wrong by tens: with the motions' start a tight Cauchy snaps to the right ones; 3 deg
+    # against 10 raised seed 1's heading within 2 deg from 0.42 to 0.66).
+    yaw_sigmas_deg: tuple[float, float] = (2.0, 3.0)
     # The label of a frame with no answer, or of an outlier (position m, heading deg): weak, not absent, since a
     # frame whose edges the robust loss all sets aside must stay determined.
     weak_label: tuple[float, float] = (30.0, 90.0)
-    # The outlier test: sigmas of its own radius and metres at least, heading (deg); the farthest a walker
-    # moves between consecutive frames (m).
+    # The outlier test: sigmas of its own radius and metres at least, heading (deg; 180: no heading test, since
+    # a frame answered on the mirror view is placed by the motions, and flagging it was seed 1's false alarms);
+    # the farthest a walker moves between consecutive frames (m).
     outlier_sigmas: float = 3.0
     outlier_min_m: float = 5.0
-    outlier_yaw_deg: float = 30.0
+    outlier_yaw_deg: float = 180.0
     max_step_m: float = 12.0
+    # Two-view motions (geoloc.localize.sequence.twoview) between frames this many apart (() for none): their
+    # nominal distance per step and sigma along it (m), sigma of the direction and of the turn (deg).
+    motion_steps: tuple[int, ...] = (1, 2)
+    motion_step_m: float = 5.5
+    motion_along_sigma_m: float = 3.0
+    motion_sigmas_deg: tuple[float, float] = (3.0, 1.0)
+    # Map-anchored edges only from frames the map anchors answered (a likelihood answer's anchors are cast from
+    # a pose that is often metres off, and its edges pull the anchored frames).
+    anchored_edges_only: bool = True
+    # Start the optimiser at the headings the motions and the frames' votes agree on (geoloc.localize.track.starts).
+    motion_starts: bool = True
 
 
 @dataclass(frozen=True)
@@ -109,7 +125,7 @@ def radius_90_m(covariance: np.ndarray) -> float:
 def _graph_frame(city_map: CityMap, frame: FrameEvidence, options: TrackOptions) -> SequenceFrame:
     """A frame as the shared graph's :class:`SequenceFrame`: its anchors cast from its own answer, its label."""
     alone, features = frame.alone, frame.evidence.features
-    if alone is None:
+    if alone is None or (options.anchored_edges_only and alone.source != "anchors"):
         n = len(features.xy)
         anchors = MapAnchors(np.full((n, 3), np.nan), np.full(n, -1), np.full(n, -1), np.full(n, np.nan))
     else:
@@ -215,7 +231,35 @@ def smooth_track(
     """Place a track's frames jointly and flag its outlier frames (module docstring); poses in frame order."""
     graph = [_graph_frame(city_map, frame, options) for frame in frames]
     edges = relative_poses(graph, options.placement) if len(graph) > 1 else []
-    return place_track(graph, [frame.alone for frame in frames], edges, options)
+    return place_track(graph, [frame.alone for frame in frames], edges, options, track_motions(frames, options))
+
+
+def track_motions(frames: Sequence[FrameEvidence], options: TrackOptions = TrackOptions()) -> list[MotionFactor]:
+    """The two-view motions between frames ``options.motion_steps`` apart, one way, as the placement's factors."""
+    out = []
+    for i in range(len(frames)):
+        for step in options.motion_steps:
+            if i + step >= len(frames):
+                continue
+            a, b = frames[i], frames[i + step]
+            motion = two_view_motion(
+                i,
+                i + step,
+                a.evidence.features,
+                b.evidence.features,
+                a.photo.intrinsics,
+                b.photo.intrinsics,
+                a.evidence.analysis.vanishing_points.rotation_upright_from_cam,
+                b.evidence.analysis.vanishing_points.rotation_upright_from_cam,
+            )
+            if motion is not None:
+                across, turn = options.motion_sigmas_deg
+                out.append(
+                    motion_factor(
+                        motion, options.motion_step_m * step, options.motion_along_sigma_m * step, across, turn
+                    )
+                )
+    return out
 
 
 def place_track(
@@ -223,14 +267,16 @@ def place_track(
     alone: Sequence[AnswerPose | None],
     edges: Sequence[RelativePose],
     options: TrackOptions = TrackOptions(),
+    motions: Sequence[MotionFactor] = (),
 ) -> SmoothedTrack:
     """The graph's half of :func:`smooth_track`: nodes (:func:`label_frame`), each frame's own answer, the edges.
 
     gtsam failing on an indeterminate system answers every frame alone (no edges, no outliers) rather than fail.
     """
     graph = _start_unanswered(graph, alone, edges)
+    yaws = start_headings(alone, [g.heading_prior for g in graph], motions) if options.motion_starts else None
     try:
-        poses = place_sequence(graph, options.placement, edges)
+        poses = place_sequence(graph, options.placement, edges, motions, yaws)
         outliers = _outliers(alone, poses, options)
         if any(flag and pose.n_edges > 0 for flag, pose in zip(outliers, poses, strict=True)):
             weak = options.weak_label[0] ** 2 * np.eye(2)
@@ -238,7 +284,7 @@ def place_track(
                 replace(g, position_covariance=weak, label_yaw_sigma_deg=options.weak_label[1]) if flag else g
                 for g, flag in zip(graph, outliers, strict=True)
             ]
-            poses = place_sequence(loosened, options.placement, edges)
+            poses = place_sequence(loosened, options.placement, edges, motions, yaws)
     except RuntimeError:  # gtsam's IndeterminateLinearSystemException
         unjoined = [PlacedPose(g.x_m, g.y_m, g.yaw_deg, g.position_covariance, 0) for g in graph]
         return SmoothedTrack(unjoined, [False] * len(graph), [])
