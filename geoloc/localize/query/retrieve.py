@@ -42,15 +42,12 @@ def retrieve(
         # Positions first: only the references kept are loaded (features are the costly part to read).
         reach = config.prior_sigmas * position_prior.sigma_m + config.view_range_m
         positions = store.positions([ref_id for ref_id, _ in ranked])
-        ranked = [
-            (ref_id, score)
-            for ref_id, score in ranked
-            if ref_id in positions
-            and (
-                not np.all(np.isfinite(positions[ref_id]))
-                or float(position_prior.distances_m(positions[ref_id])[0]) <= reach
-            )
-        ]
+        ranked = [(ref_id, score) for ref_id, score in ranked if ref_id in positions]
+        xy = np.array([positions[ref_id] for ref_id, _ in ranked], dtype=float).reshape(-1, 2)
+        known = np.all(np.isfinite(xy), axis=1)
+        near = np.ones(len(xy), dtype=bool)  # a reference with no position is kept
+        near[known] = position_prior.distances_m(xy[known]) <= reach  # one call: a shape's distance is costly
+        ranked = [pair for pair, keep in zip(ranked, near.tolist(), strict=True) if keep]
     stored = store.load([ref_id for ref_id, _ in ranked[: config.shortlist]])
     shortlist = [(ref_id, score) for ref_id, score in ranked if ref_id in stored][: config.shortlist]
     stored = {ref_id: stored[ref_id] for ref_id, _ in shortlist}
