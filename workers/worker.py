@@ -8,7 +8,8 @@ heartbeating: its job is claimed again once the lease expires.
 
 Between jobs (and while idle) the loop also applies the query retention (:mod:`workers.retention`).
 A failure that cannot succeed on retry (:func:`workers.handlers.is_permanent`, or any failure once the
-job's map or reference has been deleted) fails the job at once.
+job's map or reference has been deleted) fails the job at once. After each job the heap's free pages go back
+to the system (:mod:`workers.memory`), so the process's resident memory follows what it holds.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from db import jobs as job_store
 from db.files import open_store
 from db.rows import JobRow
 from workers.handlers import HANDLERS, PermanentJobError, Registration, is_permanent
+from workers.memory import release_free_heap
 from workers.retention import purge_expired_queries, purge_interval_s
 
 log = logging.getLogger("geoloc.worker")
@@ -191,6 +193,8 @@ class Worker:
             delay = min(self.settings.job_retry_delay_s * 2 ** max(int(job["attempts"]) - 1, 0), MAX_RETRY_DELAY_S)
             status = job_store.fail_job(db, job_id, self.worker_id, error, retry_delay_s=delay, permanent=permanent)
             log.warning("job %d attempt failed (%s) -> %s", job_id, outcome.error, status)
+        del outcome  # its result and error (with the handler's frames) before the heap is trimmed
+        release_free_heap()
         job_store.heartbeat_worker(db, self.worker_id, None)
         return True
 
