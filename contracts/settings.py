@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic.fields import FieldInfo
@@ -175,6 +175,11 @@ class Settings(BaseSettings):
         ge=1,
         description="onnxruntime threads for segmentation and ALIKED (threads wait without spinning)",
         json_schema_extra=_shown("`GEOLOC_JOB_THREADS`"),
+    )
+    device: Literal["auto", "cpu", "cuda"] = Field(
+        default="auto",
+        description="where segmentation and ALIKED run: `cpu`; `cuda` (needs the `gpu` extra and a GPU: workers "
+        "refuse to start without them); `auto`: CUDA when onnxruntime can use a GPU here, else CPU",
     )
     job_threads: int = Field(
         default=2,

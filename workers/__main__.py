@@ -1,8 +1,8 @@
 """``python -m workers``: run one worker process (the supervisor starts these).
 
-It refuses to start (exit code 2, the reason on stderr) on an invalid setting or when the models the
-method needs are missing or stale, and runs at the CPU niceness ``GEOLOC_WORKER_NICE`` so that the
-API on the same machine keeps answering while the workers are busy.
+It refuses to start (exit code 2, the reason on stderr) on an invalid setting, when the models the method
+needs are missing or stale, or when ``GEOLOC_DEVICE=cuda`` and no GPU can run them here; it runs at the CPU
+niceness ``GEOLOC_WORKER_NICE`` so that the API on the same machine keeps answering while the workers are busy.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import os
 import sys
 
 from contracts.settings import SettingsError, get_settings
-from workers.context import model_problems, needs_models
+from workers.context import device_probe, model_problems, needs_models
 from workers.handlers import load_builtin_handlers, load_plugins
 from workers.worker import Worker, install_signal_handlers
 
@@ -34,6 +34,7 @@ def main(argv: list[str] | None = None) -> int:
         format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s",
     )
     problems = model_problems() if needs_models(settings) else []
+    problems = problems or (device_probe() if needs_models(settings) else [])
     if problems:
         print("error: the worker cannot run jobs:\n  " + "\n  ".join(problems), file=sys.stderr)
         return 2

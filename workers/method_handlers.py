@@ -64,6 +64,7 @@ from geoloc.photos.heading_prior import HeadingPrior, compass_heading_prior
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.model_files import vocabulary_path
+from geoloc.vision.onnx_session import used_device
 from geoloc.vision.segmentation import ModelNotBuiltError
 from workers.context import worker_context
 from workers.handlers import PermanentJobError, answer_checked, register, treat_as_permanent
@@ -339,6 +340,7 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         context=context,
     )
     answer.search["preset"] = params.preset_name  # beside search.config: which preset chose it
+    answer.search["device"] = used_device(context.device)  # where segmentation and ALIKED ran: cpu or cuda
     timings_ms = {
         **{k: round(v, 1) for k, v in answer.timings_ms.items()},
         "total": round(1e3 * (time.perf_counter() - t0), 1),

@@ -28,10 +28,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from geoloc.core.context import MethodContext
+from geoloc.core.context import Device, MethodContext
 from geoloc.vision.aliked_head import DenseMaps, SddhWeights, describe
 from geoloc.vision.model_files import aliked_files
-from geoloc.vision.onnx_session import cpu_session
+from geoloc.vision.onnx_session import onnx_session
 
 PAD_MULTIPLE = 32
 NMS_RADIUS = 2
@@ -57,8 +57,8 @@ class AlikedRuntime:
 
 
 @lru_cache(maxsize=4)
-def _cached_runtime(onnx_path: str, head_path: str, config_name: str, threads: int) -> AlikedRuntime:
-    session = cpu_session(onnx_path, threads)
+def _cached_runtime(onnx_path: str, head_path: str, config_name: str, threads: int, device: Device) -> AlikedRuntime:
+    session = onnx_session(onnx_path, threads, device)
     with np.load(head_path, allow_pickle=False) as data:
         head = SddhWeights.from_state({k: data[k] for k in data.files})
     return AlikedRuntime(config_name, session, head)
@@ -70,7 +70,9 @@ def load_runtime(context: MethodContext, config_name: str = "aliked-n16") -> Ali
     Parameters
     ----------
     context
-        Where the built models are (``models_dir``) and the onnxruntime intra-op threads (``onnx_threads``).
+        Where the built models are (``models_dir``), the onnxruntime intra-op threads (``onnx_threads``) and the
+        device the network runs on (``device``; a ``cuda`` one that is not here raises
+        :class:`geoloc.vision.onnx_session.DeviceUnavailableError`).
     config_name
         Which export.
 
@@ -85,7 +87,7 @@ def load_runtime(context: MethodContext, config_name: str = "aliked-n16") -> Ali
             f"ALIKED model {config_name} not found at {files.onnx}; build it once with `geoloc models build` "
             "(needs the export extra: pip install -e '.[export]')"
         )
-    return _cached_runtime(str(files.onnx), str(files.head), config_name, context.onnx_threads)
+    return _cached_runtime(str(files.onnx), str(files.head), config_name, context.onnx_threads, context.device)
 
 
 # ----------------------------------------------------------------------------------------------

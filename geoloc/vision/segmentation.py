@@ -61,7 +61,7 @@ import numpy as np
 from geoloc.core import labels
 from geoloc.core.context import MethodContext
 from geoloc.vision.model_files import SEG_DEFAULT_SIZE, segmentation_files
-from geoloc.vision.onnx_session import cpu_session
+from geoloc.vision.onnx_session import onnx_session
 
 if TYPE_CHECKING:
     import onnxruntime as ort
@@ -102,12 +102,12 @@ class ModelNotBuiltError(FileNotFoundError):
 
 
 def load_session(context: MethodContext, size: tuple[int, int] | None = None) -> ort.InferenceSession:
-    """The onnxruntime CPU session for network input ``size`` (W, H), cached per process.
+    """The onnxruntime session for network input ``size`` (W, H) on the context's device, cached per process.
 
     Parameters
     ----------
     context
-        Where the built models are (``models_dir``) and the intra-op threads (``onnx_threads``).
+        Where the built models are (``models_dir``), the intra-op threads (``onnx_threads``) and the device.
     size
         Network input (W, H); default ``geoloc.vision.model_files.SEG_DEFAULT_SIZE``.
 
@@ -115,6 +115,8 @@ def load_session(context: MethodContext, size: tuple[int, int] | None = None) ->
     ------
     ModelNotBuiltError
         The ONNX file is not in the models folder.
+    geoloc.vision.onnx_session.DeviceUnavailableError
+        The context's device is ``cuda`` and onnxruntime cannot run on a GPU here.
     """
     size = size or SEG_DEFAULT_SIZE
     path = segmentation_files(context.models_dir, size).onnx
@@ -124,7 +126,7 @@ def load_session(context: MethodContext, size: tuple[int, int] | None = None) ->
             f"segmentation model not found at {path}; build it once with `geoloc models build{flag}` "
             "(needs the export extra: pip install -e '.[export]')"
         )
-    return cpu_session(str(path), context.onnx_threads)
+    return onnx_session(str(path), context.onnx_threads, context.device)
 
 
 def network_size(session: ort.InferenceSession) -> tuple[int, int]:

@@ -21,6 +21,7 @@ from contracts.settings import shared_path
 from geoloc.localize.query import PRESETS
 from geoloc.maps.places import VIEW_MARGIN_M, find_place, place_index
 from geoloc.sim.world import WorldOptions, generate_world, load_world
+from geoloc.vision.onnx_session import CUDA_PROVIDER, available_providers
 from tests.conftest import Profile
 from tests.geojson_checks import check_query_collection
 from tests.service_fixtures import read_rows, running_service, wait_for
@@ -109,6 +110,8 @@ def test_ingest_label_and_query_through_the_api(
             assert all(0.0 < loc["uncertainty_radius_m"] < 1000.0 for loc in result["locations"])
             assert result["search"]["config"] == PRESETS["balanced"].as_dict() and "anchors" in result["search"]
             assert result["search"]["preset"] == answer["params"]["preset"] == "balanced"
+            # GEOLOC_DEVICE=auto: the GPU only where onnxruntime has the CUDA provider.
+            assert result["search"]["device"] == ("cuda" if CUDA_PROVIDER in available_providers() else "cpu")
             heat = np.array(result["heatmap"]["values"])
             assert list(heat.shape) == result["heatmap"]["shape"] and heat.sum() == pytest.approx(1.0, abs=1e-3)
             # Identities come from references: judge the buildings (over 5 % of the photo) that one shows.

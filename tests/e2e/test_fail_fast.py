@@ -1,8 +1,9 @@
-"""Fail fast on missing or stale models.
+"""Fail fast on missing or stale models, or a GPU that is not there.
 
-Without built (or with stale) models ``geoloc serve`` and ``geoloc worker`` refuse to start with the
-reason and exit code 2, ``/readyz`` says why the service is not ready, and a model that disappears while the
-service runs fails each job at once (no retries) with that reason.
+Without built (or with stale) models, or with ``GEOLOC_DEVICE=cuda`` where onnxruntime has no CUDA provider,
+``geoloc serve`` and ``geoloc worker`` refuse to start with the reason and exit code 2, ``/readyz`` says why
+the service is not ready, and a model that disappears while the service runs fails each job at once (no
+retries) with that reason.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from geoloc.vision.onnx_session import CUDA_PROVIDER, available_providers
 from tests.conftest import Profile
 from tests.service_fixtures import (
     INSIDE_ONE_BUILDING,
@@ -31,16 +33,14 @@ from tests.service_fixtures import (
 pytestmark = pytest.mark.slow  # real server processes (tests/e2e/ is the slow suite)
 
 
-def _run(args: list[str], data_dir: Path) -> subprocess.CompletedProcess[str]:
-    env = service_env(data_dir)
+def _run(args: list[str], data_dir: Path, **overrides: str) -> subprocess.CompletedProcess[str]:
+    env = service_env(data_dir, **overrides)
     return subprocess.run(
         [*geoloc_command(), *args], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=120, check=False
     )
 
 
-@pytest.mark.parametrize(
-    "args", [["serve", "--port", "1", "--workers", "1"], ["worker"]], ids=["serve", "worker"]
-)
+@pytest.mark.parametrize("args", [["serve", "--port", "1", "--workers", "1"], ["worker"]], ids=["serve", "worker"])
 def test_no_models_no_start(tmp_path: Path, args: list[str]) -> None:
     result = _run(args, tmp_path / "data")
     assert result.returncode == 2, result.stderr
@@ -57,6 +57,17 @@ def test_stale_models_no_start(tmp_path: Path, built_models: Path) -> None:
     meta_path.write_text(json.dumps(meta))
     result = _run(["worker"], tmp_path / "data")
     assert result.returncode == 2 and "is stale" in result.stderr and "--force" in result.stderr, result.stderr
+
+
+@pytest.mark.parametrize("args", [["serve", "--port", "1", "--workers", "1"], ["worker"]], ids=["serve", "worker"])
+def test_cuda_without_a_gpu_no_start(tmp_path: Path, built_models: Path, args: list[str]) -> None:
+    if CUDA_PROVIDER in available_providers():
+        pytest.skip("this machine has onnxruntime's CUDA provider")
+    shutil.copytree(built_models, tmp_path / "data" / "cache" / "models")
+    result = _run(args, tmp_path / "data", GEOLOC_DEVICE="cuda")
+    assert result.returncode == 2, result.stderr
+    assert f"GEOLOC_DEVICE=cuda but onnxruntime has no {CUDA_PROVIDER}" in result.stderr, result.stderr
+    assert "pip install 'geoloc[gpu]'" in result.stderr and "Traceback" not in result.stderr
 
 
 def test_api_alone_starts_and_readyz_says_why(tmp_path: Path, profile: Profile) -> None:
