@@ -11,13 +11,14 @@ dicts the job API and the tests read). Stored structures have their contracts: j
 (:mod:`contracts.references`).
 """
 
-from db.connection import Database, connect, database_path, is_postgres_url, transaction
+from db.connection import Database, connect, database_key, database_path, is_postgres_url, transaction
 from db.migrations import LATEST_VERSION, migrate, schema_version
 
 __all__ = [
     "LATEST_VERSION",
     "Database",
     "connect",
+    "database_key",
     "database_path",
     "is_postgres_url",
     "migrate",

@@ -175,6 +175,15 @@ class Database:
             conn.close()
 
 
+def database_key(db: Database) -> str:
+    """Which database this is (several may live in one process, e.g. in tests): its file or server and name."""
+    if db.is_postgres:
+        info = db.conn.info
+        return f"postgresql://{info.host}:{info.port}/{info.dbname}"
+    rows = db.execute("PRAGMA database_list").fetchall()
+    return str(next((row[2] for row in rows if row[1] == "main"), ""))
+
+
 def connect(target: Path | str | None = None, *, busy_timeout_ms: int = BUSY_TIMEOUT_MS) -> Database:
     """Open the database at ``target``: a PostgreSQL URL, or a SQLite file (created if needed).
 

@@ -21,7 +21,7 @@ from contracts.answers import BoundingBox, LatLon
 from contracts.jobs import LOAD_MAP, LoadMapPayload
 from contracts.licenses import map_attribution
 from contracts.settings import Settings
-from db import Database, connect, transaction
+from db import Database, connect, database_key, transaction
 from db import jobs as job_store
 from db import maps as map_store
 from db.files import FileStore
@@ -40,6 +40,7 @@ from service.tenancy import require_map, require_ready_map
 from service.uploads import received_upload
 from service.waiting import JobWaiter
 from workers.broker import JobPublisher
+from workers.sbow_files import remove_shared_base, sbow_cache_dir
 
 log = logging.getLogger("geoloc.api")
 router = APIRouter(prefix="/v1/maps", tags=["maps"])
@@ -412,18 +413,21 @@ def delete_map(
 def _delete_map(settings: Settings, store: FileStore, map_id: int, db: Database | None = None) -> bool:
     """Delete a map, its files and its finished parse job (a queued one is cancelled); False if there was none.
 
-    Blocking: run in a worker thread; on ``db``, or a connection of its own.
+    Its files: the stored ones, the cached copy and the shared SBoW base. Blocking: run in a worker thread; on
+    ``db``, or a connection of its own.
     """
     own = db is None
     db = connect(settings.database) if db is None else db
     try:
         with transaction(db):
             deleted = map_store.delete_map(db, map_id)
+        database = database_key(db)
     finally:
         if own:
             db.close()
     if deleted is None:
         return False
+    remove_shared_base(sbow_cache_dir(settings.data_dir), database, map_id, deleted["created_at"])
     store.delete(*deleted["image_paths"])
     if not deleted["source_shared"]:  # the same file read with other options is another map
         store.delete(deleted["source_path"])

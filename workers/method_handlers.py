@@ -45,7 +45,7 @@ from contracts.jobs import (
 )
 from contracts.queries import PriorPosition, QueryParams
 from contracts.settings import data_dir, get_settings
-from db import Database, sbow, transaction
+from db import Database, database_key, sbow, transaction
 from db import jobs as job_store
 from db import maps as map_store
 from db import queries as query_store
@@ -68,8 +68,8 @@ from geoloc.vision.onnx_session import used_device
 from geoloc.vision.segmentation import ModelNotBuiltError
 from workers.context import worker_context
 from workers.handlers import PermanentJobError, answer_checked, register, treat_as_permanent
-from workers.reference_store import DatabaseReferenceStore, database_key
-from workers.sbow_share import sbow_cache_dir
+from workers.reference_store import DatabaseReferenceStore
+from workers.sbow_files import sbow_cache_dir
 
 treat_as_permanent(ModelNotBuiltError)  # a missing model stays missing until `geoloc models build` runs
 

@@ -32,11 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from db import Database, sbow
+from db import Database, database_key, sbow
 from db import references as reference_store
 from geoloc.localize.sbow_index import SbowIndex
 from geoloc.localize.store import StoredReference
-from workers.sbow_share import index_words, shared_base, shared_base_path
+from workers.sbow_files import shared_base_path
+from workers.sbow_share import index_words, shared_base
 
 LOOKBACK_CHANGES = 256
 """Change-log rows re-read behind the high-water mark (see the module docstring)."""
@@ -61,15 +62,6 @@ _INDEXES: OrderedDict[tuple[str, int, float], _LiveIndex] = OrderedDict()
 _DECODED: OrderedDict[tuple[str, int], tuple[float, StoredReference]] = OrderedDict()
 _POSITIONS: OrderedDict[tuple[str, int], tuple[float, np.ndarray]] = OrderedDict()
 _LOCK = threading.Lock()
-
-
-def database_key(db: Database) -> str:
-    """Which database this is (several may live in one process, e.g. in tests): its file or server and name."""
-    if db.is_postgres:
-        info = db.conn.info
-        return f"postgresql://{info.host}:{info.port}/{info.dbname}"
-    rows = db.execute("PRAGMA database_list").fetchall()
-    return str(next((row[2] for row in rows if row[1] == "main"), ""))
 
 
 class DatabaseReferenceStore:

@@ -11,6 +11,7 @@ profiles: the embedded pool's processes and a machine's Celery prefork children 
 own small parts: the documents added since the file's mark (read from the change log as before, the *recent*
 documents), which base documents it has seen removed (``live``), and the id -> row table.
 
+Deleting the map removes its file (:func:`workers.sbow_files.remove_shared_base`, from the API's delete).
 The file is rewritten (under the lock) when a process finds the map's change log more than
 :data:`REBUILD_AFTER_CHANGES` changes past its mark, so that a process starting late does not replay a long log;
 processes that mapped the old file keep it (a replaced file's pages live while mapped). A file is named after
@@ -22,7 +23,6 @@ snapshot, gives the same scores to the last bit (a test answers the same queries
 from __future__ import annotations
 
 import fcntl
-import hashlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -40,11 +40,6 @@ REBUILD_AFTER_CHANGES = 2048
 """Change-log rows of a map past the shared file's mark beyond which a process rewrites the file."""
 
 
-def sbow_cache_dir(data_dir: Path) -> Path:
-    """The folder of shared SBoW base segments under a data folder (``GEOLOC_DATA_DIR``): ``DATA_DIR/cache/sbow``."""
-    return Path(data_dir) / "cache" / "sbow"
-
-
 @dataclass
 class SharedBase:
     """A map's index on a mapped base segment: the index, the file's change-log mark and the changes it holds."""
@@ -52,12 +47,6 @@ class SharedBase:
     index: SbowIndex
     mark: int
     applied: set[int]
-
-
-def shared_base_path(folder: Path, database: str, map_id: int, created_at: float) -> Path:
-    """The file of one map's shared base segment (database key, map id and creation time in its name)."""
-    key = hashlib.sha256(f"{database}\n{map_id}\n{created_at!r}".encode()).hexdigest()[:32]
-    return Path(folder) / f"map{map_id}-{key}.sbow.npz"
 
 
 def shared_base(db: Database, map_id: int, path: Path, lookback: int) -> SharedBase:

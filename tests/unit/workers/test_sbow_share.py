@@ -89,3 +89,24 @@ def test_the_file_is_rewritten_when_the_log_has_moved_far_or_it_is_damaged(
     assert _answers(shared, queries) == answers == _answers(DatabaseReferenceStore(db, map_id), queries)
     assert int(map_arrays(path)["mark"][0]) == first_mark + 3
     db.close()
+
+
+def test_deleting_the_map_removes_its_shared_base(tmp_path: Path, profile: Profile) -> None:
+    from contracts.settings import Settings
+    from db.files import open_store
+    from service.routes_maps import _delete_map
+    from workers.sbow_files import sbow_cache_dir
+
+    settings = Settings(data_dir=tmp_path / "data")
+    target, _ = profile.new_deployment(settings.data_dir)
+    db = connect(target)
+    kept_map, _, _ = _store_references(db, seed=1, count=10)
+    map_id, _, _ = _store_references(db, count=10)
+    for each in (kept_map, map_id):  # each map's index read once, as a worker's first query does: files written
+        assert DatabaseReferenceStore(db, each, shared_dir=sbow_cache_dir(settings.data_dir)).live_index()
+    files = {path.name for path in sbow_cache_dir(settings.data_dir).glob(f"map{map_id}-*")}
+    assert len(files) == 2  # the base segment and its lock file
+    assert _delete_map(settings, open_store(settings.file_store_dir), map_id, db)
+    left = {path.name for path in sbow_cache_dir(settings.data_dir).iterdir()}
+    assert not left & files
+    assert any(name.startswith(f"map{kept_map}-") and name.endswith(".sbow.npz") for name in left)
