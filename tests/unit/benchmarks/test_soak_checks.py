@@ -87,3 +87,20 @@ def test_growing_fds_a_restarted_worker_errors_and_unfinished_jobs_fail() -> Non
     assert failed(verdict(report(flat, retention={"older_than_retention": 5, "pruned": 4}))) == [
         "retention pruned every query older than it"
     ]
+
+
+def test_a_worker_level_is_taken_between_jobs_when_it_can_be() -> None:
+    """Busier at the end (more samples mid-job) is not a leak; a growth between jobs is one, busy or not."""
+    idle, job = 300.0, 420.0  # a worker between jobs, and while it holds a query's arrays
+    busy_share = [0.2 if i < 60 else 0.7 for i in range(121)]  # a machine that got busier after the half hour
+    busy = [(i * 37) % 100 < 100 * share for i, share in enumerate(busy_share)]
+    series = samples({"api 1": FLAT, "worker 2": [job if b else idle for b in busy]}, {"api 1": FDS, "worker 2": FDS})
+    for sample, is_busy in zip(series, busy, strict=True):
+        sample["processes"]["worker 2"]["busy"] = is_busy
+    figures = process_checks(series, MARK_S)["worker 2"]
+    assert figures["rss_level_from"] == "between jobs" and figures["rss_ratio"] == 1.0
+    assert figures["rss_ratio_all"] > 1.1  # the median of every sample moves with the share of busy ones
+    assert failed(verdict(report(series))) == []
+    for i, sample in enumerate(series):  # the same mix with the worker's own memory growing between jobs
+        sample["processes"]["worker 2"]["rss_mb"] += 0.5 * i
+    assert failed(verdict(report(series))) == ["worker 2 resident memory within 10 % of its level at the mark"]
