@@ -42,7 +42,7 @@ from contracts.settings import Settings, SettingsError, get_settings
 from geoloc.localize.sbow_index import SbowIndex
 from workers.context import model_problems, needs_models
 from workers.handlers import load_builtin_handlers, load_plugins
-from workers.supervisor import MAX_RESTART_DELAY_S
+from workers.supervisor import MAX_RESTART_DELAY_S, STARTUP_FAILURE_S
 from workers.worker import Worker, install_signal_handlers
 
 log = logging.getLogger("geoloc.pool")
@@ -104,6 +104,7 @@ class _Slot:
     started_at: float = 0.0
     restart_delay_s: float = 0.5
     restart_at: float | None = None
+    starts: int = 0
 
 
 class Pool:
@@ -130,10 +131,15 @@ class Pool:
         slot = self.slots[index]
         slot.pid = fork_child(functools.partial(self.target, index))
         slot.started_at, slot.restart_at = time.monotonic(), None
+        slot.starts += 1
         log.info("forked worker %d (pid %d)", index, slot.pid)
 
     def run(self) -> int:
-        """Fork the children (after :func:`warm` and ``gc.freeze()``) and keep them running; returns 0."""
+        """Fork the children (after :func:`warm` and ``gc.freeze()``) and keep them running.
+
+        Returns 0, or 1 when a child's first run failed within ``STARTUP_FAILURE_S`` (as the supervisor judges its
+        own children: a setting or database that cannot work is not retried forever).
+        """
         signal.signal(signal.SIGTERM, self.request_stop)
         signal.signal(signal.SIGINT, self.request_stop)
         freeze_warmed()
@@ -145,31 +151,37 @@ class Pool:
                     log.warning("parent process gone; stopping the workers")
                     break
                 time.sleep(0.2)
-                self._reap()
+                if not self._reap():
+                    return 1
         finally:
             self._stop_all()
         return 0
 
-    def _reap(self) -> None:
+    def _reap(self) -> bool:
+        """Note the children that exited and fork the ones due; False after a startup failure."""
         now = time.monotonic()
         for index, slot in enumerate(self.slots):
             if slot.pid is not None:
                 done, status = os.waitpid(slot.pid, os.WNOHANG)
                 if not done:
                     continue
-                lived = now - slot.started_at
+                lived, code = now - slot.started_at, os.waitstatus_to_exitcode(status)
                 slot.pid = None
+                if slot.starts == 1 and lived < STARTUP_FAILURE_S and code > 0:
+                    log.error("worker %d failed to start (exit code %s); stopping", index, code)
+                    return False
                 slot.restart_delay_s = 0.5 if lived > 60 else min(slot.restart_delay_s * 2, MAX_RESTART_DELAY_S)
                 slot.restart_at = now + slot.restart_delay_s
                 log.warning(
                     "worker %d exited (status %s) after %.1f s; forking another in %.1f s",
                     index,
-                    os.waitstatus_to_exitcode(status),
+                    code,
                     lived,
                     slot.restart_delay_s,
                 )
             elif slot.restart_at is not None and now >= slot.restart_at:
                 self._fork(index)
+        return True
 
     def _stop_all(self) -> None:
         running = [slot.pid for slot in self.slots if slot.pid is not None]
