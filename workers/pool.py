@@ -5,8 +5,8 @@ imported modules (numpy, numba, shapely, OpenCV, pyproj, pydantic, osmium...: 67
 ``/proc/self/smaps_rollup``) and numba's LLVM with the SBoW kernels loaded (25 MB). Started separately (``python -m
 workers`` N times, ``GEOLOC_WORKER_START=spawn``) each process holds its own copy; forked from a parent that has
 imported and warmed them, the children share those pages copy-on-write. Measured on the 100 k-reference database
-(``benchmarks/sbow_workers.py``, docs/operations.md): 4 workers together took 1.84x one worker's PSS spawned, and
-forked see docs/operations.md's figures.
+(``benchmarks/bench_sbow.py --references 100000 --workers 4``): 4 workers together took 1.73x one worker's PSS
+spawned, 1.08x forked (the pool parent counted); warming only the imports, without numba's kernels, 1.30x.
 
 The pool does what ``python -m workers`` does before its loop (settings, the model check with exit 2 and the
 reason, niceness, handlers, plugins), then :func:`warm` (the handlers' modules, numba's kernels), ``gc.collect();
