@@ -77,13 +77,19 @@ def _profile(settings: Settings) -> str:
 
 
 def _worker_specs(settings: Settings, count: int, log_level: str) -> list[Any]:
-    """``count`` built-in worker processes, or one Celery worker with ``count`` processes (distributed)."""
-    from workers.supervisor import celery_worker_spec, worker_spec  # lazy: keeps `geoloc --help` fast
+    """``count`` built-in workers, or one Celery worker with ``count`` processes (distributed).
+
+    The built-in ones are one forking pool (:mod:`workers.pool`), or ``count`` processes with
+    ``GEOLOC_WORKER_START=spawn``.
+    """
+    from workers.supervisor import celery_worker_spec, pool_spec, worker_spec  # lazy: keeps `geoloc --help` fast
 
     if count <= 0:
         return []
     if settings.distributed:
         return [celery_worker_spec(count, log_level)]
+    if settings.worker_start == "fork":
+        return [pool_spec(count, log_level)]
     return [worker_spec(i, log_level) for i in range(count)]
 
 

@@ -15,6 +15,7 @@ shared data and the model cache are); ``service``, ``workers`` and ``cli`` impor
 
 from __future__ import annotations
 
+import sys
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -139,6 +140,13 @@ class Settings(BaseSettings):
         description="job kinds the embedded pool's workers claim, comma-separated (e.g. `load_map` for workers "
         "that only parse maps)",
         json_schema_extra=_shown("(all)"),
+    )
+    worker_start: Literal["fork", "spawn"] = Field(
+        default="fork" if sys.platform.startswith("linux") else "spawn",
+        description="how the embedded profile starts its workers: `fork` (one pool process imports and warms what "
+        "every worker uses, then forks them: they share those pages, docs/operations.md) or `spawn` (separate "
+        "`python -m workers` processes)",
+        json_schema_extra=_shown("fork (Linux), spawn elsewhere"),
     )
     worker_nice: int = Field(
         default=10,

@@ -1,20 +1,17 @@
-"""``python -m workers``: run one worker process (the supervisor starts these).
+"""``python -m workers``: run one worker process (``GEOLOC_WORKER_START=spawn``, tests).
 
 It refuses to start (exit code 2, the reason on stderr) on an invalid setting, when the models the method
 needs are missing or stale, or when ``GEOLOC_DEVICE=cuda`` and no GPU can run them here; it runs at the CPU
 niceness ``GEOLOC_WORKER_NICE`` so that the API on the same machine keeps answering while the workers are busy.
+With ``GEOLOC_WORKER_START=fork`` (the default on Linux) the supervisor runs :mod:`workers.pool` instead, which
+prepares the same way and forks.
 """
 
 from __future__ import annotations
 
 import argparse
-import logging
-import os
-import sys
 
-from contracts.settings import SettingsError, get_settings
-from workers.context import device_probe, model_problems, needs_models
-from workers.handlers import load_builtin_handlers, load_plugins
+from workers.pool import device_refused, prepare, supervisor_pid
 from workers.worker import Worker, install_signal_handlers
 
 
@@ -24,27 +21,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-jobs", type=int, default=None, help="exit after this many jobs")
     parser.add_argument("--log-level", default=None, help="default: GEOLOC_LOG_LEVEL")
     args = parser.parse_args(argv)
-    try:
-        settings = get_settings()
-    except SettingsError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    settings = prepare(args.log_level)
+    if settings is None or device_refused(settings):
         return 2
-    logging.basicConfig(
-        level=(args.log_level or settings.log_level).upper(),
-        format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s",
-    )
-    problems = model_problems() if needs_models(settings) else []
-    problems = problems or (device_probe() if needs_models(settings) else [])
-    if problems:
-        print("error: the worker cannot run jobs:\n  " + "\n  ".join(problems), file=sys.stderr)
-        return 2
-    if settings.worker_nice:
-        os.nice(settings.worker_nice)
-    load_builtin_handlers()
-    load_plugins(settings.worker_plugins)
     worker = Worker(settings)
-    parent = os.environ.get("GEOLOC_SUPERVISOR_PID")
-    worker.parent_pid = int(parent) if parent else None
+    worker.parent_pid = supervisor_pid()
     install_signal_handlers(worker)
     worker.run(max_jobs=args.max_jobs)
     return 0

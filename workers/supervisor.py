@@ -1,7 +1,8 @@
 """Start child processes (workers, the API), restart the ones that die, stop them all on a signal.
 
-Used by ``geoloc serve`` (API + N workers) and ``geoloc worker --concurrency N``; in the distributed
-profile the workers are one Celery worker with N processes (:func:`celery_worker_spec`). Children run in
+Used by ``geoloc serve`` (API + N workers) and ``geoloc worker --concurrency N``: the workers are one
+forking pool (:func:`pool_spec`, ``GEOLOC_WORKER_START=fork``) or N ``python -m workers`` (``spawn``); in the
+distributed profile the workers are one Celery worker with N processes (:func:`celery_worker_spec`). Children run in
 their own session (Ctrl-C reaches only the supervisor, which then sends them SIGTERM, waits for
 their grace period, and SIGKILLs stragglers); they get ``GEOLOC_SUPERVISOR_PID`` and stop by
 themselves if the supervisor disappears.
@@ -48,6 +49,13 @@ class _Child:
 def worker_spec(index: int, log_level: str = "info") -> ChildSpec:
     """The command line of worker number ``index``."""
     return ChildSpec(f"worker-{index}", [sys.executable, "-m", "workers", "--log-level", log_level])
+
+
+def pool_spec(count: int, log_level: str = "info") -> ChildSpec:
+    """The forking pool's command line (:mod:`workers.pool`) with ``count`` workers (``GEOLOC_WORKER_START=fork``)."""
+    return ChildSpec(
+        "worker-pool", [sys.executable, "-m", "workers.pool", "--workers", str(count), "--log-level", log_level]
+    )
 
 
 def celery_worker_spec(concurrency: int, log_level: str = "info") -> ChildSpec:

@@ -61,7 +61,8 @@ class SbowIndex:
     def __init__(self, n_words: int) -> None:
         self.n_words = int(n_words)
         self._base = Segment.empty(self.n_words)
-        self._base_row: dict[int, int] = {}
+        self._base_order: np.ndarray | None = None  # rows by increasing id; None: the base's ids are sorted
+        self._base_keys = self._base.ids  # the base's ids, sorted
         self._base_df = np.zeros(self.n_words, np.int64)  # live postings per word in the base
         self._dead = 0
         self._recent = RecentDocuments(self.n_words)
@@ -70,11 +71,13 @@ class SbowIndex:
 
     def __len__(self) -> int:
         """Number of live documents."""
-        return len(self._base_row) + len(self._recent)
+        return len(self._base.ids) - self._dead + len(self._recent)
 
     def __contains__(self, doc_id: Hashable) -> bool:
         """Whether ``doc_id`` is a live document."""
-        return doc_id in self._base_row or doc_id in self._recent.row_of
+        if doc_id in self._recent.row_of:
+            return True
+        return isinstance(doc_id, int | np.integer) and self._base_row(int(doc_id)) is not None
 
     @property
     def doc_ids(self) -> np.ndarray:
@@ -97,7 +100,9 @@ class SbowIndex:
             r = recent.row_of[doc_id]
             rows = slice(recent.ptr[r], recent.ptr[r + 1])
             return recent.words[rows].astype(np.int64), recent.weights[rows].copy(), float(recent.length[r])
-        row = self._base_row[doc_id]
+        row = self._base_row(doc_id)
+        if row is None:
+            raise KeyError(doc_id)
         base = self._base
         words = np.sort(base.words_of(row))
         rows_of = np.array(
@@ -134,10 +139,27 @@ class SbowIndex:
         if not segment.live.all():
             raise ValueError("a base segment to load holds live documents only")
         self._base = segment
-        self._base_row = {int(d): i for i, d in enumerate(segment.ids.tolist())}
+        ids = segment.ids
+        self._base_order = None if bool(np.all(ids[1:] > ids[:-1])) else np.argsort(ids, kind="stable")
+        self._base_keys = ids if self._base_order is None else ids[self._base_order]
         self._base_df = self._base.word_counts().astype(np.int64)
         self._dead = 0
         self._recent = RecentDocuments(self.n_words)
+
+    def _base_row(self, doc_id: int) -> int | None:
+        """The base row of live document ``doc_id`` (None when absent or removed).
+
+        A binary search of the base's ids (the segment's array, memory-mapped and shared when the base comes from
+        the machine's shared file: no per-process id -> row table). The base's ids are sorted whenever it was
+        built by :meth:`compact` or from a database snapshot (``db/sbow.py``: ids sorted); any other order is
+        searched through an argsort made at load.
+        """
+        keys, order = self._base_keys, self._base_order
+        i = int(np.searchsorted(keys, doc_id))
+        if i >= len(keys) or int(keys[i]) != doc_id:
+            return None
+        row = i if order is None else int(order[i])
+        return row if bool(self._base.live[row]) else None
 
     def upsert(self, doc_id: int, words: np.ndarray, weights: np.ndarray, length: float) -> None:
         """Add or replace one document: its distinct ``words``, their ``weights`` and its word total ``length``.
@@ -179,8 +201,7 @@ class SbowIndex:
         doc_id = int(doc_id)
         if self._recent.remove(doc_id):
             pass
-        elif doc_id in self._base_row:
-            row = self._base_row.pop(doc_id)
+        elif (row := self._base_row(doc_id)) is not None:
             self._base.live[row] = False
             self._base_df[self._base.words_of(row)] -= 1  # a document's words are distinct
             self._dead += 1

@@ -10,8 +10,10 @@ import pytest
 from db import Database, connect, migrate, sbow, transaction
 from db import maps as map_store
 from db import references as reference_store
+from geoloc.core.array_file import is_mapped, map_arrays, write_arrays
 from geoloc.localize.retrieval import bag, tfidf_scores
 from geoloc.localize.sbow_index import SbowIndex
+from geoloc.localize.sbow_segments import Segment
 from tests.unit.db.test_db import add_map, add_reference
 from workers import reference_store as store_module
 from workers.reference_store import DatabaseReferenceStore
@@ -166,3 +168,52 @@ def test_database_store_follows_the_database(tmp_path: Path) -> None:
     assert store.shortlist(queries[0], 8) == []
     worker_db.close()
     writer_db.close()
+
+
+@pytest.mark.parametrize("id_order", ["sorted", "shuffled"])
+def test_a_memory_mapped_base_takes_removals_and_upserts(tmp_path: Path, id_order: str) -> None:
+    """The base's id -> row lookup is a search of its (mapped, read-only) ids: changes still rank as tfidf_scores."""
+    rng = np.random.default_rng(3)
+    docs = {int(i): _zipf_words(rng, int(rng.integers(1, 200))) for i in rng.choice(3000, 120, replace=False)}
+    ids = np.array(sorted(docs)) if id_order == "sorted" else rng.permutation(np.array(list(docs)))
+    bags = [bag(docs[int(i)]) for i in ids]
+    built = SbowIndex(N_WORDS)
+    built.load(
+        ids,
+        np.array([len(docs[int(i)]) for i in ids], float),
+        np.concatenate([w for w, _ in bags]),
+        np.repeat(np.arange(len(ids)), [len(w) for w, _ in bags]),
+        np.concatenate([c for _, c in bags]),
+    )
+    write_arrays(tmp_path / "base.npz", built._base.arrays())
+    mapped = map_arrays(tmp_path / "base.npz")
+    assert is_mapped(mapped["ids"]) and not mapped["ids"].flags.writeable
+    index = SbowIndex(N_WORDS)
+    index.load_segment(Segment.from_arrays(mapped))
+    assert len(index) == len(docs) and all(i in index for i in docs)
+    assert max(docs) + 1 not in index and min(docs) - 1 not in index and "x" not in index
+    words, weights, length = index.postings(int(ids[5]))
+    assert np.array_equal(words, bag(docs[int(ids[5])])[0]) and length == len(docs[int(ids[5])])
+    gone, replaced = [int(i) for i in ids[:10]], [int(i) for i in ids[10:20]]
+    for doc_id in gone:
+        index.remove(doc_id)
+        del docs[doc_id]
+    for doc_id in replaced:
+        docs[doc_id] = _zipf_words(rng, 50)
+        _upsert(index, doc_id, docs[doc_id])
+    new_id = max(docs) + 7
+    docs[new_id] = _zipf_words(rng, 80)
+    _upsert(index, new_id, docs[new_id])
+    assert len(index) == len(docs) and all(i not in index for i in gone) and new_id in index
+    assert np.array_equal(index.doc_ids, np.array(sorted(docs)))
+    with pytest.raises(KeyError):
+        index.remove(gone[0])
+    with pytest.raises(KeyError):
+        index.postings(gone[0])
+    assert np.array_equal(index.postings(replaced[0])[0], bag(docs[replaced[0]])[0])
+    for _ in range(8):
+        query = _zipf_words(rng, 150)
+        assert index.top(query, 10) == _reference_ranking(docs, query, 10)
+    index.compact()
+    query = _zipf_words(rng, 150)
+    assert len(index) == len(docs) and index.top(query, 10) == _reference_ranking(docs, query, 10)
