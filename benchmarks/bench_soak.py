@@ -18,13 +18,13 @@ Each tick (``1 / rate`` seconds apart, jittered) it
   reference half a minute later (so the same photo is new again next time);
 - every 30 s, uploads a small map (``germany_patch.osm``), reads it, lists maps and deletes it.
 
-Every ``--sample-s`` it samples (:mod:`soak_checks`) the resident memory and open fds of the supervisor, the API
-and each worker process, the database and store sizes and the queue depth. After the run it waits for every
-accepted job to end and checks that queries older than the retention are gone (pruned). Errors are counted by
-request, status and code; ``429`` answers apart. The verdict (issue 22): no errors but 429s, every accepted job
-done, resident memory within 10 % of its level at the mark (10 minutes into an hour, a sixth of a shorter
-run), no growth in open fds; the exit code is 1 when a check fails. The machine may be shared: the load
-average is in each sample.
+Every ``--sample-s`` it samples (:mod:`soak_checks`) the resident memory and open fds of the supervisor, the API,
+the worker pool's own process (``pool``, :meth:`LocalService.worker_roles`) and each worker process, the database
+and store sizes and the queue depth. After the run it waits for every accepted job to end and checks that queries
+older than the retention are gone (pruned). Errors are counted by request, status and code; ``429`` answers apart.
+The verdict (issue 22): no errors but 429s, every accepted job done, resident memory within 10 % of its level at the
+mark (10 minutes into an hour, a sixth of a shorter run), no growth in open fds; the exit code is 1 when a check
+fails. The machine may be shared: the load average is in each sample.
 """
 
 from __future__ import annotations
@@ -224,8 +224,7 @@ async def sampler(service: LocalService, database_url: str | None, every_s: floa
                   out: list[dict[str, Any]], stop: asyncio.Event) -> None:  # fmt: skip
     """Sample every ``every_s`` until ``stop``, printing a line per sample."""
     while True:
-        roles = {"supervisor": [service.process.pid], "api": service.pids(b"service"),
-                 "worker": service.pids(b"workers")}  # fmt: skip
+        roles = {"supervisor": [service.process.pid], "api": service.pids(b"service"), **service.worker_roles()}
         row = await asyncio.to_thread(sample, time.monotonic() - t0, roles, service.data_dir, database_url)
         row["load_average"] = round(os.getloadavg()[0], 2)
         out.append(row)

@@ -140,6 +140,17 @@ class LocalService:
                 found.append(pid)
         return found
 
+    def worker_roles(self) -> dict[str, list[int]]:
+        """Its worker processes by role: ``pool`` and ``worker``.
+
+        ``pool``: a parent of other worker processes, which runs no jobs itself (the forking pool,
+        :mod:`workers.pool`, or a Celery worker's main process); ``worker``: the processes that run jobs (the
+        pool's children, spawned ``python -m workers`` processes, Celery's pool processes).
+        """
+        workers = self.pids(b"workers")
+        pools = [pid for pid in workers if set(descendants(pid)) & set(workers)]
+        return {"pool": pools, "worker": [pid for pid in workers if pid not in pools]}
+
     def stop(self) -> None:
         """SIGTERM the supervisor (it stops its children), then SIGKILL the group if it lingers."""
         self.client.close()
