@@ -5,8 +5,8 @@ neither reachable fails with what to fetch), that release's service started from
 archive first on the import path and as the working folder) on a fresh data folder, filled through its API
 (a map, references labelled by the method, a query answered), stopped; then this checkout's service on the same
 folder, which migrates the schema forward, must serve every map, reference and answer as the old one did and
-answer a new query. Embedded profile (SQLite): the migrations are the same DDL for both engines
-(``db/migrations.py``), PostgreSQL's rendering is tested in ``tests/unit/db/``.
+answer a new query. On both profiles: SQLite in the data folder, or one PostgreSQL database (and Redis broker)
+that the old release's service fills and this checkout's migrates.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from typing import Any
 import pytest
 
 from db import LATEST_VERSION, connect, schema_version
+from tests.conftest import Profile
 from tests.deployment_state import ask, fill, served_state
 from tests.service_fixtures import REPO_ROOT, running_service
 
@@ -44,7 +45,7 @@ def release_tree(release: dict[str, Any]) -> str:
     )
 
 
-def _stored_version(database: Path) -> int:
+def _stored_version(database: Path | str) -> int:
     db = connect(database)
     try:
         return schema_version(db)
@@ -54,7 +55,7 @@ def _stored_version(database: Path) -> int:
 
 @pytest.mark.parametrize("release", RELEASES, ids=[r["version"] for r in RELEASES])
 def test_this_checkout_serves_what_a_release_stored(
-    tmp_path: Path, built_models: Path, release: dict[str, Any]
+    tmp_path: Path, built_models: Path, release: dict[str, Any], profile: Profile
 ) -> None:
     archive = _git("archive", "--format=tar", release_tree(release))
     assert archive.returncode == 0, archive.stderr.decode()
@@ -62,15 +63,22 @@ def test_this_checkout_serves_what_a_release_stored(
     with tarfile.open(fileobj=io.BytesIO(archive.stdout)) as tar:
         tar.extractall(old_code, filter="data")
     data_dir = tmp_path / "data"
-    old_env = {"PYTHONPATH": str(old_code), "GEOLOC_WORKER_PLUGINS": ""}  # this checkout's test plugins stay out
+    deployment = {}  # the same database (and broker) for the old release and this checkout: empty, not migrated
+    if profile.postgres is not None and profile.redis is not None:
+        deployment = {
+            "GEOLOC_DATABASE_URL": profile.postgres.new_empty_database(),
+            "GEOLOC_BROKER_URL": profile.redis.new_url(),
+        }
+    database = deployment.get("GEOLOC_DATABASE_URL") or data_dir / "geoloc.sqlite3"
+    old_env = {"PYTHONPATH": str(old_code), "GEOLOC_WORKER_PLUGINS": "", **deployment}  # no test plugins of ours
     with running_service(data_dir, models=built_models, cwd=old_code, **old_env) as old, old.client() as client:
         filled = fill(client)
         before = served_state(client, filled)
-    assert _stored_version(data_dir / "geoloc.sqlite3") == release["schema_version"], "the old release's schema"
+    assert _stored_version(database) == release["schema_version"], "the old release's schema"
 
-    with running_service(data_dir, models=built_models) as new, new.client() as client:
+    with running_service(data_dir, models=built_models, **deployment) as new, new.client() as client:
         after = served_state(client, filled)
-        assert _stored_version(new.data_dir / "geoloc.sqlite3") == LATEST_VERSION, "migrated forward"
+        assert _stored_version(database) == LATEST_VERSION, "migrated forward"
         for kind in ("maps", "listed_references", "references", "queries"):
             assert len(after[kind]) == len(before[kind]), kind
             for old_row, new_row in zip(before[kind], after[kind], strict=True):
