@@ -15,7 +15,6 @@ shared data and the model cache are); ``service``, ``workers`` and ``cli`` impor
 
 from __future__ import annotations
 
-import sys
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -142,11 +141,10 @@ class Settings(BaseSettings):
         json_schema_extra=_shown("(all)"),
     )
     worker_start: Literal["fork", "spawn"] = Field(
-        default="fork" if sys.platform.startswith("linux") else "spawn",
-        description="how the embedded profile starts its workers: `fork` (one pool process imports and warms what "
-        "every worker uses, then forks them: they share those pages, docs/operations.md) or `spawn` (separate "
-        "`python -m workers` processes)",
-        json_schema_extra=_shown("fork (Linux), spawn elsewhere"),
+        default="spawn",
+        description="how the embedded profile starts its workers: `spawn` (separate `python -m workers` processes) "
+        "or `fork` (Linux: one pool process imports and warms what every worker uses, then forks them: they share "
+        "those pages; opt-in until its hour-long soak passes, docs/operations.md)",
     )
     worker_nice: int = Field(
         default=10,

@@ -3,8 +3,8 @@
 It refuses to start (exit code 2, the reason on stderr) on an invalid setting, when the models the method
 needs are missing or stale, or when ``GEOLOC_DEVICE=cuda`` and no GPU can run them here; it runs at the CPU
 niceness ``GEOLOC_WORKER_NICE`` so that the API on the same machine keeps answering while the workers are busy.
-With ``GEOLOC_WORKER_START=fork`` (the default on Linux) the supervisor runs :mod:`workers.pool` instead, which
-prepares the same way and forks.
+With ``GEOLOC_WORKER_START=fork`` the supervisor runs :mod:`workers.pool` instead, which prepares the same way
+and forks.
 """
 
 from __future__ import annotations
