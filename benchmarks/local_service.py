@@ -35,15 +35,19 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+def parent_pid(pid: int) -> int | None:
+    """The parent of process ``pid`` (``/proc/PID/stat``), None when it has gone."""
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def descendants(pid: int) -> list[int]:
     """Every descendant process of ``pid``."""
     parents: dict[int, list[int]] = {}
     for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
+        if entry.name.isdigit() and (ppid := parent_pid(int(entry.name))) is not None:
             parents.setdefault(ppid, []).append(int(entry.name))
     out, todo = [], [pid]
     while todo:
@@ -148,7 +152,8 @@ class LocalService:
         pool's children, spawned ``python -m workers`` processes, Celery's pool processes).
         """
         workers = self.pids(b"workers")
-        pools = [pid for pid in workers if set(descendants(pid)) & set(workers)]
+        parents = {parent_pid(pid) for pid in workers}  # a pool's workers are its own children
+        pools = [pid for pid in workers if pid in parents]
         return {"pool": pools, "worker": [pid for pid in workers if pid not in pools]}
 
     def stop(self) -> None:

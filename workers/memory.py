@@ -13,11 +13,8 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import logging
 from collections.abc import Callable
 from functools import lru_cache
-
-log = logging.getLogger("geoloc.worker")
 
 
 @lru_cache(maxsize=1)
