@@ -34,8 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sqlite3
 import statistics
 import subprocess
@@ -47,7 +45,7 @@ from typing import Any
 
 import numpy as np
 import osmium
-from local_service import LocalService, status_mb
+from local_service import LocalService, run_figures, status_mb
 
 from contracts.settings import shared_path
 from geoloc.client import ApiError, calls
@@ -285,8 +283,7 @@ def main() -> None:
     workdir.mkdir(parents=True, exist_ok=True)
     helsinki = shared_path("data", "osm", "helsinki.osm.pbf")
     figures: dict[str, Any] = {
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at start",
-        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        **run_figures(),
         "workdir": str(workdir),
     }
     print(f"machine: {figures['machine']}; work folder {workdir}")

@@ -26,9 +26,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import os
-import platform
-import sys
 import tempfile
 import threading
 import time
@@ -38,7 +35,7 @@ from typing import Any
 
 import httpx
 from bench_city_map import _make_world, ingest, upload_map, write_tiled_osm
-from local_service import LocalService
+from local_service import LocalService, run_figures
 from map_jobs_checks import summarize, verdict
 
 from contracts.settings import shared_path
@@ -200,8 +197,7 @@ def main() -> None:
     workdir.mkdir(parents=True, exist_ok=True)
     helsinki = shared_path("data", "osm", "helsinki.osm.pbf")
     figures: dict[str, Any] = {
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at start",
-        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        **run_figures(),
     }
     print(f"machine: {figures['machine']}; work folder {workdir}")
     world = load_world(args.world or _make_world(workdir / "world", helsinki))

@@ -10,6 +10,7 @@ on ``sys.path``, so a benchmark measures this checkout's code whatever the envir
 from __future__ import annotations
 
 import os
+import platform
 import shutil
 import signal
 import socket
@@ -33,6 +34,14 @@ def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+def run_figures() -> dict[str, str]:
+    """What a benchmark's JSON says of its run: the machine (cores, load average at the start) and the command."""
+    return {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at start",
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+    }
 
 
 def parent_pid(pid: int) -> int | None:
