@@ -114,9 +114,19 @@ def send(service: Service, call: Call[Any], what: str) -> Sent[dict[str, Any]]:
         raise SystemExit(f"{service.name}: {what}: {exc}") from exc
 
 
-def upload_map(service: Service) -> None:
+def upload_map(service: Service, timeout_s: float = 600.0) -> None:
+    """Upload the Helsinki map and wait until it is parsed (a commit before maps as jobs answers it parsed)."""
     osm = shared_path("data", "osm", "helsinki.osm.pbf")
-    service.map_id = int(send(service, calls.upload_map(osm, "helsinki", {}), "map upload failed").value["id"])
+    uploaded = send(service, calls.upload_map(osm, "helsinki", {"wait_s": 60.0}), "map upload failed").value
+    service.map_id = int(uploaded["id"])
+    deadline = time.monotonic() + timeout_s
+    while uploaded.get("status", "done") not in ("done", "failed"):
+        if time.monotonic() > deadline:
+            raise SystemExit(f"{service.name}: map {service.map_id} not parsed within {timeout_s:.0f} s")
+        time.sleep(0.5)
+        uploaded = send(service, calls.get_map(service.map_id), "map").value
+    if uploaded.get("status") == "failed":
+        raise SystemExit(f"{service.name}: map {service.map_id} failed: {json.dumps(uploaded)[:300]}")
 
 
 def label_references(service: Service, photos: list[Path]) -> dict[str, Any]:
