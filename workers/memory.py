@@ -1,4 +1,4 @@
-"""Give the heap's free pages back to the system after each job (glibc's ``malloc_trim``).
+"""After each job: collect its garbage, keep the collector off what outlives it, give free pages back.
 
 A job allocates hundreds of MB in short-lived arrays (the photo, its segmentation, features, matches) from
 several threads. glibc keeps what they free inside its per-thread arenas, so a worker's resident memory
@@ -7,12 +7,25 @@ followed the largest mix of jobs it had seen rather than what it holds. Measured
 which only 83 to 111 MB was in use; the free part rose and fell by 50 MB from job to job and drifted up. After
 :func:`release_free_heap` the resident size tracks the memory in use (the caches of
 :mod:`workers.reference_store` and the loaded maps). Elsewhere than glibc (musl, macOS) it does nothing.
+
+Python's collector: a worker holds 100 k+ long-lived objects (the imported modules, the loaded maps, networks,
+vocabularies) and each full collection walked all of them (65 ms on the shared machine, measured with
+``gc.collect()`` after importing the handlers); a job's temporaries set off about one such collection per job
+(5 % of worker CPU in the profile of ``benchmarks/bench_service.py``). :func:`settle_heap` (before each job
+and after it) collects the job's cyclic garbage, then ``gc.freeze()`` moves every object that survived into
+the permanent generation, which the collector no longer walks; a collection during the next job walks only
+that job's objects. Frozen objects are still freed by reference counting; only a reference cycle among them
+would stay. The long-lived objects of a worker hold none (checked: a loaded map, its places and the
+vocabulary, dropped, leave nothing for the collector), so no full collection is run again: it would also
+write to every frozen object, unsharing the pages a forked pool's children share with their parent
+(:mod:`workers.pool`, which freezes its heap before it forks).
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import gc
 from collections.abc import Callable
 from functools import lru_cache
 
@@ -36,3 +49,13 @@ def release_free_heap() -> bool:
         return False
     trim(0)
     return True
+
+
+def settle_heap() -> bool:
+    """Collect the garbage (cycles), freeze what survives (``gc.freeze``), trim the heap (:func:`release_free_heap`).
+
+    Returns what :func:`release_free_heap` returns. Called by the worker before its first job and after each.
+    """
+    gc.collect()
+    gc.freeze()
+    return release_free_heap()

@@ -8,8 +8,9 @@ heartbeating: its job is claimed again once the lease expires.
 
 Between jobs (and while idle) the loop also applies the query retention (:mod:`workers.retention`).
 A failure that cannot succeed on retry (:func:`workers.handlers.is_permanent`, or any failure once the
-job's map or reference has been deleted) fails the job at once. After each job the heap's free pages go back
-to the system (:mod:`workers.memory`), so the process's resident memory follows what it holds.
+job's map or reference has been deleted) fails the job at once. After each job the heap is settled
+(:func:`workers.memory.settle_heap`): the job's garbage collected, what outlives it frozen out of Python's
+collections, the free pages given back to the system, so the process's resident memory follows what it holds.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from db import jobs as job_store
 from db.files import open_store
 from db.rows import JobRow
 from workers.handlers import HANDLERS, PermanentJobError, Registration, is_permanent
-from workers.memory import release_free_heap
+from workers.memory import settle_heap
 from workers.retention import purge_expired_queries, purge_interval_s
 
 log = logging.getLogger("geoloc.worker")
@@ -92,6 +93,7 @@ class Worker:
         db = connect(self.database)
         migrate(db)
         job_store.register_worker(db, self.worker_id, os.getpid(), socket.gethostname())
+        settle_heap()  # the imported modules and handlers: out of the collector's walks from the first job on
         log.info("worker %s started (handlers: %s)", self.worker_id, ", ".join(sorted(self.handlers)) or "none")
         jobs_run = 0
         sleep_s = MIN_POLL_S
@@ -193,8 +195,8 @@ class Worker:
             delay = min(self.settings.job_retry_delay_s * 2 ** max(int(job["attempts"]) - 1, 0), MAX_RETRY_DELAY_S)
             status = job_store.fail_job(db, job_id, self.worker_id, error, retry_delay_s=delay, permanent=permanent)
             log.warning("job %d attempt failed (%s) -> %s", job_id, outcome.error, status)
-        del outcome  # its result and error (with the handler's frames) before the heap is trimmed
-        release_free_heap()
+        del outcome  # its result and error (with the handler's frames) before the heap is settled
+        settle_heap()
         job_store.heartbeat_worker(db, self.worker_id, None)
         return True
 
