@@ -15,6 +15,7 @@ from contracts.settings import Settings
 from db import Database, connect, migrate
 from db import jobs as job_store
 from workers.handlers import Registration
+from workers.memory import settle_heap
 from workers.worker import Worker
 
 
@@ -23,6 +24,23 @@ class _Node:
 
     def __init__(self) -> None:
         self.other: object = None
+
+
+def test_settling_collects_cycles_and_freezes_what_survives() -> None:
+    """The job's cyclic garbage is freed; what outlives the job leaves the collector's generations."""
+    garbage, kept = _Node(), _Node()
+    garbage.other, kept.other = garbage, kept  # two cycles: one dropped, one kept
+    gone = weakref.ref(garbage)
+    del garbage
+    frozen_before = gc.get_freeze_count()
+    try:
+        settle_heap()
+        assert gone() is None  # collected before the freeze, not frozen with the rest
+        assert gc.get_freeze_count() > frozen_before
+        assert not any(obj is kept for obj in gc.get_objects())  # out of every collection's walk
+        assert len(gc.get_objects()) < 1_000  # a collection walks only what was made since
+    finally:
+        gc.unfreeze()  # the rest of the test session collects as usual
 
 
 class _Empty(JobPayload):
