@@ -71,12 +71,14 @@ def vanishing_point_yaw(
     present = image_model.facade_present > 0
     if not present.any():
         return yaw_deg % 360.0, 0
-    panorama = cast_panoramas(city_map, np.array([[x_m, y_m]]), bearing_step_deg=VP_BEARING_STEP_DEG)
-    n_bearings = panorama.normal_bearing_deg.shape[1]
+    n_bearings = int(round(360.0 / VP_BEARING_STEP_DEG))
+    position = np.array([[x_m, y_m]])
     yaw = float(yaw_deg)
     support = 0
     for _ in range(passes):
         index = np.round(((yaw + image_model.offsets_deg) % 360.0) / VP_BEARING_STEP_DEG).astype(np.int64) % n_bearings
+        # Only the bins' bearings are cast (the same rays as the full 0.1 deg panorama's, so the same bits).
+        panorama = cast_panoramas(city_map, position, bearing_step_deg=VP_BEARING_STEP_DEG, bearing_indices=index)
         normal = panorama.normal_bearing_deg[0, index]
         delta = ((normal - image_model.orientation_deg) - yaw + 90.0) % 180.0 - 90.0
         agree = present & np.isfinite(delta) & (np.abs(delta) < tolerance_deg)
