@@ -57,6 +57,7 @@ import numpy.typing as npt
 from geoloc.core.camera import wrap_orientation_deg
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import Panoramas, panorama_window
+from geoloc.maps.spatial import unique_ids
 from geoloc.vision.image_model import ImageModel
 
 DEFAULT_SIGMA_M = 40.0
@@ -126,7 +127,7 @@ def pose_likelihood(
     inv_two_sigma2 = 1.0 / (2.0 * options.sigma_m**2)
     # Per panorama bearing, as pose_likelihood_numpy computes them per (position, yaw, bin): same bits. Only the
     # bearings the window reads (a few yaws read a camera's field of view, not the whole panorama).
-    window, read = terms.window, np.unique(terms.window)
+    window, read = terms.window, unique_ids(terms.window, panoramas.distance_m.shape[1])
     used: np.ndarray | slice = slice(None)  # the whole panorama: no copy
     if len(read) < panoramas.distance_m.shape[1]:
         used, window = read, np.searchsorted(read, window)

@@ -32,7 +32,7 @@ import numba
 import numpy as np
 
 from geoloc.maps import CityMap, Facades
-from geoloc.maps.spatial import FacadeIndex
+from geoloc.maps.spatial import FacadeIndex, unique_ids
 
 __all__ = [
     "DEFAULT_BEARING_STEP_DEG",
@@ -122,8 +122,9 @@ def cast_panoramas(
     _, tile_id = np.unique(tile, axis=0, return_inverse=True)
     order = np.argsort(tile_id.ravel(), kind="stable")
     bounds = np.flatnonzero(np.diff(tile_id.ravel()[order])) + 1
-    next_ray = None if bearing_indices is None else _wanted_rays(n_bearings, bearing_indices)
-    edges = None if bearing_indices is None else _window_edges(n_bearings, bearing_indices)
+    cast = None if bearing_indices is None else unique_ids(np.asarray(bearing_indices) % n_bearings, n_bearings)
+    next_ray = None if cast is None else _wanted_rays(n_bearings, cast)
+    edges = None if cast is None else _window_edges(n_bearings, cast)
     for members in np.split(order, bounds):
         near = index.facades_near(positions[members], max_range_m)
         if not len(near):
@@ -134,7 +135,6 @@ def cast_panoramas(
             _cast_tile(positions, members, facades, near, n_bearings, max_range_m, best, next_ray, edges)
 
     # Decode only the cast bearings (the others hold no hit): elementwise, so the same bits as decoding all.
-    cast = None if bearing_indices is None else np.unique(np.asarray(bearing_indices) % n_bearings)
     nearest = best.reshape(n_pos, n_bearings)[:, slice(None) if cast is None else cast]
     hit = nearest != np.iinfo(np.int64).max
     facade_id = np.where(hit, nearest & ((1 << _FACADE_BITS) - 1), -1).astype(np.int32)
@@ -223,13 +223,13 @@ def _all_rays(n_bearings: int) -> np.ndarray:
     return every
 
 
-def _wanted_rays(n_bearings: int, bearing_indices: np.ndarray) -> np.ndarray:
-    """(2 N + 3,) per ray index k of :func:`_ray_directions`, the smallest k' >= k whose bearing is wanted.
+def _wanted_rays(n_bearings: int, wanted: np.ndarray) -> np.ndarray:
+    """(2 N + 3,) per ray index k of :func:`_ray_directions`, the smallest k' >= k whose bearing is ``wanted``.
 
+    wanted: sorted distinct bearing indices in [0, N).
     A facade's bearing range [first, last] may pass 360 deg, so bearing c is ray c, c + N or c + 2 N;
     2 N + 2 (past every range) where no wanted ray follows.
     """
-    wanted = np.unique(np.asarray(bearing_indices, dtype=np.int64) % n_bearings)
     size = 2 * n_bearings + 3
     rays = np.concatenate([wanted, wanted + n_bearings, wanted + 2 * n_bearings])
     slot = np.full(size, size - 1, dtype=np.int64)
@@ -242,14 +242,14 @@ _EDGE_MARGIN_RAD = 0.02
 """How far outside the wanted window :func:`_window_edges` puts its edge rays (far beyond rounding)."""
 
 
-def _window_edges(n_bearings: int, bearing_indices: np.ndarray) -> np.ndarray:
-    """(4,) directions (sin, cos) of the left and right edges of the wanted bearings' arc, widened by a margin.
+def _window_edges(n_bearings: int, wanted: np.ndarray) -> np.ndarray:
+    """(4,) directions (sin, cos) of the left and right edges of the ``wanted`` bearings' arc, widened by a margin.
 
     A facade whose two endpoints lie left of the left edge (or right of the right one) spans only bearings
     in that open half-plane, none of them wanted: the kernel skips it before its arctangents. Only for arcs
-    under 170 deg (the half-planes must miss the whole arc); (0,) otherwise: no culling.
+    under 170 deg (the half-planes must miss the whole arc); (0,) otherwise: no culling. wanted: sorted
+    distinct bearing indices in [0, N).
     """
-    wanted = np.unique(np.asarray(bearing_indices, dtype=np.int64) % n_bearings)
     if len(wanted) == 0:
         return np.zeros(0)
     gaps = np.diff(np.r_[wanted, wanted[0] + n_bearings])  # gaps[i]: from wanted[i] clockwise to the next
