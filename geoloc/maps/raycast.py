@@ -127,11 +127,9 @@ def cast_panoramas(
     edges = None if cast is None else _window_edges(n_bearings, cast)
     for members in np.split(order, bounds):
         near = index.facades_near(positions[members], max_range_m)
-        if not len(near):
-            continue
-        if next_ray is None:  # the call the tests swap for the specification, _cast_tile_numpy
+        if len(near) and next_ray is None:  # the call the tests swap for the specification, _cast_tile_numpy
             _cast_tile(positions, members, facades, near, n_bearings, max_range_m, best)
-        else:
+        elif len(near):
             _cast_tile(positions, members, facades, near, n_bearings, max_range_m, best, next_ray, edges)
 
     # Decode only the cast bearings (the others hold no hit): elementwise, so the same bits as decoding all.
@@ -144,7 +142,7 @@ def cast_panoramas(
     # Wrap after the cast: 359.99999999 would otherwise become 360.0 in float32.
     normal_bearing = np.where(hit, facades.normal_bearing_deg[safe], np.nan).astype(np.float32) % np.float32(360.0)
     if cast is not None:
-        facade_id, building_id = _spread(facade_id, cast, n_bearings, -1), _spread(building_id, cast, n_bearings, -1)
+        facade_id, building_id = (_spread(ids, cast, n_bearings, -1) for ids in (facade_id, building_id))
         distance, normal_bearing = (
             _spread(distance, cast, n_bearings, np.inf),
             _spread(normal_bearing, cast, n_bearings, np.nan),
@@ -196,7 +194,7 @@ def _cast_tile(
         n_bearings,
         360.0 / n_bearings,
         float(max_range_m),
-        _all_rays(n_bearings) if next_ray is None else next_ray,
+        np.arange(2 * n_bearings + 3) if next_ray is None else next_ray,  # every ray: next_ray[k] = k
         np.zeros(0) if edges is None else edges,
         np.asarray(members, dtype=np.int64),
         best.reshape(-1, n_bearings),
@@ -213,14 +211,6 @@ def _ray_directions(n_bearings: int) -> tuple[np.ndarray, np.ndarray]:
     sin_k, cos_k = np.sin(theta), np.cos(theta)
     sin_k.flags.writeable = cos_k.flags.writeable = False
     return sin_k, cos_k
-
-
-@lru_cache(maxsize=8)
-def _all_rays(n_bearings: int) -> np.ndarray:
-    """:func:`_wanted_rays` of every bearing: ``next_ray[k] = k``."""
-    every = np.arange(2 * n_bearings + 3, dtype=np.int64)
-    every.flags.writeable = False
-    return every
 
 
 def _wanted_rays(n_bearings: int, wanted: np.ndarray) -> np.ndarray:
@@ -285,10 +275,9 @@ def _cast_kernel(
 ) -> None:  # pragma: no cover - compiled; checked against _cast_tile_numpy in the tests
     """Per (position i, facade j) pair, the packed hit key at every wanted bearing it spans, min into best[rows[i]].
 
-    rows: the positions' rows of best, the (P, N) keys of all positions.
-
-    next_ray: per ray index k, the first wanted ray index >= k (:func:`_wanted_rays`). edges: (4,) the wanted
-    window's edge rays (:func:`_window_edges`) or (0,): pairs wholly outside them are skipped early.
+    rows: the positions' rows of best, the (P, N) keys of all positions. next_ray: per ray index k, the first
+    wanted ray index >= k (:func:`_wanted_rays`). edges: (4,) the wanted window's edge rays
+    (:func:`_window_edges`) or (0,): pairs wholly outside them are skipped early.
     """
     cull = edges.shape[0] == 4
     for i in range(px.shape[0]):
