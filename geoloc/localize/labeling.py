@@ -319,7 +319,7 @@ def label_reference(
     assert best is not None  # distinct_modes always yields the strongest pose
 
     # Identities: greedy from the refined pose; marginalised over the grid poses of the chosen mode.
-    at_best = likelihood.panoramas(np.array([[best.x_m, best.y_m]]))
+    at_best = likelihood.panoramas(np.array([[best.x_m, best.y_m]]), np.array([best.yaw_deg]))  # its window only
     greedy_ids = column_building_ids(
         at_best, np.array([best.yaw_deg]), intrinsics, image_model.offsets_deg, image_model.bin_deg
     )[0, 0]

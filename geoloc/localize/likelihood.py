@@ -57,6 +57,7 @@ import numpy.typing as npt
 from geoloc.core.camera import wrap_orientation_deg
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import Panoramas, panorama_window
+from geoloc.maps.spatial import unique_ids
 from geoloc.vision.image_model import ImageModel
 
 DEFAULT_SIGMA_M = 40.0
@@ -124,19 +125,24 @@ def pose_likelihood(
     """
     terms = _terms(panoramas, image_model, yaws_deg, options, building_height_m)
     inv_two_sigma2 = 1.0 / (2.0 * options.sigma_m**2)
-    # Per panorama bearing, as pose_likelihood_numpy computes them per (position, yaw, bin): same bits.
-    dist = panoramas.distance_m
+    # Per panorama bearing, as pose_likelihood_numpy computes them per (position, yaw, bin): same bits. Only the
+    # bearings the window reads (a few yaws read a camera's field of view, not the whole panorama).
+    window, read = terms.window, unique_ids(terms.window, panoramas.distance_m.shape[1])
+    used: np.ndarray | slice = slice(None)  # the whole panorama: no copy
+    if len(read) < panoramas.distance_m.shape[1]:
+        used, window = read, np.searchsorted(read, window)
+    dist = panoramas.distance_m[:, used]
     hit = np.isfinite(dist)
     weight = np.where(hit, np.exp(-np.square(np.where(hit, dist, 0.0)) * inv_two_sigma2), 0.0)
     log_distance = np.log(np.where(hit, np.maximum(dist, 0.1), 1.0))
     # |cos(theta - theta_hat)| = |cos(normal - (yaw + theta_hat))| (theta = normal - yaw modulo 180 deg), expanded
     # as cos a cos b + sin a sin b: one cosine per bearing and one per (yaw, bin) instead of one per term.
-    normal = np.radians(np.where(hit, panoramas.normal_bearing_deg, 0.0).astype(np.float64))
+    normal = np.radians(np.where(hit, panoramas.normal_bearing_deg[:, used], 0.0).astype(np.float64))
     view = np.radians(terms.yaws[:, None] + terms.theta_hat[None, :].astype(np.float64))  # (Y, K)
     empty = np.zeros(0, np.float32)
     out = np.zeros((len(panoramas), len(terms.yaws)), dtype=np.float32)
     _likelihood_kernel(
-        terms.window,
+        window,
         np.ascontiguousarray(weight, dtype=np.float32),
         hit,
         np.ascontiguousarray(log_distance, dtype=np.float32),
@@ -144,7 +150,7 @@ def pose_likelihood(
         np.sin(normal),
         np.cos(view),
         np.sin(view),
-        np.ascontiguousarray(panoramas.building_id, dtype=np.int32),
+        np.ascontiguousarray(panoramas.building_id[:, used], dtype=np.int32),
         terms.present,
         empty if terms.log_distance_hat is None else terms.log_distance_hat,
         np.float32(options.distance_sigma_log),

@@ -19,7 +19,7 @@ import numpy as np
 
 from geoloc.localize.likelihood import LikelihoodOptions, known_building_heights, pose_likelihood
 from geoloc.maps import CityMap
-from geoloc.maps.raycast import Panoramas, cast_panoramas
+from geoloc.maps.raycast import Panoramas, cast_panoramas, window_indices
 from geoloc.vision.image_model import ImageModel
 
 
@@ -44,9 +44,18 @@ class MapLikelihood:
         options = replace(self.options, **changes)
         return self if options == self.options else MapLikelihood(self.city_map, self.image_model, options)
 
-    def panoramas(self, positions: np.ndarray) -> Panoramas:
-        """The map's panoramas at (P, 2) positions, at the image model's bin step."""
-        return cast_panoramas(self.city_map, positions, bearing_step_deg=self.image_model.bin_deg)
+    def panoramas(self, positions: np.ndarray, yaws_deg: np.ndarray | None = None) -> Panoramas:
+        """The map's panoramas at (P, 2) positions, at the image model's bin step.
+
+        yaws_deg: cast only the bearings cameras at these (Y,) yaws see (the rest is left as no hit), for
+        :meth:`of_panoramas` at the same yaws and nothing else; the likelihood is bit-identical.
+        """
+        step = self.image_model.bin_deg
+        wanted = None
+        if yaws_deg is not None:
+            n_bearings = int(round(360.0 / step))
+            wanted = window_indices(n_bearings, np.asarray(yaws_deg, dtype=float), self.image_model.offsets_deg)
+        return cast_panoramas(self.city_map, positions, bearing_step_deg=step, bearing_indices=wanted)
 
     def of_panoramas(self, panoramas: Panoramas, yaws_deg: np.ndarray) -> np.ndarray:
         """(P, Y) float32 likelihood at the positions of ``panoramas`` (from :meth:`panoramas`) x (Y,) yaws."""
@@ -55,7 +64,7 @@ class MapLikelihood:
 
     def of_poses(self, positions: np.ndarray, yaws_deg: np.ndarray) -> np.ndarray:
         """(P, Y) float32 likelihood at (P, 2) positions x (Y,) yaws."""
-        return self.of_panoramas(self.panoramas(positions), yaws_deg)
+        return self.of_panoramas(self.panoramas(positions, yaws_deg), yaws_deg)
 
     def at(self, x_m: float, y_m: float, yaw_deg: float) -> float:
         """The likelihood of one pose."""

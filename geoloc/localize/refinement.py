@@ -71,12 +71,29 @@ def vanishing_point_yaw(
     present = image_model.facade_present > 0
     if not present.any():
         return yaw_deg % 360.0, 0
-    panorama = cast_panoramas(city_map, np.array([[x_m, y_m]]), bearing_step_deg=VP_BEARING_STEP_DEG)
-    n_bearings = panorama.normal_bearing_deg.shape[1]
+    n_bearings = int(round(360.0 / VP_BEARING_STEP_DEG))
+    position = np.array([[x_m, y_m]])
+    # Only the bearings the bins can read are cast, once: each pass moves the yaw by under tolerance_deg. They are
+    # the full 0.1 deg panorama's rays, so the same bits.
+    reach_deg = (passes - 1) * tolerance_deg + VP_BEARING_STEP_DEG
+    first, last = (
+        int(np.floor((yaw_deg + np.min(image_model.offsets_deg) - reach_deg) / VP_BEARING_STEP_DEG)),
+        int(np.ceil((yaw_deg + np.max(image_model.offsets_deg) + reach_deg) / VP_BEARING_STEP_DEG)),
+    )
+    cast = np.zeros(n_bearings, dtype=bool)
+    cast[np.arange(first, last + 1) % n_bearings] = True
+    panorama = cast_panoramas(
+        city_map, position, bearing_step_deg=VP_BEARING_STEP_DEG, bearing_indices=np.flatnonzero(cast)
+    )
     yaw = float(yaw_deg)
     support = 0
     for _ in range(passes):
         index = np.round(((yaw + image_model.offsets_deg) % 360.0) / VP_BEARING_STEP_DEG).astype(np.int64) % n_bearings
+        if not cast[index].all():  # beyond the reach (it cannot be): cast what is missing too
+            cast[index] = True
+            panorama = cast_panoramas(
+                city_map, position, bearing_step_deg=VP_BEARING_STEP_DEG, bearing_indices=np.flatnonzero(cast)
+            )
         normal = panorama.normal_bearing_deg[0, index]
         delta = ((normal - image_model.orientation_deg) - yaw + 90.0) % 180.0 - 90.0
         agree = present & np.isfinite(delta) & (np.abs(delta) < tolerance_deg)

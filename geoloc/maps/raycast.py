@@ -32,7 +32,7 @@ import numba
 import numpy as np
 
 from geoloc.maps import CityMap, Facades
-from geoloc.maps.spatial import FacadeIndex
+from geoloc.maps.spatial import FacadeIndex, unique_ids
 
 __all__ = [
     "DEFAULT_BEARING_STEP_DEG",
@@ -42,6 +42,7 @@ __all__ = [
     "cast_all_hits",
     "cast_panoramas",
     "panorama_window",
+    "window_indices",
 ]
 
 DEFAULT_BEARING_STEP_DEG = 0.5
@@ -97,12 +98,16 @@ def cast_panoramas(
     max_range_m: float = DEFAULT_MAX_RANGE_M,
     chunk_m: float = 60.0,
     index: FacadeIndex | None = None,
+    bearing_indices: np.ndarray | None = None,
 ) -> Panoramas:
     """Ray-cast panoramas at local ``positions`` (P, 2) metres.
 
     ``bearing_step_deg`` must divide 360. Positions are processed in spatial tiles of ``chunk_m``
     so that each tile only considers the facades within ``max_range_m`` of it, found through the
-    map's cached facade index (``index`` overrides it).
+    map's cached facade index (``index`` overrides it). ``bearing_indices``: cast only these bearings
+    (indices in [0, N), any order, repeats allowed), for callers that read only a camera's window of the
+    panorama; every cast bearing is bit-identical to the full cast's, the others are left as no hit
+    (-1, inf, NaN), so such panoramas must only be read at those bearings.
     """
     n_bearings = int(round(360.0 / bearing_step_deg))
     if not np.isclose(n_bearings * bearing_step_deg, 360.0):
@@ -117,12 +122,18 @@ def cast_panoramas(
     _, tile_id = np.unique(tile, axis=0, return_inverse=True)
     order = np.argsort(tile_id.ravel(), kind="stable")
     bounds = np.flatnonzero(np.diff(tile_id.ravel()[order])) + 1
+    cast = None if bearing_indices is None else unique_ids(np.asarray(bearing_indices) % n_bearings, n_bearings)
+    next_ray = None if cast is None else _wanted_rays(n_bearings, cast)
+    edges = None if cast is None else _window_edges(n_bearings, cast)
     for members in np.split(order, bounds):
         near = index.facades_near(positions[members], max_range_m)
-        if len(near):
+        if len(near) and next_ray is None:  # the call the tests swap for the specification, _cast_tile_numpy
             _cast_tile(positions, members, facades, near, n_bearings, max_range_m, best)
+        elif len(near):
+            _cast_tile(positions, members, facades, near, n_bearings, max_range_m, best, next_ray, edges)
 
-    nearest = best.reshape(n_pos, n_bearings)
+    # Decode only the cast bearings (the others hold no hit): elementwise, so the same bits as decoding all.
+    nearest = best.reshape(n_pos, n_bearings)[:, slice(None) if cast is None else cast]
     hit = nearest != np.iinfo(np.int64).max
     facade_id = np.where(hit, nearest & ((1 << _FACADE_BITS) - 1), -1).astype(np.int32)
     distance = np.where(hit, (nearest >> _FACADE_BITS) / _DIST_SCALE, np.inf).astype(np.float32)
@@ -130,8 +141,21 @@ def cast_panoramas(
     building_id = np.where(hit, facades.building_id[safe], -1).astype(np.int32)
     # Wrap after the cast: 359.99999999 would otherwise become 360.0 in float32.
     normal_bearing = np.where(hit, facades.normal_bearing_deg[safe], np.nan).astype(np.float32) % np.float32(360.0)
+    if cast is not None:
+        facade_id, building_id = (_spread(ids, cast, n_bearings, -1) for ids in (facade_id, building_id))
+        distance, normal_bearing = (
+            _spread(distance, cast, n_bearings, np.inf),
+            _spread(normal_bearing, cast, n_bearings, np.nan),
+        )
     bearings = np.arange(n_bearings) * bearing_step_deg
     return Panoramas(positions, bearings, facade_id, building_id, distance, normal_bearing, max_range_m)
+
+
+def _spread(values: np.ndarray, columns: np.ndarray, n_bearings: int, empty: float) -> np.ndarray:
+    """(P, N) array of ``empty`` with (P, W) ``values`` at ``columns``."""
+    full = np.full((len(values), n_bearings), empty, dtype=values.dtype)
+    full[:, columns] = values
+    return full
 
 
 def _cast_tile(
@@ -142,12 +166,17 @@ def _cast_tile(
     n_bearings: int,
     max_range_m: float,
     best: np.ndarray,
+    next_ray: np.ndarray | None = None,
+    edges: np.ndarray | None = None,
 ) -> None:
-    """Min the nearest hits of facades ``near`` seen from ``positions[members]`` into ``best`` (compiled kernel)."""
+    """Min the nearest hits of facades ``near`` seen from ``positions[members]`` into ``best`` (compiled kernel).
+
+    next_ray: (2 N + 3,) the first ray index >= k to cast, per ray index k (:func:`_wanted_rays`; default all).
+    edges: the wanted bearings' window edges (:func:`_window_edges`; default none: no culling by bearing).
+    """
     sin_k, cos_k = _ray_directions(n_bearings)
     origin = positions[members]
     start, end, normal = facades.start[near], facades.end[near], facades.normal[near]
-    local = np.full((len(members), n_bearings), np.iinfo(np.int64).max, dtype=np.int64)
     columns = [origin[:, 0], origin[:, 1], start[:, 0], start[:, 1], end[:, 0], end[:, 1], normal[:, 0], normal[:, 1]]
     px, py, sx, sy, ex, ey, nx, ny = (np.ascontiguousarray(c, dtype=np.float64) for c in columns)
     _cast_kernel(
@@ -165,10 +194,11 @@ def _cast_tile(
         n_bearings,
         360.0 / n_bearings,
         float(max_range_m),
-        local,
+        np.arange(2 * n_bearings + 3) if next_ray is None else next_ray,  # every ray: next_ray[k] = k
+        np.zeros(0) if edges is None else edges,
+        np.asarray(members, dtype=np.int64),
+        best.reshape(-1, n_bearings),
     )
-    rows = best.reshape(-1, n_bearings)
-    rows[members] = np.minimum(rows[members], local)
 
 
 @lru_cache(maxsize=8)
@@ -181,6 +211,45 @@ def _ray_directions(n_bearings: int) -> tuple[np.ndarray, np.ndarray]:
     sin_k, cos_k = np.sin(theta), np.cos(theta)
     sin_k.flags.writeable = cos_k.flags.writeable = False
     return sin_k, cos_k
+
+
+def _wanted_rays(n_bearings: int, wanted: np.ndarray) -> np.ndarray:
+    """(2 N + 3,) per ray index k of :func:`_ray_directions`, the smallest k' >= k whose bearing is ``wanted``.
+
+    wanted: sorted distinct bearing indices in [0, N).
+    A facade's bearing range [first, last] may pass 360 deg, so bearing c is ray c, c + N or c + 2 N;
+    2 N + 2 (past every range) where no wanted ray follows.
+    """
+    size = 2 * n_bearings + 3
+    rays = np.concatenate([wanted, wanted + n_bearings, wanted + 2 * n_bearings])
+    slot = np.full(size, size - 1, dtype=np.int64)
+    rays = rays[rays < size - 1]
+    slot[rays] = rays
+    return np.minimum.accumulate(slot[::-1])[::-1]
+
+
+_EDGE_MARGIN_RAD = 0.02
+"""How far outside the wanted window :func:`_window_edges` puts its edge rays (far beyond rounding)."""
+
+
+def _window_edges(n_bearings: int, wanted: np.ndarray) -> np.ndarray:
+    """(4,) directions (sin, cos) of the left and right edges of the ``wanted`` bearings' arc, widened by a margin.
+
+    A facade whose two endpoints lie left of the left edge (or right of the right one) spans only bearings
+    in that open half-plane, none of them wanted: the kernel skips it before its arctangents. Only for arcs
+    under 170 deg (the half-planes must miss the whole arc); (0,) otherwise: no culling. wanted: sorted
+    distinct bearing indices in [0, N).
+    """
+    if len(wanted) == 0:
+        return np.zeros(0)
+    gaps = np.diff(np.r_[wanted, wanted[0] + n_bearings])  # gaps[i]: from wanted[i] clockwise to the next
+    widest = int(np.argmax(gaps))
+    step = 360.0 / n_bearings
+    if (n_bearings - int(gaps[widest])) * step >= 170.0:
+        return np.zeros(0)
+    left = np.radians(float(wanted[(widest + 1) % len(wanted)]) * step) - _EDGE_MARGIN_RAD
+    right = np.radians(float(wanted[widest]) * step) + _EDGE_MARGIN_RAD
+    return np.array([np.sin(left), np.cos(left), np.sin(right), np.cos(right)])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -199,9 +268,18 @@ def _cast_kernel(
     n_bearings: int,
     step: float,
     max_range_m: float,
+    next_ray: np.ndarray,
+    edges: np.ndarray,
+    rows: np.ndarray,
     best: np.ndarray,
 ) -> None:  # pragma: no cover - compiled; checked against _cast_tile_numpy in the tests
-    """Per (position i, facade j) pair, the packed hit key at every bearing the facade spans, min into best[i]."""
+    """Per (position i, facade j) pair, the packed hit key at every wanted bearing it spans, min into best[rows[i]].
+
+    rows: the positions' rows of best, the (P, N) keys of all positions. next_ray: per ray index k, the first
+    wanted ray index >= k (:func:`_wanted_rays`). edges: (4,) the wanted window's edge rays
+    (:func:`_window_edges`) or (0,): pairs wholly outside them are skipped early.
+    """
+    cull = edges.shape[0] == 4
     for i in range(px.shape[0]):
         for j in range(sx.shape[0]):
             ax = sx[j] - px[i]
@@ -210,6 +288,11 @@ def _cast_kernel(
             by = ey[j] - py[i]
             if (-ax) * nx[j] + (-ay) * ny[j] <= 1e-6:  # not facing the position
                 continue
+            if cull and (
+                (edges[0] * ay - edges[1] * ax > 0.0 and edges[0] * by - edges[1] * bx > 0.0)
+                or (edges[2] * ay - edges[3] * ax < 0.0 and edges[2] * by - edges[3] * bx < 0.0)
+            ):
+                continue  # wholly left of the wanted window's left edge, or right of its right edge
             abx = bx - ax
             aby = by - ay
             t = min(max(-(ax * abx + ay * aby) / (abx * abx + aby * aby), 0.0), 1.0)
@@ -224,12 +307,14 @@ def _cast_kernel(
             first = int(np.ceil(lo / step - 1e-9))
             last = int(np.floor(hi / step + 1e-9))
             numerator = ax * aby - ay * abx
-            for k in range(first, last + 1):
+            k = next_ray[first]
+            while k <= last:
                 s = numerator / (sin_k[k] * aby - cos_k[k] * abx)
                 if np.isfinite(s) and s > 0.0 and s <= max_range_m:
                     key = (np.int64(np.rint(s * _DIST_SCALE)) << _FACADE_BITS) | facade_id[j]
                     cell = k % n_bearings
-                    best[i, cell] = min(best[i, cell], key)
+                    best[rows[i], cell] = min(best[rows[i], cell], key)
+                k = next_ray[k + 1]
 
 
 def _cast_tile_numpy(
@@ -292,8 +377,16 @@ def panorama_window(panoramas: Panoramas, yaw_deg: np.ndarray, offsets_deg: np.n
 
     Yaws and offsets are rounded to the panorama's bearing step.
     """
-    step = panoramas.bearing_step_deg
-    n = len(panoramas.bearings_deg)
+    return window_indices(len(panoramas.bearings_deg), yaw_deg, offsets_deg)
+
+
+def window_indices(n_bearings: int, yaw_deg: np.ndarray, offsets_deg: np.ndarray) -> np.ndarray:
+    """:func:`panorama_window` of panoramas of ``n_bearings`` bearings, before they are cast.
+
+    What a caller passes as ``cast_panoramas(..., bearing_indices=...)`` to cast only the bearings it reads.
+    """
+    n = int(n_bearings)
+    step = 360.0 / n
     yaw_idx = np.round(np.asarray(yaw_deg, float) / step).astype(np.int64)
     off_idx = np.round(np.asarray(offsets_deg, float) / step).astype(np.int64)
     return (yaw_idx[:, None] + off_idx[None, :]) % n
