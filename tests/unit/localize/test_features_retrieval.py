@@ -217,6 +217,23 @@ def test_tfidf_scores_from_postings_rows_like_a_database():
 
 
 # ----------------------------------------------------------------------------------------------
+def plain_words(voc: Vocabulary, desc: np.ndarray) -> np.ndarray:
+    """The nearest centroid as first written: argmin of ||c||^2 - 2 d.c in float32 (the ranking words() must keep)."""
+    sq = np.einsum("ij,ij->i", voc.centroids, voc.centroids)
+    return np.argmin(sq[None, :] - 2.0 * (desc @ voc.centroids.T), axis=1).astype(np.int32)
+
+
+@pytest.mark.skipif(not LUND.exists(), reason="shared Lund data not available")
+def test_vocabulary_words_equal_the_plain_formula_on_real_descriptors():
+    """words() (half norms, subtraction in place) picks the plain formula's word exactly, repeated centroids too."""
+    voc = default_vocabulary(models_dir()) if vocabulary_path(models_dir()).exists() else small_camvid_vocabulary()
+    rgb = load_rgb(sorted(LUND.glob("*.jpg"))[0])
+    desc = extract_features(rgb, rough_building_mask(rgb), 1500, max_side=768).descriptors
+    np.testing.assert_array_equal(voc.words(desc, chunk=500), plain_words(voc, desc))
+    doubled = Vocabulary(np.concatenate([voc.centroids[::-1], voc.centroids]))
+    np.testing.assert_array_equal(doubled.words(desc), plain_words(doubled, desc))
+
+
 # Retrieval on real photos
 
 
