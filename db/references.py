@@ -226,7 +226,9 @@ def save_labels(
 
     walk_frame: what the sequence job needs of the reference labelled alone
     (:func:`geoloc.localize.sequence.frames.frame_arrays`), stored in the same blob under
-    :data:`WALK_FRAME_PREFIX` (no schema change; it goes with the labels row, deleted with the reference).
+    :data:`WALK_FRAME_PREFIX` (no schema change; it goes with the labels row, deleted with the reference). A blob
+    with a walk frame is stored uncompressed: zlib on its float32 descriptors cost 15 ms of CPU per label job
+    (a 180 kB blob; 660 kB uncompressed, packed in 1 ms).
     """
     arrays = labels.to_arrays()
     if walk_frame is not None:
@@ -234,7 +236,7 @@ def save_labels(
     db.execute(
         "INSERT INTO labels (reference_id, identity_npz, created_at) VALUES (?, ?, ?) ON CONFLICT (reference_id)"
         " DO UPDATE SET identity_npz = excluded.identity_npz, created_at = excluded.created_at",
-        (reference_id, pack_arrays(arrays), time.time()),
+        (reference_id, pack_arrays(arrays, compress=walk_frame is None), time.time()),
     )
 
 

@@ -3,7 +3,7 @@
 The workers' label job stores a walk reference's :class:`FrameLabel` beside its labels
 (:func:`frame_arrays`), and the sequence job reads it back (:func:`frame_from_arrays`) instead of analysing
 and labelling the photo again. Every array is stored in its own dtype (descriptors float32, anchors
-float64/int64: not the query format's float16/float32), so what is read back is bit-identical to what the label
+float64/int64: not the query format's float16/float32; the building mask bit-packed along rows), so what is read back is bit-identical to what the label
 job computed and the placement's answer is the same as when the photo is labelled again. Frames: pose in local
 metres and bearings (deg) of the map; pixels of the working-size photo.
 """
@@ -75,7 +75,8 @@ def frame_arrays(frame: FrameLabel) -> dict[str, np.ndarray]:
         "anchor_distance_m": frame.anchors.distance_m,
         "intrinsics": np.array([intr.width, intr.height, intr.focal_px, intr.cx, intr.cy], np.float64),
         "intrinsics_source": np.array(intr.source),
-        "building_mask": np.asarray(frame.cues.building_mask),
+        "building_mask_bits": np.packbits(frame.cues.building_mask, axis=1),
+        "building_mask_width": np.array(frame.cues.building_mask.shape[1], np.int64),
         "rotation_upright_from_cam": np.asarray(frame.cues.rotation_upright_from_cam),
         "features_xy": features.xy,
         "features_descriptors": features.descriptors,
@@ -127,6 +128,8 @@ def frame_from_arrays(arrays: Mapping[str, np.ndarray]) -> FrameLabel:
     anchors = MapAnchors(
         arrays["anchor_xyz"], arrays["anchor_facade_id"], arrays["anchor_building_id"], arrays["anchor_distance_m"]
     )
-    cues = LabelCues(features, model, arrays["building_mask"], arrays["rotation_upright_from_cam"])
+    width = int(arrays["building_mask_width"])
+    mask = np.unpackbits(arrays["building_mask_bits"], axis=1, count=width).astype(bool)
+    cues = LabelCues(features, model, mask, arrays["rotation_upright_from_cam"])
     timings = {str(k): float(v) for k, v in zip(arrays["timing_names"], arrays["timing_values_ms"], strict=True)}
     return FrameLabel(x_m, y_m, yaw_deg, arrays["position_covariance"], anchors, intrinsics, cues, timings)
