@@ -3,9 +3,10 @@
 The workers' label job stores a walk reference's :class:`FrameLabel` beside its labels
 (:func:`frame_arrays`), and the sequence job reads it back (:func:`frame_from_arrays`) instead of analysing
 and labelling the photo again. Every array is stored in its own dtype (descriptors float32, anchors
-float64/int64: not the query format's float16/float32; the building mask bit-packed along rows), so what is read back is bit-identical to what the label
-job computed and the placement's answer is the same as when the photo is labelled again. Frames: pose in local
-metres and bearings (deg) of the map; pixels of the working-size photo.
+float64/int64: not the query format's float16/float32; the building mask bit-packed along rows), so what is
+read back is bit-identical to what the label job computed and the placement's answer is the same as when the
+photo is labelled again. Frames: pose in local metres and bearings (deg) of the map; pixels of the
+working-size photo.
 """
 
 from __future__ import annotations
