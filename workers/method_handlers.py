@@ -58,6 +58,7 @@ from geoloc.localize.labeling import stated_heading_prior
 from geoloc.localize.query import QueryAnswer, geolocate, preset_config
 from geoloc.localize.reference import LabelledReference, label_reference_photo
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
+from geoloc.localize.sequence.frames import FrameLabel, frame_arrays
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.maps.places import PlaceIndex, find_place, place_index
 from geoloc.photos.heading_prior import HeadingPrior, compass_heading_prior
@@ -194,19 +195,46 @@ class AloneLabel:
     gps_xy: tuple[float, float]
     heading_prior: HeadingPrior | None
 
+    @property
+    def column_scale(self) -> float:
+        """Uploaded photo's pixels per working-size pixel (:func:`reference_labels`)."""
+        return column_scale(self.photo.original_size, self.photo.intrinsics.width)
+
+    def walk_frame(self) -> dict[str, np.ndarray]:
+        """What the sequence job needs of this label (:func:`geoloc.localize.sequence.frames.frame_arrays`).
+
+        With the uploaded photo's (width, height) as ``original_size``, stored beside the labels.
+        """
+        frame = frame_arrays(FrameLabel.of(self.labelled, self.photo.intrinsics))
+        return frame | {"original_size": np.array(self.photo.original_size, np.int64)}
+
+
+def column_scale(original_size: tuple[int, int] | np.ndarray, working_width: int) -> float:
+    """Uploaded photo's pixels per working-size pixel: (width, height) uploaded over the working width."""
+    return float(original_size[0] / working_width)
+
+
+def reference_priors(city: CityMap, ref: ReferenceRow) -> tuple[tuple[float, float], HeadingPrior | None]:
+    """A stored reference's GPS tag (local m of ``city``) and heading prior (:func:`_heading_prior`)."""
+    frame = city.frame
+    gps_x, gps_y = (float(v) for v in frame.to_local(ref["gps_lat"], ref["gps_lon"]))
+    prior = _heading_prior(frame, ref["prior_heading_deg"], ref["prior_heading_accuracy_deg"], gps_x, gps_y)
+    return (gps_x, gps_y), prior
+
 
 def label_alone(city: CityMap, ref: ReferenceRow) -> AloneLabel:
     """Label a stored reference with its map, alone (the label job's method, and a sequence's first step)."""
-    frame = city.frame
     photo = stored_photo(ref["image_path"], ref["focal_length_35mm"])
-    gps_x, gps_y = (float(v) for v in frame.to_local(ref["gps_lat"], ref["gps_lon"]))
-    prior = _heading_prior(frame, ref["prior_heading_deg"], ref["prior_heading_accuracy_deg"], gps_x, gps_y)
-    labelled = label_reference_photo(city, photo, (gps_x, gps_y), heading_prior=prior, context=worker_context())
-    return AloneLabel(photo, labelled, (gps_x, gps_y), prior)
+    gps_xy, prior = reference_priors(city, ref)
+    labelled = label_reference_photo(city, photo, gps_xy, heading_prior=prior, context=worker_context())
+    return AloneLabel(photo, labelled, gps_xy, prior)
 
 
-def reference_labels(city: CityMap, photo: Photo, labelled: LabelledReference, total_ms: float) -> ReferenceLabels:
-    """A labelled reference's answer (pose in WGS84 and compass degrees, buildings seen, timings)."""
+def reference_labels(city: CityMap, scale: float, labelled: LabelledReference, total_ms: float) -> ReferenceLabels:
+    """A labelled reference's answer (pose in WGS84 and compass degrees, buildings seen, timings).
+
+    scale: uploaded photo's pixels per working-size pixel (:func:`column_scale`).
+    """
     label, frame = labelled.label, city.frame
     lat, lon = (float(v) for v in frame.to_wgs84(label.x_m, label.y_m))
     heading = float(frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m))
@@ -215,23 +243,27 @@ def reference_labels(city: CityMap, photo: Photo, labelled: LabelledReference, t
     with answer_checked("reference labels"):
         return ReferenceLabels(
             estimated=EstimatedPose(lat=lat, lon=lon, heading_deg=round(heading, 2)),
-            buildings_seen=_describe_buildings(
-                city, labelled.identity.building_extents(), photo.original_size[0] / photo.intrinsics.width
-            ),
+            buildings_seen=_describe_buildings(city, labelled.identity.building_extents(), scale),
             timings=timings,
         )
 
 
 def save_labels(
-    db: Database, reference_id: int, labelled: LabelledReference, labels: ReferenceLabels, placement: str
+    db: Database,
+    reference_id: int,
+    labelled: LabelledReference,
+    labels: ReferenceLabels,
+    placement: str,
+    walk_frame: dict[str, np.ndarray] | None = None,
 ) -> None:
     """Store a labelled reference's arrays and answer (inside the caller's transaction); it is ``done``.
 
-    placement: ``alone`` (its own label) or ``sequence`` (its walk's joint placement).
+    placement: ``alone`` (its own label) or ``sequence`` (its walk's joint placement); walk_frame: its label
+    alone for the sequence job (:meth:`AloneLabel.walk_frame`), for a reference that may join a walk.
     """
     stored = labels.model_dump(mode="json")
     estimated = labels.estimated
-    reference_store.save_labels(db, reference_id, labelled.label_arrays())
+    reference_store.save_labels(db, reference_id, labelled.label_arrays(), walk_frame)
     reference_store.save_keypoints(db, reference_id, labelled.keypoints())
     reference_store.update_reference_result(
         db,
@@ -262,14 +294,15 @@ def label_reference(db: Database, payload: LabelReferencePayload) -> LabelRefere
     alone = label_alone(city, ref)
     labelled = alone.labelled
     vocabulary = vocabulary_for(db, map_id)
-    words = vocabulary.words(labelled.evidence.features.descriptors)
-    labels = reference_labels(city, alone.photo, labelled, 1e3 * (time.perf_counter() - t0))
+    words = vocabulary.words(labelled.cues.features.descriptors)
+    labels = reference_labels(city, alone.column_scale, labelled, 1e3 * (time.perf_counter() - t0))
+    walker = reference_store.may_join_walk(ref)
     with transaction(db):
         if reference_store.get_reference(db, reference_id) is None:
             raise PermanentJobError(f"reference {reference_id} was deleted while it was labelled")
-        save_labels(db, reference_id, labelled, labels, "alone")
+        save_labels(db, reference_id, labelled, labels, "alone", alone.walk_frame() if walker else None)
         sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
-        if reference_store.may_join_walk(ref):
+        if walker:
             # One waiting sequence job per map is enough: it places every walk of the map that changed.
             db.lock(f"geoloc:place-sequence:{map_id}")
             if not job_store.has_queued_job(db, PLACE_SEQUENCE, map_id):
@@ -390,7 +423,7 @@ def query_result(city: CityMap, photo: Photo, answer: QueryAnswer, timings_ms: d
         ),
         values=np.round(loc.heatmap, 6).tolist(),
     )
-    scale = photo.original_size[0] / photo.intrinsics.width
+    scale = column_scale(photo.original_size, photo.intrinsics.width)
     return QueryResult(
         locations=locations,
         heatmap=heatmap,

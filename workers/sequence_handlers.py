@@ -17,16 +17,26 @@ from __future__ import annotations
 import time
 from datetime import datetime
 
+import numpy as np
+
 from contracts.jobs import PLACE_SEQUENCE, PlaceSequencePayload, PlaceSequenceResult
 from db import Database, transaction
 from db import references as reference_store
 from db.rows import ReferenceRow
 from geoloc.core.geo import LocalFrame
 from geoloc.localize.sequence import SequenceMember, group_sequences, place_labelled_sequence
+from geoloc.localize.sequence.frames import frame_from_arrays
 from geoloc.localize.sequence.stage import LabelledFrame, PlacedSequence
 from geoloc.maps import CityMap
 from workers.handlers import register
-from workers.method_handlers import city_map_for, label_alone, reference_labels, save_labels
+from workers.method_handlers import (
+    city_map_for,
+    column_scale,
+    label_alone,
+    reference_labels,
+    reference_priors,
+    save_labels,
+)
 
 PENDING_STATUSES = ("queued", "processing")
 """Reference statuses of a reference still being labelled."""
@@ -55,18 +65,26 @@ def _members(rows: list[ReferenceRow], frame: LocalFrame) -> list[SequenceMember
     return members
 
 
+def _walk_frame(db: Database, city: CityMap, row: ReferenceRow) -> tuple[dict[str, np.ndarray], LabelledFrame]:
+    """A walk reference's stored label alone (its arrays) and the placement's frame of it (module docstring)."""
+    arrays = reference_store.load_walk_frame(db, row["id"])
+    if arrays is None:  # labelled before the label job stored it: label it alone again
+        arrays = label_alone(city, row).walk_frame()
+    gps_xy, prior = reference_priors(city, row)
+    return arrays, LabelledFrame(frame_from_arrays(arrays), gps_xy, heading_prior=prior)
+
+
 def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> PlacedSequence:
     """Place one wholly labelled walk and store it (module docstring)."""
     t0 = time.perf_counter()
-    alone = [label_alone(city, row) for row in walk]
-    frames = [LabelledFrame(a.photo, a.labelled, a.gps_xy, heading_prior=a.heading_prior) for a in alone]
+    arrays, frames = zip(*(_walk_frame(db, city, row) for row in walk), strict=True)
     placed = place_labelled_sequence(city, frames)
     total_ms = 1e3 * (time.perf_counter() - t0) / len(walk)
-    # A frame no relative pose joined comes back as it went in: its stored label stands (and is marked placed).
+    # A frame no relative pose joined comes back as None: its stored label stands (and is marked placed).
     moved = {
-        row["id"]: (ref, reference_labels(city, a.photo, ref, total_ms))
-        for row, a, ref in zip(walk, alone, placed.references, strict=True)
-        if ref is not a.labelled
+        row["id"]: (ref, reference_labels(city, _scale(stored, frame), ref, total_ms), stored)
+        for row, stored, frame, ref in zip(walk, arrays, frames, placed.references, strict=True)
+        if ref is not None
     }
     with transaction(db):
         for row in walk:
@@ -74,10 +92,16 @@ def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> Placed
             if current is None or current["status"] != "done":
                 continue  # deleted (or re-queued) while the walk was placed: leave it be
             if row["id"] in moved:
-                save_labels(db, row["id"], *moved[row["id"]], "sequence")
+                ref, labels, stored = moved[row["id"]]
+                save_labels(db, row["id"], ref, labels, "sequence", stored)  # its label alone stays stored
             else:
                 reference_store.set_reference_placement(db, row["id"], "sequence")
     return placed
+
+
+def _scale(arrays: dict[str, np.ndarray], frame: LabelledFrame) -> float:
+    """Uploaded photo's pixels per working-size pixel of a stored walk frame."""
+    return column_scale(arrays["original_size"], frame.alone.intrinsics.width)
 
 
 @register(PLACE_SEQUENCE, PlaceSequencePayload)

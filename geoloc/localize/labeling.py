@@ -222,7 +222,8 @@ def pose_identities(
     bins = column_bins(intrinsics, image_model.offsets_deg, image_model.bin_deg)  # (W,)
     window = panorama_window(panoramas, yaws_deg, image_model.offsets_deg)  # (Y, K)
     used_bins = np.unique(bins[bins >= 0])
-    seen = panoramas.building_id[:, np.unique(window[:, used_bins])]
+    bearings = np.unique(window[:, used_bins])
+    seen = panoramas.building_id[:, bearings]
     ids = np.unique(seen[seen >= 0])
     weights = np.asarray(weights, dtype=float)
     total = weights.sum()
@@ -231,13 +232,16 @@ def pose_identities(
         flat_weights = weights.ravel()
         pose = np.flatnonzero(flat_weights)
         position, yaw = np.divmod(pose, len(yaws_deg))
-        bin_ids = panoramas.building_id[position[:, None], window[yaw][:, used_bins]]  # (poses, used bins)
-        valid = bin_ids >= 0
-        slot = np.searchsorted(ids, bin_ids)
-        key = np.broadcast_to(np.arange(len(used_bins))[None, :] * len(ids), slot.shape) + slot
+        # Each seen bearing's slot in ids is found once per position, then gathered per pose (not searched per pose).
+        column_of = np.zeros(len(panoramas.bearings_deg), dtype=np.int64)
+        column_of[bearings] = np.arange(len(bearings))
+        seen_slot = np.where(seen >= 0, np.searchsorted(ids, seen), -1)  # (P, seen bearings)
+        slot = seen_slot[position[:, None], column_of[window[yaw][:, used_bins]]]  # (poses, used bins)
+        valid = slot >= 0
+        key = np.arange(len(used_bins))[None, :] * len(ids) + slot
         per_bin = np.bincount(
             key[valid],
-            weights=np.broadcast_to(flat_weights[pose][:, None], valid.shape)[valid],
+            weights=np.repeat(flat_weights[pose], valid.sum(axis=1)),  # each pose's weight, once per valid bin
             minlength=len(used_bins) * len(ids),
         ).reshape(len(used_bins), len(ids))
         row_of_bin = np.full(len(image_model.offsets_deg), -1)
@@ -295,9 +299,12 @@ def label_reference(
     refined_modes: list[tuple[float, RefinedPose]] = []
     # The refinement's likelihood keeps the weighted normalisation and the skyline term (as it always has).
     refining = likelihood.with_options(normalization="weighted", use_skyline=True)
+    at_best: Panoramas | None = None  # the panorama at the label's position, when already cast
     if known_pose is not None:
         k = known_pose
-        at = refining.at(k.x_m, k.y_m, k.yaw_deg)
+        # One cast at the kept pose serves its likelihood and its greedy identities (both cast the same position).
+        at_best = likelihood.panoramas(np.array([[k.x_m, k.y_m]]), np.array([k.yaw_deg]))  # its window only
+        at = float(refining.of_panoramas(at_best, np.array([k.yaw_deg]))[0, 0])
         known = RefinedPose(k.x_m, k.y_m, k.yaw_deg, at, at**sharpness, np.asarray(k.position_covariance), 0)
         refined_modes.append((known.posterior, known))
         best = known
@@ -319,7 +326,8 @@ def label_reference(
     assert best is not None  # distinct_modes always yields the strongest pose
 
     # Identities: greedy from the refined pose; marginalised over the grid poses of the chosen mode.
-    at_best = likelihood.panoramas(np.array([[best.x_m, best.y_m]]), np.array([best.yaw_deg]))  # its window only
+    if at_best is None:
+        at_best = likelihood.panoramas(np.array([[best.x_m, best.y_m]]), np.array([best.yaw_deg]))  # its window only
     greedy_ids = column_building_ids(
         at_best, np.array([best.yaw_deg]), intrinsics, image_model.offsets_deg, image_model.bin_deg
     )[0, 0]

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
+from geoloc.core.camera import Intrinsics
 from geoloc.core.context import MethodContext
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.localize.identity import IdentityMap
@@ -25,15 +26,41 @@ from geoloc.maps import CityMap
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.photos.photo import Photo
 from geoloc.vision.evidence import PhotoEvidence, analyze_photo
+from geoloc.vision.features import Features
 from geoloc.vision.ground import DEFAULT_CAMERA_HEIGHT_M
+from geoloc.vision.image_model import ImageModel
+
+
+@dataclass(frozen=True)
+class LabelCues:
+    """What labelling a photo at a pose needs of its analysis (:func:`label_at_pose`), and what is stored of it.
+
+    features: its local features; image_model: its geometry-only facade evidence; building_mask: (H, W) bool
+    building pixels; rotation_upright_from_cam: (3, 3) from its vertical vanishing point (pitch and roll).
+    A walk's placement reads these back from the store (:mod:`geoloc.localize.sequence.frames`) instead of
+    analysing the photo again.
+    """
+
+    features: Features
+    image_model: ImageModel
+    building_mask: np.ndarray
+    rotation_upright_from_cam: np.ndarray
+
+    @classmethod
+    def of(cls, evidence: PhotoEvidence) -> LabelCues:
+        """The cues of a photo's full analysis."""
+        rotation = evidence.analysis.vanishing_points.rotation_upright_from_cam
+        return cls(evidence.features, evidence.image_model, evidence.building_mask, rotation)
 
 
 @dataclass
 class LabelledReference:
     """A reference photo labelled with the map: its pose, identities and keypoint identities.
 
+    cues: what its labelling used of the photo's analysis (:class:`LabelCues`); analysis: the full analysis when
+    this process ran it (None when the cues were read back from the store; :attr:`evidence` needs it);
     identity: the identity map used downstream (marginalised by default);
-    keypoint_identity: (N, M) identity probabilities of ``evidence.features`` over ``identity.building_ids``;
+    keypoint_identity: (N, M) identity probabilities of ``cues.features`` over ``identity.building_ids``;
     anchors: the keypoints' 3D points on the map's facades seen from the label's pose (:mod:`geoloc.localize.anchors`);
     alternative_anchors: the same from the runner-up pose when the label is ambiguous
     (:attr:`geoloc.localize.labeling.ReferenceLabel.is_ambiguous`), else None: a query that sees the scene from
@@ -41,17 +68,25 @@ class LabelledReference:
     """
 
     label: ReferenceLabel
-    evidence: PhotoEvidence
+    cues: LabelCues
     identity: IdentityMap
     keypoint_identity: np.ndarray
     anchors: MapAnchors
     timings_ms: dict[str, float] = field(default_factory=dict)
     alternative_anchors: MapAnchors | None = None
+    analysis: PhotoEvidence | None = None
+
+    @property
+    def evidence(self) -> PhotoEvidence:
+        """The photo's full analysis; ValueError for a reference whose cues were read back from the store."""
+        if self.analysis is None:
+            raise ValueError("this labelled reference was built from stored cues: its full analysis is not here")
+        return self.analysis
 
     @property
     def camera_pose(self) -> CameraPose:
         """The labelled pose as a camera pose (pitch and roll from the photo's vertical vanishing point)."""
-        return _camera_pose(self.label, self.evidence)
+        return _camera_pose(self.label, self.cues.rotation_upright_from_cam)
 
     def keypoints(self) -> ReferenceKeypoints:
         """What is stored of its keypoints (:class:`contracts.references.ReferenceKeypoints`; the store casts)."""
@@ -65,8 +100,7 @@ class LabelledReference:
         )
 
 
-def _camera_pose(label: ReferenceLabel, evidence: PhotoEvidence, alternative: bool = False) -> CameraPose:
-    rotation = evidence.analysis.vanishing_points.rotation_upright_from_cam
+def _camera_pose(label: ReferenceLabel, rotation: np.ndarray, alternative: bool = False) -> CameraPose:
     if alternative and label.alternative is not None:
         alt = label.alternative
         return CameraPose(alt.x_m, alt.y_m, alt.yaw_deg, DEFAULT_CAMERA_HEIGHT_M, rotation)
@@ -109,50 +143,59 @@ def label_reference_photo(
         options=options,
     )
     timings = dict(evidence.timings_ms, labeling=1e3 * (time.perf_counter() - t0))
-    return _labelled(city_map, photo, evidence, label, strategy, timings)
+    return _labelled(city_map, photo.intrinsics, LabelCues.of(evidence), label, strategy, timings, evidence)
 
 
 def label_at_pose(
-    city_map: CityMap, photo: Photo, labelled: LabelledReference, pose: KnownPose, strategy: str = "marginalized"
+    city_map: CityMap,
+    intrinsics: Intrinsics,
+    cues: LabelCues,
+    timings_ms: dict[str, float],
+    pose: KnownPose,
+    *,
+    analysis: PhotoEvidence | None = None,
+    strategy: str = "marginalized",
 ) -> LabelledReference:
-    """``labelled`` re-labelled at a pose placed elsewhere (a sequence's joint placement).
+    """A photo (its camera and :class:`LabelCues`) labelled at a pose placed elsewhere (a sequence's placement).
 
     Its identities come from the map around ``pose`` (:func:`geoloc.localize.labeling.label_known_pose`), its
-    anchors are cast from it.
+    anchors are cast from it. timings_ms: its label's own (copied, ``placed_labeling`` added); analysis: the
+    photo's full analysis when there is one (kept on the result).
     """
-    evidence = labelled.evidence
     t0 = time.perf_counter()
-    label = label_known_pose(city_map, evidence.image_model, evidence.building_mask, photo.intrinsics, pose)
-    timings = dict(labelled.timings_ms, placed_labeling=1e3 * (time.perf_counter() - t0))
-    return _labelled(city_map, photo, evidence, label, strategy, timings)
+    label = label_known_pose(city_map, cues.image_model, cues.building_mask, intrinsics, pose)
+    timings = dict(timings_ms, placed_labeling=1e3 * (time.perf_counter() - t0))
+    return _labelled(city_map, intrinsics, cues, label, strategy, timings, analysis)
 
 
 def _labelled(
     city_map: CityMap,
-    photo: Photo,
-    evidence: PhotoEvidence,
+    intrinsics: Intrinsics,
+    cues: LabelCues,
     label: ReferenceLabel,
     strategy: str,
     timings: dict[str, float],
+    analysis: PhotoEvidence | None,
 ) -> LabelledReference:
     """The labelled reference of a label: its keypoints' identities and anchors (and the runner-up's anchors)."""
     identity = label.marginalized if strategy == "marginalized" else label.greedy
-    keypoint_identity = identity.probabilities_at(evidence.features.xy)
+    xy = cues.features.xy
+    keypoint_identity = identity.probabilities_at(xy)
     t0 = time.perf_counter()
-    anchors = anchor_keypoints(city_map, _camera_pose(label, evidence), photo.intrinsics, evidence.features.xy)
+    rotation = cues.rotation_upright_from_cam
+    anchors = anchor_keypoints(city_map, _camera_pose(label, rotation), intrinsics, xy)
     alternative = None
     if label.is_ambiguous:
-        pose = _camera_pose(label, evidence, alternative=True)
-        alternative = anchor_keypoints(city_map, pose, photo.intrinsics, evidence.features.xy)
+        alternative = anchor_keypoints(city_map, _camera_pose(label, rotation, alternative=True), intrinsics, xy)
     timings["anchors"] = 1e3 * (time.perf_counter() - t0)
-    return LabelledReference(label, evidence, identity, keypoint_identity, anchors, timings, alternative)
+    return LabelledReference(label, cues, identity, keypoint_identity, anchors, timings, alternative, analysis)
 
 
 def stored_reference(reference_id: Hashable, labelled: LabelledReference) -> StoredReference:
     """What the query stage keeps of a labelled reference (:class:`geoloc.localize.store.StoredReference`)."""
     return StoredReference(
         reference_id,
-        labelled.evidence.features,
+        labelled.cues.features,
         labelled.keypoint_identity,
         labelled.identity.building_ids,
         labelled.anchors,

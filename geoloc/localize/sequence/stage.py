@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from geoloc.localize.labeling import KnownPose
 from geoloc.localize.reference import LabelledReference, label_at_pose
+from geoloc.localize.sequence.frames import FrameLabel
 from geoloc.localize.sequence.grouping import SequenceMember, group_sequences
 from geoloc.localize.sequence.placement import (
     DEFAULT_GPS_SIGMA_M,
@@ -35,12 +36,12 @@ from geoloc.photos.photo import Photo
 class LabelledFrame:
     """One frame of a sequence, labelled alone.
 
-    photo, labelled: its photo and label; gps_xy, gps_sigma_m: its GPS tag (local m) and that tag's sigma (m);
-    heading_prior: its compass prior (None: none).
+    alone: what the placement needs of its label alone (:class:`geoloc.localize.sequence.frames.FrameLabel`:
+    built from the label, or read back from the store); gps_xy, gps_sigma_m: its GPS tag (local m) and that
+    tag's sigma (m); heading_prior: its compass prior (None: none).
     """
 
-    photo: Photo
-    labelled: LabelledReference
+    alone: FrameLabel
     gps_xy: tuple[float, float]
     gps_sigma_m: float = DEFAULT_GPS_SIGMA_M
     heading_prior: HeadingPrior | None = None
@@ -50,28 +51,29 @@ class LabelledFrame:
 class PlacedSequence:
     """A sequence placed jointly.
 
-    references: the frames re-labelled at their placed poses (in order); poses: those poses; n_edges: how many
+    references: the frames re-labelled at their placed poses (in order; None: a frame no relative pose joined,
+    which keeps its own label); poses: those poses; n_edges: how many
     relative poses joined them (0: each frame kept what its own label, GPS and compass say).
     """
 
-    references: list[LabelledReference]
+    references: list[LabelledReference | None]
     poses: list[PlacedPose]
     n_edges: int
 
 
 def _frame(frame: LabelledFrame) -> SequenceFrame:
-    label = frame.labelled.label
+    alone = frame.alone
     return SequenceFrame(
-        label.x_m,
-        label.y_m,
-        label.yaw_deg,
-        label.position_covariance,
+        alone.x_m,
+        alone.y_m,
+        alone.yaw_deg,
+        alone.position_covariance,
         frame.gps_xy,
         frame.gps_sigma_m,
         frame.heading_prior,
-        frame.labelled.evidence.features,
-        frame.labelled.anchors,
-        frame.photo.intrinsics,
+        alone.cues.features,
+        alone.anchors,
+        alone.intrinsics,
     )
 
 
@@ -81,20 +83,21 @@ def place_labelled_sequence(
     """Place a walk's frames jointly and re-label each at its placed pose (module docstring).
 
     Each re-labelled reference's ``timings_ms`` gains ``sequence``: its share of the placement (ms); a frame no
-    relative pose joins is returned as it came.
+    relative pose joins comes back as None (its own label stands).
     """
     t0 = time.perf_counter()
     graph_frames = [_frame(frame) for frame in frames]
     edges = relative_poses(graph_frames, options)
     poses = place_sequence(graph_frames, options, edges)
     share_ms = 1e3 * (time.perf_counter() - t0) / max(len(frames), 1)
-    references = []
+    references: list[LabelledReference | None] = []
     for frame, pose in zip(frames, poses, strict=True):
         if pose.n_edges == 0:  # nothing joins it to the walk: its own label already weighs its GPS and compass
-            references.append(frame.labelled)
+            references.append(None)
             continue
         known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, pose.position_covariance)
-        placed = label_at_pose(city_map, frame.photo, frame.labelled, known)
+        alone = frame.alone
+        placed = label_at_pose(city_map, alone.intrinsics, alone.cues, alone.timings_ms, known, analysis=alone.analysis)
         placed.timings_ms["sequence"] = share_ms
         references.append(placed)
     return PlacedSequence(references, poses, len(edges))
@@ -131,15 +134,14 @@ def place_photo_walks(
         names = [str(name) for name in group]
         frames = [
             LabelledFrame(
-                photos[name],
-                labelled[name],
+                FrameLabel.of(labelled[name], photos[name].intrinsics),
                 xy_of[name],
                 heading_prior=compass_prior_at(photos[name], city_map, xy_of[name]),
             )
             for name in names
         ]
         placed = place_labelled_sequence(city_map, frames)
-        labelled.update(zip(names, placed.references, strict=True))
+        labelled.update((name, ref) for name, ref in zip(names, placed.references, strict=True) if ref is not None)
         walks.append(placed)
     return walks
 

@@ -1,0 +1,82 @@
+"""A walk frame read back from the store places its walk bit-identically to the frame labelled in process."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contracts.settings import shared_path
+from db.blobs import pack_arrays, unpack_arrays
+from geoloc.localize.reference import LabelledReference, label_reference_photo
+from geoloc.localize.sequence.frames import FrameLabel, frame_arrays, frame_from_arrays
+from geoloc.localize.sequence.stage import LabelledFrame, compass_prior_at, place_labelled_sequence
+from geoloc.maps import CityMap
+from geoloc.photos.photo import load_photo
+from geoloc.sim.world import WorldOptions, generate_world, load_world
+from geoloc.vision.evidence import analyze_photo
+from workers.context import method_context
+
+pytestmark = pytest.mark.slow  # a walk world labelled by the real method: a minute
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory: pytest.TempPathFactory) -> tuple[CityMap, list[LabelledFrame]]:
+    out = tmp_path_factory.mktemp("walk_world")
+    opts = WorldOptions(n_references=8, n_queries=1, seed=1, radius_m=120.0, capture="walk")
+    generate_world(shared_path("data", "osm", "helsinki.osm.pbf"), out, opts)
+    world = load_world(out)
+    city = world.load_map()
+    frames = []
+    for image in world.references:
+        photo = load_photo(image.path)
+        evidence = analyze_photo(photo, world.gt(image.name)["labels"], context=method_context())
+        assert photo.gps is not None
+        xy = (float(v) for v in city.frame.to_local(*photo.gps))
+        gps_xy = (next(xy), next(xy))
+        labelled = label_reference_photo(city, photo, gps_xy, evidence=evidence, context=method_context())
+        alone = FrameLabel.of(labelled, photo.intrinsics)
+        frames.append(LabelledFrame(alone, gps_xy, heading_prior=compass_prior_at(photo, city, gps_xy)))
+    return city, frames
+
+
+def _stored(frame: LabelledFrame) -> LabelledFrame:
+    """The frame as the sequence job reads it back: its arrays through the store's blob format."""
+    alone = frame_from_arrays(unpack_arrays(pack_arrays(frame_arrays(frame.alone))))
+    return LabelledFrame(alone, frame.gps_xy, frame.gps_sigma_m, frame.heading_prior)
+
+
+def _arrays(ref: LabelledReference) -> dict[str, np.ndarray]:
+    return ref.keypoints().to_arrays() | {f"label_{k}": v for k, v in ref.label_arrays().to_arrays().items()}
+
+
+def test_stored_frame_arrays_read_back_bit_identically(walk: tuple[CityMap, list[LabelledFrame]]) -> None:
+    _, frames = walk
+    for frame in frames:
+        stored = _stored(frame).alone
+        assert stored.cues.building_mask.dtype == bool
+        np.testing.assert_array_equal(frame.alone.cues.building_mask, stored.cues.building_mask)
+        assert (stored.intrinsics, stored.timings_ms) == (frame.alone.intrinsics, frame.alone.timings_ms)
+        before, after = frame_arrays(frame.alone), frame_arrays(stored)
+        assert before.keys() == after.keys()
+        for name, value in before.items():
+            assert value.dtype == after[name].dtype, name
+            np.testing.assert_array_equal(value, after[name], err_msg=name)
+
+
+def test_a_walk_placed_from_stored_frames_is_bit_identical(walk: tuple[CityMap, list[LabelledFrame]]) -> None:
+    city, frames = walk
+    live = place_labelled_sequence(city, frames)
+    stored = place_labelled_sequence(city, [_stored(frame) for frame in frames])
+    assert live.n_edges == stored.n_edges and live.n_edges > 0
+    for a, b in zip(live.poses, stored.poses, strict=True):
+        assert (a.x_m, a.y_m, a.yaw_deg, a.n_edges) == (b.x_m, b.y_m, b.yaw_deg, b.n_edges)
+        np.testing.assert_array_equal(a.position_covariance, b.position_covariance)
+    assert [r is None for r in live.references] == [r is None for r in stored.references]
+    for ref_a, ref_b in zip(live.references, stored.references, strict=True):
+        if ref_a is None or ref_b is None:
+            continue
+        assert ref_a.analysis is not None and ref_b.analysis is None  # the stored one never analysed the photo
+        arrays_a, arrays_b = _arrays(ref_a), _arrays(ref_b)
+        assert arrays_a.keys() == arrays_b.keys()
+        for name, value in arrays_a.items():
+            np.testing.assert_array_equal(value, arrays_b[name], err_msg=name)
