@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -48,17 +49,25 @@ def export_commit(ref: str, target: Path, repo: Path = REPO_ROOT) -> str:
 
 
 def without_options(argv: list[str], *names: str) -> list[str]:
-    """``argv`` without the options ``names`` (each with its value, as ``--x V`` or ``--x=V``)."""
+    """``argv`` without the options ``names``: ``--x=V``, or ``--x`` and the argument after it unless an option.
+
+    (A flag's next argument is kept when it is an option; the benchmarks put their positional arguments first.)
+    """
     out: list[str] = []
     skip = False
     for arg in argv:
-        if skip:
-            skip = False
-        elif arg in names:
-            skip = True
-        elif not any(arg.startswith(name + "=") for name in names):
+        dropped_value = skip and not arg.startswith("--")
+        skip = arg in names
+        if not (dropped_value or skip or any(arg.startswith(name + "=") for name in names)):
             out.append(arg)
     return out
+
+
+def unknown_options(argv: list[str], help_text: str) -> list[str]:
+    """The options of ``argv`` (``--x`` or ``--x=V``) that a benchmark's ``--help`` text does not name."""
+    names = {arg.split("=", 1)[0] for arg in argv if arg.startswith("--")}
+    known = set(re.findall(r"--[A-Za-z0-9][-A-Za-z0-9_]*", help_text))
+    return sorted(names - known)
 
 
 def run_baseline(ref: str, script: Path, argv: list[str], workdir: Path | None = None) -> dict[str, Any]:
@@ -75,12 +84,19 @@ def run_baseline(ref: str, script: Path, argv: list[str], workdir: Path | None =
         if not (tree / relative).exists():
             raise SystemExit(f"baseline {commit} has no {relative}: no baseline figures")
         out = Path(tmp) / "baseline.json"
-        command = [sys.executable, str(relative), *without_options(argv, "--baseline", "--json"), "--json", str(out)]
-        print(f"\nbaseline {commit}: {' '.join(command[1:])}", flush=True)
         # This checkout's shared folder and data folder (its built models): their defaults lie beside the source.
         settings = get_settings()
         env = {**os.environ, "PYTHONPATH": str(tree), "GEOLOC_SHARED": str(settings.shared),
                "GEOLOC_DATA_DIR": str(settings.data_dir)}  # fmt: skip
+        argv = without_options(argv, "--baseline", "--json")
+        usage = subprocess.run(
+            [sys.executable, str(relative), "--help"], cwd=tree, env=env, capture_output=True, text=True, check=True
+        )
+        if missing := unknown_options(argv, usage.stdout):
+            print(f"baseline {commit}'s {relative} has no {', '.join(missing)}: run without them (its defaults)")
+            argv = without_options(argv, *missing)
+        command = [sys.executable, str(relative), *argv, "--json", str(out)]
+        print(f"\nbaseline {commit}: {' '.join(command[1:])}", flush=True)
         done = subprocess.run(command, cwd=tree, env=env, check=False)
         if done.returncode not in (0, 1) or not out.exists():  # 1: a benchmark whose own target was missed
             raise SystemExit(f"baseline {commit}'s {relative} failed ({done.returncode})")

@@ -224,7 +224,7 @@ def compare_answers(other: list[dict[str, Any]], current: list[dict[str, Any]]) 
     headings = [
         abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) for a, b in pairs if a["locations"]
     ]
-    different = sum(a["locations"] != b["locations"] for a, b in pairs)  # exactly: every location, every float
+    different = [a["photo"] for a, b in pairs if a["locations"] != b["locations"]]  # exactly: every location
     same = sum(
         len(a["locations"]) == len(b["locations"])
         and (not a["locations"] or (_distance_m(a["locations"][0][:2], b["locations"][0][:2]) < 0.05
@@ -235,7 +235,8 @@ def compare_answers(other: list[dict[str, Any]], current: list[dict[str, Any]]) 
         "same_rank1_pose": f"{same}/{len(pairs)}",
         "rank1_gap_m_max": round(max(gaps, default=0.0), 3),
         "rank1_heading_gap_deg_max": round(max(headings, default=0.0), 3),
-        "different": different,
+        "different": len(different),
+        "different_photos": sorted(set(different)),
     }
 
 
@@ -369,7 +370,7 @@ def main() -> None:
     for name, answers in figures["answers"].items():
         print(f"answers of {name} and current: rank 1 the same for {answers['same_rank1_pose']} queries (largest "
               f"gap {answers['rank1_gap_m_max']} m, {answers['rank1_heading_gap_deg_max']} deg); median latency "
-              f"{answers['speedup_p50']}x current's")  # fmt: skip
+              f"{answers['speedup_p50']}x current's; a location differs: {answers['different_photos']}")  # fmt: skip
     current = "current"
     q, lab = figures["queries"][current], figures["labelling"][current]
     figures["targets"] = {

@@ -15,6 +15,7 @@ from benchmarks.baseline import (
     run_baseline,
     service_checks,
     side_by_side,
+    unknown_options,
     without_options,
 )
 
@@ -52,6 +53,14 @@ def test_a_benchmark_the_commit_does_not_have_is_refused(tmp_path: Path) -> None
 def test_the_baseline_runs_with_the_arguments_less_its_own_and_the_json() -> None:
     argv = ["world", "--baseline", "7a88952", "--rounds", "1", "--json=x.json", "--json", "y.json", "--baseline=main"]
     assert without_options(argv, "--baseline", "--json") == ["world", "--rounds", "1"]
+    flags = ["--skip-lund", "--rounds", "1", "--workers", "0", "--mask", "gt"]
+    assert without_options(flags, "--skip-lund", "--workers") == ["--rounds", "1", "--mask", "gt"]
+
+
+def test_the_options_a_baseline_does_not_know_are_found_in_its_help() -> None:
+    usage = "usage: bench_sbow.py [-h] [--references REFERENCES] [--sql-queries SQL_QUERIES] [--json JSON]"
+    argv = ["--references", "2000", "--sql-queries=2", "--workers", "0", "--work-dir=x"]
+    assert unknown_options(argv, usage) == ["--work-dir", "--workers"]
 
 
 def test_side_by_side_pairs_the_numbers_both_hold_with_their_ratio() -> None:
