@@ -5,9 +5,9 @@
 
 Each service is ``geoloc serve --workers N`` on its own fresh data folder (the built models linked in), on
 loopback; ``--baseline`` adds the same service run from another commit of this repository (exported with
-``git archive`` into the work folder, run with the same Python environment), and each ``--variant`` one more
-service of this checkout with other settings (e.g. ``GEOLOC_SEG_THREADS=2``), so that old and new are
-measured side by side under the same load. On each:
+``git archive`` into the work folder, ``benchmarks.baseline.export_commit``, run with the same Python
+environment), and each ``--variant`` one more service of this checkout with other settings (e.g.
+``GEOLOC_SEG_THREADS=2``), so that old and new are measured side by side under the same load. On each:
 
 1. The Helsinki map is uploaded; the references of the world (``geoloc sim world --map helsinki.osm.pbf
    --references 60 --queries 30 --seed 1``, made here unless ``--world`` names one) are posted at once and
@@ -26,8 +26,15 @@ measured side by side under the same load. On each:
    and heading, the number of locations), which must agree: the speed-ups do not change what the method
    computes.
 
+6. The floor (issue 23): the segmentation network's own CPU per query photo, measured in this process after
+   the queries (:func:`segmentation_cpu`: the workers' session and threads, the median per photo); each
+   service's worker CPU per query over it, and each stage's median over the service's segmentation stage.
+
 The machine is shared: its load average is printed with each phase. Prints a table and writes JSON. Targets
 (issue 14): query p50 <= 400 ms and p95 <= 800 ms, >= 1.5 references and >= 2 queries per second per core.
+Must-hold checks (issue 23, ``benchmarks.baseline.service_checks``), PASS/FAIL lines and ``must_hold`` in the
+JSON: worker CPU per query <= 2x the network's; against ``--baseline`` (the issue's: 7a88952) p50 <= 0.6x,
+references per CPU-second >= 1.5x, and every query's ranked locations exactly the baseline's.
 """
 
 from __future__ import annotations
