@@ -103,15 +103,22 @@ def run_baseline(ref: str, script: Path, argv: list[str], workdir: Path | None =
         return {"commit": commit, "figures": json.loads(out.read_text())}
 
 
-def numbers(tree: Any, prefix: str = "") -> Iterator[tuple[str, float]]:
-    """Every number (not a bool) in a JSON tree's objects, with its dotted key.
+MAX_LISTED_RECORDS = 8
+"""A list of at most this many objects is compared item by item (a benchmark's runs: ``bench_ingest.py``'s four)."""
 
-    Lists are left out: they hold per-run records (whose order and count are the run's) or a figure's parts
-    (a load average's three numbers); a benchmark's figures to compare are named.
+
+def numbers(tree: Any, prefix: str = "") -> Iterator[tuple[str, float]]:
+    """Every number (not a bool) in a JSON tree, with its dotted key (a listed object's by its index).
+
+    Lists of numbers and longer lists of objects are left out: per-query records (their count and order are
+    the run's) and a figure's parts (a load average's three numbers) are not figures to compare.
     """
     if isinstance(tree, dict):
         for key, value in tree.items():
             yield from numbers(value, f"{prefix}.{key}" if prefix else str(key))
+    elif isinstance(tree, list) and len(tree) <= MAX_LISTED_RECORDS and all(isinstance(v, dict) for v in tree):
+        for index, value in enumerate(tree):
+            yield from numbers(value, f"{prefix}.{index}")
     elif isinstance(tree, int | float) and not isinstance(tree, bool):
         yield prefix, float(tree)
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks.baseline import (
+    MAX_LISTED_RECORDS,
     REPO_ROOT,
     Check,
     export_commit,
@@ -64,12 +65,17 @@ def test_the_options_a_baseline_does_not_know_are_found_in_its_help() -> None:
 
 
 def test_side_by_side_pairs_the_numbers_both_hold_with_their_ratio() -> None:
-    current = {"a": {"ms": 50.0, "n": 3, "ok": True}, "only_here": 1.0, "runs": [1.0, 2.0], "zero": 2.0, "name": "x"}
-    baseline = {"a": {"ms": 100.0, "n": 3, "ok": True}, "runs": [3.0], "zero": 0, "name": "y", "only_there": 4}
+    current = {"a": {"ms": 50.0, "n": 3, "ok": True}, "only_here": 1.0, "load": [1.0, 2.0], "zero": 2.0, "name": "x"}
+    baseline = {"a": {"ms": 100.0, "n": 3, "ok": True}, "load": [1.0, 2.0], "zero": 0, "name": "y", "only_there": 4}
+    current["runs"] = [{"per_s": 0.3}, {"per_s": 0.8}]
+    baseline["runs"] = [{"per_s": 0.2}]
+    many = [{"ms": float(i)} for i in range(MAX_LISTED_RECORDS + 1)]
+    current["queries"], baseline["queries"] = many, many
     assert side_by_side(current, baseline) == {
         "a.ms": {"current": 50.0, "baseline": 100.0, "ratio": 0.5},
         "a.n": {"current": 3.0, "baseline": 3.0, "ratio": 1.0},
         "zero": {"current": 2.0, "baseline": 0.0, "ratio": None},
+        "runs.0.per_s": {"current": 0.3, "baseline": 0.2, "ratio": 1.5},
     }
 
 
