@@ -100,7 +100,8 @@ def segmentation_cpu(photos: list[Path], repeats: int) -> dict[str, Any]:
     The workers' session (:func:`geoloc.vision.segmentation.load_session` with ``workers.context``'s context: the
     same models, onnxruntime threads and device); ``time.process_time`` (every thread of this process) around
     :func:`~geoloc.vision.segmentation.segment` of each photo as the workers load it, ``repeats`` times after
-    one warm-up: the median per photo, and the median of those (ms).
+    one warm-up: the median per photo, and the median of those (ms). This process's settings: a ``--variant``'s
+    (e.g. other onnxruntime threads) are not applied here, so every service is set against the default network.
     """
     session = load_session(worker_context())
     per_photo: dict[str, float] = {}
