@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 import osmium
+from baseline import add_baseline_option, baseline_figures
 from local_service import LocalService, run_figures, status_mb
 
 from contracts.settings import shared_path
@@ -277,6 +278,7 @@ def main() -> None:
     parser.add_argument("--world", type=Path, help="a simulated Helsinki world (default: made here)")
     parser.add_argument("--workdir", type=Path, help="folder for the tiled map, world and service (default: temp)")
     parser.add_argument("--json", type=Path, default=Path("city_map.json"))
+    add_baseline_option(parser)
     args = parser.parse_args()
 
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench-city-map-"))
@@ -408,6 +410,7 @@ def main() -> None:
     print(f"best answers on the two maps lie {gap['median']} m apart (median; max {gap['max']} m)")
     for name, target in figures["targets"].items():
         print(f"target {name}: {target['value']} vs {target['target']}: {'met' if target['met'] else 'NOT MET'}")
+    baseline_figures(args.baseline, __file__, figures)
     args.json.write_text(json.dumps(figures, indent=2))
     print(f"figures written to {args.json}")
 

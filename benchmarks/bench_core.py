@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from baseline import add_baseline_option, baseline_figures
 
 from contracts.settings import shared_path
 from geoloc.core.camera import Intrinsics
@@ -72,6 +73,7 @@ def main() -> None:
     parser.add_argument("--hfov", type=float, default=60.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--json", type=Path, default=Path("core.json"))
+    add_baseline_option(parser)
     args = parser.parse_args()
 
     figures: dict[str, Any] = {
@@ -144,6 +146,7 @@ def main() -> None:
               f"({comparisons / slow_s / 1e6:.0f} M/s): {slow_s / fast_s:.1f}x; largest difference "
               f"{row['max_abs_difference']:.1e}; best pose true: {row['best_pose_is_the_true_one']}")  # fmt: skip
     figures["load_average_end"] = round(os.getloadavg()[0], 1)
+    baseline_figures(args.baseline, __file__, figures)
     args.json.write_text(json.dumps(figures, indent=2))
     print(f"figures written to {args.json}")
 

@@ -60,6 +60,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from baseline import add_baseline_option, baseline_figures
 from match_truth import GtView, correct_matches, covisible_shares, filled_facade_ids, overlap
 
 from contracts.settings import shared_path
@@ -397,6 +398,7 @@ def main() -> None:
     parser.add_argument("--lund-far", type=int, default=8)
     parser.add_argument("--skip-lund", action="store_true")
     parser.add_argument("--matchers", default="", help=f"';'-separated subset of {';'.join(MATCHERS)}")
+    add_baseline_option(parser)
     args = parser.parse_args()
     methods = tuple(m.strip() for m in args.methods.split(";"))
 
@@ -415,6 +417,7 @@ def main() -> None:
         "lund": lund,
         "total_s": round(time.perf_counter() - t0, 1),
     }
+    baseline_figures(args.baseline, __file__, report)
     args.json.write_text(json.dumps(report, indent=1) + "\n")
     print(f"\nwrote {args.json} ({report['total_s']} s)")
 

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from baseline import add_baseline_option, baseline_figures
 from local_service import LocalService
 from servers import PostgresServer, RedisServer
 
@@ -109,6 +110,7 @@ def main() -> int:
     parser.add_argument("--references", type=int, default=12, help="references timed per run")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts to run")
     parser.add_argument("--json", type=Path, default=None, help="write the figures here")
+    add_baseline_option(parser)
     args = parser.parse_args()
     warmup = max(args.workers)
     with tempfile.TemporaryDirectory(prefix="bench-ingest-") as tmp:
@@ -145,6 +147,7 @@ def main() -> int:
         "ratio_distributed_to_embedded": ratios,
         "target_ratio": TARGET_RATIO,
     }
+    baseline_figures(args.baseline, __file__, result)
     if args.json is not None:
         args.json.write_text(json.dumps(result, indent=2))
     return 0 if all(ratio >= TARGET_RATIO for ratio in ratios.values()) else 1

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, get_args
 
 import numpy as np
+from baseline import add_baseline_option, baseline_figures
 from local_service import LocalService
 
 from contracts.queries import QUERY_PRESETS, QueryPreset
@@ -106,6 +107,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=1)
     parser.add_argument("--workdir", type=Path, default=None)
     parser.add_argument("--json", type=Path, default=None)
+    add_baseline_option(parser)
     args = parser.parse_args()
     assert tuple(get_args(QueryPreset)) == QUERY_PRESETS
     world = load_world(args.world)
@@ -133,9 +135,11 @@ def main() -> None:
     results = {preset: summary(runs[preset], truth, frame) for preset in QUERY_PRESETS}
     print(f"{platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
     print(table(results))
+    report = {"world": str(args.world), "references": len(references), "queries": len(photos), "runs": runs}
+    report["presets"] = results
+    baseline_figures(args.baseline, __file__, report)
     if args.json:
-        report = {"world": str(args.world), "references": len(references), "queries": len(photos), "runs": runs}
-        args.json.write_text(json.dumps({**report, "presets": results}, indent=1))
+        args.json.write_text(json.dumps(report, indent=1))
 
 
 if __name__ == "__main__":

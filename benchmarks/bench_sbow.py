@@ -55,6 +55,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from baseline import add_baseline_option, baseline_figures
 from local_service import status_mb
 from sbow_workers import shortlist_digest, worker_memory
 
@@ -218,6 +219,7 @@ def main() -> None:
     parser.add_argument("--workdir", type=Path, help="folder for the database (default: temporary, removed)")
     parser.add_argument("--json", type=Path, default=Path("sbow.json"))
     parser.add_argument("--seed", type=int, default=0)
+    add_baseline_option(parser)
     args = parser.parse_args()
 
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench-sbow-"))
@@ -385,6 +387,7 @@ def main() -> None:
         print(f"target {name}: {target['value']} (target {target.get('target', 'identical')}): "
               f"{'met' if target['met'] else 'NOT MET'}")  # fmt: skip
     figures["load_average_end"] = round(os.getloadavg()[0], 1)
+    baseline_figures(args.baseline, __file__, figures)
     args.json.write_text(json.dumps(figures, indent=2))
     print(f"figures written to {args.json}")
     db.close()

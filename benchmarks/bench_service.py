@@ -5,9 +5,9 @@
 
 Each service is ``geoloc serve --workers N`` on its own fresh data folder (the built models linked in), on
 loopback; ``--baseline`` adds the same service run from another commit of this repository (exported with
-``git archive`` into the work folder, run with the same Python environment), and each ``--variant`` one more
-service of this checkout with other settings (e.g. ``GEOLOC_SEG_THREADS=2``), so that old and new are
-measured side by side under the same load. On each:
+``git archive`` into the work folder, ``benchmarks.baseline.export_commit``, run with the same Python
+environment), and each ``--variant`` one more service of this checkout with other settings (e.g.
+``GEOLOC_SEG_THREADS=2``), so that old and new are measured side by side under the same load. On each:
 
 1. The Helsinki map is uploaded; the references of the world (``geoloc sim world --map helsinki.osm.pbf
    --references 60 --queries 30 --seed 1``, made here unless ``--world`` names one) are posted at once and
@@ -26,8 +26,15 @@ measured side by side under the same load. On each:
    and heading, the number of locations), which must agree: the speed-ups do not change what the method
    computes.
 
+6. The floor (issue 23): the segmentation network's own CPU per query photo, measured in this process after
+   the queries (:func:`segmentation_cpu`: the workers' session and threads, the median per photo); each
+   service's worker CPU per query over it, and each stage's median over the service's segmentation stage.
+
 The machine is shared: its load average is printed with each phase. Prints a table and writes JSON. Targets
 (issue 14): query p50 <= 400 ms and p95 <= 800 ms, >= 1.5 references and >= 2 queries per second per core.
+Must-hold checks (issue 23, ``benchmarks.baseline.service_checks``), PASS/FAIL lines and ``must_hold`` in the
+JSON: worker CPU per query <= 2x the network's; against ``--baseline`` (the issue's: 7a88952) p50 <= 0.6x,
+references per CPU-second >= 1.5x, and every query's ranked locations exactly the baseline's.
 """
 
 from __future__ import annotations
@@ -36,11 +43,8 @@ import argparse
 import json
 import os
 import platform
-import shutil
 import statistics
-import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 from dataclasses import replace
@@ -48,11 +52,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from baseline import export_commit, service_checks
 from local_service import REPO_ROOT, LocalService, cpu_seconds, status_mb
 
 from contracts.settings import shared_path
 from geoloc.client import ApiError, Call, Sent, calls
+from geoloc.photos.photo import load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
+from geoloc.vision.segmentation import load_session, segment
+from workers.context import worker_context
 
 TARGET_P50_MS = 400.0
 TARGET_P95_MS = 800.0
@@ -86,19 +94,27 @@ class Service(LocalService):
             Path(f"/proc/{pid}/clear_refs").write_text("5")
 
 
-def export_commit(ref: str, target: Path) -> str:
-    """``git archive REF`` of this repository into ``target``; returns the commit id."""
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", ref], cwd=REPO_ROOT, capture_output=True, text=True, check=True
-    ).stdout.strip()
-    shutil.rmtree(target, ignore_errors=True)
-    target.mkdir(parents=True)
-    archive = target.parent / f"{target.name}.tar"
-    subprocess.run(["git", "archive", "-o", str(archive), commit], cwd=REPO_ROOT, check=True)
-    with tarfile.open(archive) as tar:
-        tar.extractall(target, filter="data")
-    archive.unlink()
-    return commit
+def segmentation_cpu(photos: list[Path], repeats: int) -> dict[str, Any]:
+    """The segmentation network's own CPU per query photo, as the workers run it, in this process.
+
+    The workers' session (:func:`geoloc.vision.segmentation.load_session` with ``workers.context``'s context: the
+    same models, onnxruntime threads and device); ``time.process_time`` (every thread of this process) around
+    :func:`~geoloc.vision.segmentation.segment` of each photo as the workers load it, ``repeats`` times after
+    one warm-up: the median per photo, and the median of those (ms). This process's settings: a ``--variant``'s
+    (e.g. other onnxruntime threads) are not applied here, so every service is set against the default network.
+    """
+    session = load_session(worker_context())
+    per_photo: dict[str, float] = {}
+    for photo in photos:
+        image = load_photo(photo).image_rgb
+        segment(image, session=session)  # warm-up: the first run of a session allocates its buffers
+        times_ms = []
+        for _ in range(repeats):
+            t0 = time.process_time()
+            segment(image, session=session)
+            times_ms.append(1e3 * (time.process_time() - t0))
+        per_photo[photo.name] = round(statistics.median(times_ms), 1)
+    return {"cpu_ms_median": round(statistics.median(per_photo.values()), 1), "cpu_ms_per_photo": per_photo}
 
 
 def as_json(call: Call[Any]) -> Call[dict[str, Any]]:
@@ -216,6 +232,7 @@ def compare_answers(other: list[dict[str, Any]], current: list[dict[str, Any]]) 
     headings = [
         abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) for a, b in pairs if a["locations"]
     ]
+    different = [a["photo"] for a, b in pairs if a["locations"] != b["locations"]]  # exactly: every location
     same = sum(
         len(a["locations"]) == len(b["locations"])
         and (not a["locations"] or (_distance_m(a["locations"][0][:2], b["locations"][0][:2]) < 0.05
@@ -226,6 +243,8 @@ def compare_answers(other: list[dict[str, Any]], current: list[dict[str, Any]]) 
         "same_rank1_pose": f"{same}/{len(pairs)}",
         "rank1_gap_m_max": round(max(gaps, default=0.0), 3),
         "rank1_heading_gap_deg_max": round(max(headings, default=0.0), 3),
+        "different": len(different),
+        "different_photos": sorted(set(different)),
     }
 
 
@@ -314,6 +333,14 @@ def main() -> None:
         for name in names:
             figures["queries"][name]["worker_peak_rss_mb"] = round(services[name].worker_peak_mb(), 1)
         figures["queries_load_average"] = [load0, load_average()]
+        figures["segmentation"] = segmentation_cpu(queries, args.rounds)
+        segmentation_ms = figures["segmentation"]["cpu_ms_median"]
+        for row in figures["queries"].values():
+            row["cpu_per_segmentation"] = round(row["worker_cpu_ms_median"] / segmentation_ms, 2)
+            seg_stage = row["stages_ms_median"].get("segmentation")
+            row["stages_per_segmentation"] = {
+                stage: round(ms / seg_stage, 2) if seg_stage else None for stage, ms in row["stages_ms_median"].items()
+            }
         figures["concurrent_queries"] = {name: concurrent_queries(services[name], queries) for name in names}
 
         figures["answers"] = {name: compare_answers(runs[name], runs["current"]) for name in names if name != "current"}
@@ -327,7 +354,7 @@ def main() -> None:
 
     print(f"\nqueries one at a time ({args.rounds} rounds x {len(queries)} photos, interleaved; "
           f"load average {figures['queries_load_average']}):")  # fmt: skip
-    width = max(len(n) for n in names) + 2
+    width = max(len(n) for n in names) + 14  # room for a stage's ratio to the segmentation
     print(f"{'':28s}" + "".join(f"{n:>{width}s}" for n in names))
     rows = [("wall p50 (ms)", "wall_ms_p50"), ("wall p95 (ms)", "wall_ms_p95"),
             ("worker CPU per query (ms)", "worker_cpu_ms_median"), ("queries per CPU-second", "per_cpu_s"),
@@ -335,9 +362,15 @@ def main() -> None:
     for label, key in rows:
         print(f"{label:28s}" + "".join(f"{figures['queries'][n][key]:>{width},}" for n in names))
     stages = list(figures["queries"][names[-1]]["stages_ms_median"])
+    print(f"{'segmentation CPU (ms)':28s}{figures['segmentation']['cpu_ms_median']:>{width},}  (this process, "
+          "the workers' session, median per photo)")  # fmt: skip
+    print(f"{'worker CPU / segmentation':28s}" + "".join(f"{figures['queries'][n]['cpu_per_segmentation']:>{width}}"
+                                                         for n in names))  # fmt: skip
     for stage in stages:
         values = [figures["queries"][n]["stages_ms_median"].get(stage, float("nan")) for n in names]
-        print(f"{'  ' + stage + ' (ms, median)':28s}" + "".join(f"{v:>{width},}" for v in values))
+        ratios = [figures["queries"][n]["stages_per_segmentation"].get(stage) for n in names]
+        cells = [f"{v:,} ({r}x)" if r is not None else str(v) for v, r in zip(values, ratios, strict=True)]
+        print(f"{'  ' + stage + ' (ms, x seg.)':28s}" + "".join(f"{cell:>{width}}" for cell in cells))
     for name in names:
         c = figures["concurrent_queries"][name]
         print(f"{name}: {c['queries']} concurrent queries in {c['wall_s']} s: {c['per_s_per_worker']} per second per "
@@ -345,7 +378,7 @@ def main() -> None:
     for name, answers in figures["answers"].items():
         print(f"answers of {name} and current: rank 1 the same for {answers['same_rank1_pose']} queries (largest "
               f"gap {answers['rank1_gap_m_max']} m, {answers['rank1_heading_gap_deg_max']} deg); median latency "
-              f"{answers['speedup_p50']}x current's")  # fmt: skip
+              f"{answers['speedup_p50']}x current's; a location differs: {answers['different_photos']}")  # fmt: skip
     current = "current"
     q, lab = figures["queries"][current], figures["labelling"][current]
     figures["targets"] = {
@@ -366,6 +399,17 @@ def main() -> None:
     }
     for name, target in figures["targets"].items():
         print(f"target {name}: {target['value']} vs {target['target']}: {'met' if target['met'] else 'NOT MET'}")
+    base = next((n for n in names if n.startswith("baseline ")), None)
+    checks = service_checks(
+        q["cpu_per_segmentation"],
+        (q["wall_ms_p50"], figures["queries"][base]["wall_ms_p50"]) if base else None,
+        (lab["per_cpu_s"], figures["labelling"][base]["per_cpu_s"]) if base else None,
+        figures["answers"][base]["different"] if base else None,
+    )
+    figures["must_hold"] = {"against": base, **{check.name: check.as_json() for check in checks}}
+    print(f"must-hold (issue 23{', against ' + base if base else ', no baseline'}):")
+    for check in checks:
+        print("  " + check.line())
     args.json.write_text(json.dumps({**figures, "runs": runs}, indent=2))
     print(f"figures written to {args.json}")
 

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from baseline import add_baseline_option, baseline_figures
 from PIL import Image
 
 from contracts.settings import shared_path
@@ -126,6 +127,7 @@ def main() -> None:
     parser.add_argument("--world", type=Path, help="a simulated Helsinki world (default: made here)")
     parser.add_argument("--distractors", type=int, default=100_000)
     parser.add_argument("--json", type=Path, default=Path("vocabulary.json"))
+    add_baseline_option(parser)
     args = parser.parse_args()
     figures: dict[str, Any] = {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at start",
@@ -196,6 +198,7 @@ def main() -> None:
         print(f"{label:11s} recall@1/5/20/60 world only {alone}; with {args.distractors:,} distractors {crowded} "
               f"(top-10 {d['top10_ms_p50']} ms, index {d['index_mb']} MB)")  # fmt: skip
     figures["load_average_end"] = round(os.getloadavg()[0], 1)
+    baseline_figures(args.baseline, __file__, figures)
     args.json.write_text(json.dumps(figures, indent=2))
     print(f"figures written to {args.json}")
 
