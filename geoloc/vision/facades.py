@@ -109,13 +109,15 @@ def analyze_image(
     labels: np.ndarray,
     intrinsics: Intrinsics,
     bin_deg: float = DEFAULT_BIN_DEG,
+    segments: np.ndarray | None = None,
     **decompose_kwargs: Any,
 ) -> ImageAnalysis:
     """Full image side of the method: segments, VPs, facade decomposition and image model.
 
     image_rgb: (H, W, 3) uint8 RGB (or gray); labels: (H, W) class codes (resized with nearest
     neighbour if their size differs); intrinsics: of the image (rescaled if its size differs);
-    decompose_kwargs: passed to :func:`decompose_facades`.
+    segments: ``detect_line_segments(image_rgb)`` when already detected (they need no labels: e.g. beside the
+    segmentation network), else detected here; decompose_kwargs: passed to :func:`decompose_facades`.
     """
     import cv2
 
@@ -128,7 +130,8 @@ def analyze_image(
         lab = cv2.resize(lab.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    segments = detect_line_segments(img)
+    if segments is None:
+        segments = detect_line_segments(img)
     t1 = time.perf_counter()
     vps = estimate_scene_vanishing_points(lab, segments, intrinsics)
     t2 = time.perf_counter()
