@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 from baseline import export_commit, service_checks
-from local_service import REPO_ROOT, LocalService, cpu_seconds, status_mb
+from local_service import REPO_ROOT, LocalService, status_mb
 
 from contracts.settings import shared_path
 from geoloc.client import ApiError, Call, Sent, calls
@@ -84,9 +84,6 @@ class Service(LocalService):
         self.name = name
         self.workers = workers
         self.map_id = 0
-
-    def worker_cpu_s(self) -> float:
-        return sum(cpu_seconds(pid) for pid in self.pids(b"workers"))
 
     def worker_peak_mb(self) -> float:
         return max(status_mb(pid, "VmHWM") for pid in self.pids(b"workers"))
@@ -147,27 +144,6 @@ def upload_map(service: Service, timeout_s: float = 600.0) -> None:
         raise SystemExit(f"{service.name}: map {service.map_id} failed: {json.dumps(uploaded)[:300]}")
 
 
-IDLE_CPU_S = 0.1
-"""Worker CPU seconds in :data:`IDLE_WINDOW_S` below which the pool counts as idle (idle polling costs ~0.02)."""
-IDLE_WINDOW_S = 2.0
-
-
-def wait_until_idle(service: Service, timeout_s: float = 600.0) -> float:
-    """Wait until the workers' CPU time stops growing: the jobs the references queued (their walks' placement) ended.
-
-    Returns the ``perf_counter`` time the quiet window began, when the work ended.
-    """
-    deadline = time.monotonic() + timeout_s
-    before, since = service.worker_cpu_s(), time.perf_counter()
-    while time.monotonic() < deadline:
-        time.sleep(IDLE_WINDOW_S)
-        now = service.worker_cpu_s()
-        if now - before < IDLE_CPU_S:
-            return since
-        before, since = now, time.perf_counter()
-    raise SystemExit(f"{service.name}: the workers were still busy {timeout_s:.0f} s after the references")
-
-
 def label_references(service: Service, photos: list[Path]) -> dict[str, Any]:
     """Post every reference at once, wait until the pool has labelled them and placed their walks: throughput.
 
@@ -185,7 +161,7 @@ def label_references(service: Service, photos: list[Path]) -> dict[str, Any]:
         if counts.get("queued", 0) + counts.get("processing", 0) + listing.get("walks_placing", 0) == 0:
             break
         time.sleep(0.2)
-    wall_s = wait_until_idle(service) - t0  # a walk's placement job (a commit without walks_placing hides it)
+    wall_s = service.wait_until_idle() - t0  # a walk's placement job (a commit without walks_placing hides it)
     cpu_s = service.worker_cpu_s() - cpu0
     rows = [send(service, calls.get_reference(rid), "reference").value for rid in ids]
     totals = [r["timings"]["total"] for r in rows if r.get("timings")]

@@ -80,6 +80,11 @@ def status_mb(pid: int, key: str) -> float:
     return float("nan")
 
 
+IDLE_CPU_S = 0.1
+"""Worker CPU seconds in :data:`IDLE_WINDOW_S` below which :meth:`LocalService.wait_until_idle` counts them idle."""
+IDLE_WINDOW_S = 2.0
+
+
 class LocalService:
     """``geoloc serve --workers N`` on a fresh data folder ``data_dir``, ready when constructed.
 
@@ -152,6 +157,26 @@ class LocalService:
             if any(part == role or part.startswith(role + b".") for part in cmdline):
                 found.append(pid)
         return found
+
+    def worker_cpu_s(self) -> float:
+        """CPU seconds its worker processes have used (user and system, :func:`cpu_seconds`)."""
+        return sum(cpu_seconds(pid) for pid in self.pids(b"workers"))
+
+    def wait_until_idle(self, timeout_s: float = 600.0) -> float:
+        """Wait until its workers' CPU time stops growing: the jobs queued so far (and those they queued) ended.
+
+        Returns the ``perf_counter`` time the quiet window began, when the work ended. Idle: less than
+        :data:`IDLE_CPU_S` of worker CPU in :data:`IDLE_WINDOW_S` (idle polling costs about 0.02).
+        """
+        deadline = time.monotonic() + timeout_s
+        before, since = self.worker_cpu_s(), time.perf_counter()
+        while time.monotonic() < deadline:
+            time.sleep(IDLE_WINDOW_S)
+            now = self.worker_cpu_s()
+            if now - before < IDLE_CPU_S:
+                return since
+            before, since = now, time.perf_counter()
+        raise SystemExit(f"the workers were still busy after {timeout_s:.0f} s")
 
     def worker_roles(self) -> dict[str, list[int]]:
         """Its worker processes by role: ``pool`` and ``worker``.

@@ -10,7 +10,9 @@ Between jobs (and while idle) the loop also applies the query retention (:mod:`w
 A failure that cannot succeed on retry (:func:`workers.handlers.is_permanent`, or any failure once the
 job's map or reference has been deleted) fails the job at once. After each job the heap is settled
 (:func:`workers.memory.settle_heap`): the job's garbage collected, what outlives it frozen out of Python's
-collections, the free pages given back to the system, so the process's resident memory follows what it holds.
+collections; the free pages go back to the system once the worker is idle (``GEOLOC_WORKER_TRIM_IDLE_S``) or
+busy for many jobs in a row (:class:`workers.memory.HeapTrimmer`), so the process's resident memory follows what
+it holds.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from db import jobs as job_store
 from db.files import open_store
 from db.rows import JobRow
 from workers.handlers import HANDLERS, PermanentJobError, Registration, is_permanent
-from workers.memory import settle_heap
+from workers.memory import HeapTrimmer, settle_heap
 from workers.retention import purge_expired_queries, purge_interval_s
 
 log = logging.getLogger("geoloc.worker")
@@ -73,6 +75,7 @@ class Worker:
         self.handlers = HANDLERS if handlers is None else handlers
         self.worker_id = new_worker_id()
         self.stop_event = threading.Event()
+        self.heap = HeapTrimmer(settings.worker_trim_idle_s)
         self.database: Path | str = settings.database
         self.parent_pid: int | None = None
 
@@ -114,6 +117,7 @@ class Worker:
                 kinds = list(self.settings.worker_kinds) or None
                 job = job_store.claim_job(db, self.worker_id, self.settings.job_lease_s, kinds)
                 if job is None:
+                    self.heap.idle(time.monotonic())
                     self.stop_event.wait(sleep_s)
                     sleep_s = min(sleep_s * 2, self.settings.worker_poll_max_s)
                     continue
@@ -196,7 +200,7 @@ class Worker:
             status = job_store.fail_job(db, job_id, self.worker_id, error, retry_delay_s=delay, permanent=permanent)
             log.warning("job %d attempt failed (%s) -> %s", job_id, outcome.error, status)
         del outcome  # its result and error (with the handler's frames) before the heap is settled
-        settle_heap()
+        self.heap.job_done(time.monotonic())
         job_store.heartbeat_worker(db, self.worker_id, None)
         return True
 
