@@ -101,6 +101,8 @@ class ProcessState:
                 if self.settings.query_retention_s > 0 and now >= next_purge:
                     self.worker.apply_retention(db)
                     next_purge = now + purge_interval_s(self.settings.query_retention_s)
+                if self.current_job_id is None:  # idle between tasks: the heap's free pages go back in time
+                    self.worker.heap.idle(now)
             except Exception:  # the database or the broker is away: try again shortly, on a new connection
                 log.exception("worker background task failed; retrying")
                 if db is not None:
