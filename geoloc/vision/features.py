@@ -277,6 +277,13 @@ def _working_image(image_rgb: np.ndarray, method: str, max_side: int) -> tuple[n
     return cv2.resize(image, size_wh, interpolation=cv2.INTER_AREA), scale, size_wh[0] / w, size_wh[1] / h
 
 
+def _sift_parameters(
+    max_features: int, max_side: int, contrast_threshold: float, edge_threshold: float
+) -> tuple[int, int, float, float]:
+    """What :class:`SiftCandidates` records of its parameters, to refuse them for features of other ones."""
+    return int(max_features), int(max_side), float(contrast_threshold), float(edge_threshold)
+
+
 def sift_candidates(
     image_rgb: np.ndarray,
     max_features: int = DEFAULT_MAX_FEATURES,
@@ -296,7 +303,7 @@ def sift_candidates(
         z = np.zeros(0, np.float32)
         found = np.zeros((0, 2), np.float32), np.zeros((0, DESCRIPTOR_DIM), np.float32), z, z, z
     image_shape = (int(np.shape(image_rgb)[0]), int(np.shape(image_rgb)[1]))
-    parameters = (int(max_features), int(max_side), float(contrast_threshold), float(edge_threshold))
+    parameters = _sift_parameters(max_features, max_side, contrast_threshold, edge_threshold)
     xy_work, sift, sizes, angles, responses = found
     size_wh = (gray.shape[1], gray.shape[0])
     return SiftCandidates(xy_work, sift, sizes, angles, responses, image_shape, size_wh, parameters)
@@ -337,7 +344,7 @@ def extract_features(
     method = canonical_method(method)
     h, w = np.shape(image_rgb)[:2]
     if candidates is not None:
-        parameters = (int(max_features), int(max_side), float(contrast_threshold), float(edge_threshold))
+        parameters = _sift_parameters(max_features, max_side, contrast_threshold, edge_threshold)
         if method != "rootsift" or candidates.parameters != parameters or candidates.image_shape != (h, w):
             raise ValueError("SIFT candidates of another image size, other parameters or for another feature type")
         scale = working_scale((h, w), max_side)
