@@ -10,7 +10,13 @@ import pytest
 from geoloc.core.camera import Intrinsics, vanishing_column_of_orientation, wrap_orientation_deg
 from geoloc.vision.lines import detect_line_segments
 from geoloc.vision.vanishing import estimate_vanishing_points
-from geoloc.vision.vp_geometry import pitch_roll_deg, rotation_upright_from_pitch_roll
+from geoloc.vision.vp_geometry import (
+    SegmentGeometry,
+    pitch_roll_deg,
+    rotation_upright_from_pitch_roll,
+    segment_geometry,
+    vp_residuals,
+)
 
 INTR = Intrinsics.from_hfov(1024, 768, 62.0)
 
@@ -94,6 +100,40 @@ def test_vanishing_points_of_synthetic_lines(
     d = vp.directions_cam
     assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
     assert np.allclose(d[1:] @ d[0], 0.0, atol=1e-9)
+
+
+def _residuals_numpy(
+    directions_cam: np.ndarray, geo: SegmentGeometry, intrinsics: Intrinsics, tol_px: float, max_angle_deg: float
+) -> np.ndarray:
+    """The residuals' formula (vp_geometry's docstring) on (M, N, 2) arrays, as before the compiled kernel."""
+    v = np.atleast_2d(directions_cam) @ intrinsics.matrix.T
+    u = v[:, None, :2] - geo.midpoints[None, :, :] * v[:, None, 2:3]
+    norm_u = np.linalg.norm(u, axis=2)
+    cross = np.abs(geo.unit_dirs[None, :, 0] * u[..., 1] - geo.unit_dirs[None, :, 1] * u[..., 0])
+    sin_err = np.clip(np.divide(cross, norm_u, out=np.zeros_like(cross), where=norm_u > 1e-12), 0.0, 1.0)
+    angle_deg = np.degrees(np.arcsin(sin_err))
+    residuals: np.ndarray = np.maximum(0.5 * geo.lengths_px[None, :] * sin_err / tol_px, angle_deg / max_angle_deg)
+    return residuals
+
+
+def test_compiled_residuals_match_the_formula() -> None:
+    """Finite and infinite VPs, vertical segments and a VP on a segment's midpoint (u = 0: residual 0)."""
+    rng = np.random.default_rng(3)
+    intrinsics = Intrinsics.from_hfov(640, 480, 60.0)
+    segments = rng.uniform(0.0, 640.0, (300, 4))
+    segments[:50, 2] = segments[:50, 0]
+    geo = segment_geometry(segments, intrinsics)
+    directions = rng.normal(size=(400, 3))
+    directions[:100, 2] = 0.0
+    midpoint_ray = np.linalg.inv(intrinsics.matrix) @ np.array([*geo.midpoints[0], 1.0])
+    directions = np.vstack([directions, midpoint_ray])
+    compiled = vp_residuals(directions, geo, intrinsics, 1.6, 2.5)
+    formula = _residuals_numpy(directions, geo, intrinsics, 1.6, 2.5)
+    assert compiled.shape == (401, 300)
+    # numpy's arcsin may use SIMD code that differs from libm's in the last bit.
+    np.testing.assert_allclose(compiled, formula, rtol=1e-12, atol=1e-12)
+    assert compiled[-1, 0] == pytest.approx(0.0, abs=1e-9)
+    assert np.all(compiled >= 0.0)
 
 
 def test_pitch_roll_definitions() -> None:
