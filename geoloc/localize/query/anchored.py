@@ -63,7 +63,9 @@ def anchored_pose(
             keys.append(key)
         variant_keys.append(keys)
     proposals = threads.map(
-        lambda group: group_proposal(*group, photo.intrinsics, threshold_px=config.pnp_threshold_px),
+        lambda group: group_proposal(
+            *group, photo.intrinsics, threshold_px=config.pnp_threshold_px, max_iters=config.pnp_max_iters
+        ),
         group_of.values(),
     )
     proposal_of = dict(zip(group_of, proposals, strict=True))
@@ -74,6 +76,7 @@ def anchored_pose(
             photo.intrinsics,
             threshold_px=config.pnp_threshold_px,
             min_inliers=config.pnp_min_inliers,
+            max_iters=config.pnp_max_iters,
             proposals=[proposal_of[key] for key in keys],
         )
         if estimate is not None:

@@ -49,6 +49,9 @@ class QueryConfig:
     """Uncertainty: a likelihood pose's radius holds 90 % of the posterior tempered to this power."""
     pnp_threshold_px: float = 4.0
     """Anchors: the PnP's inlier threshold (px)."""
+    pnp_max_iters: int = 2000
+    """Anchors: each reference group's PnP RANSAC iterations at most (a wrong reference, a few per cent of inliers,
+    runs them all; 1,000 moved two Helsinki answers through the service, docs/speed.md)."""
     pnp_min_inliers: int = 20
     """Trust: at least this many PnP inliers."""
     anchor_ratio: float = 0.9
