@@ -38,6 +38,7 @@ from workers.context import method_context
 
 PRIORS = ("gps", "none")
 MOVED_M = 0.5
+BOOLEANS = {"true": True, "yes": True, "1": True, "false": False, "no": False, "0": False}
 
 
 def parse_config(text: str) -> tuple[str, QueryConfig]:
@@ -50,7 +51,10 @@ def parse_config(text: str) -> tuple[str, QueryConfig]:
         if field not in kinds:
             raise SystemExit(f"--config {text}: QueryConfig has no field {field!r}")
         kind = kinds[field]
-        changes[field] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
+        try:
+            changes[field] = BOOLEANS[value.lower()] if kind is bool else kind(value)
+        except (KeyError, ValueError):
+            raise SystemExit(f"--config {text}: {field} is {kind.__name__}, not {value!r}") from None
     if not name or not changes:
         raise SystemExit(f"--config {text}: expected NAME=FIELD:VALUE[,FIELD:VALUE...]")
     return name, replace(QueryConfig(), **changes)
