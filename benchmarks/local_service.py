@@ -16,6 +16,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -27,6 +28,16 @@ from geoloc.client import ApiError, Client, RetryPolicy, ServiceUnreachableError
 from workers.context import model_problems  # noqa: E402
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def exit_on_sigterm() -> None:
+    """Make SIGTERM end this process with ``SystemExit`` (status 143), so that ``finally`` blocks run.
+
+    The services run in their own sessions and outlive a plain SIGTERM of the benchmark that started them; with
+    this, its ``finally`` stops them. Only from the main thread, and only where SIGTERM has its default action.
+    """
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
 
 
 def free_port() -> int:
@@ -117,6 +128,7 @@ class LocalService:
         environment.pop("GEOLOC_API_KEYS", None)
         self.log_path = log_path or data_dir.parent / "serve.log"
         serve = f"serve --host 127.0.0.1 --port {self.port} --workers {workers} --log-level warning".split()
+        exit_on_sigterm()
         with self.log_path.open("wb") as log:
             self.process = subprocess.Popen(
                 [sys.executable, "-c", "from cli.main import app; app()", *serve],
