@@ -1,16 +1,17 @@
 """Query-stage configurations side by side on simulated worlds: what doing less costs in accuracy.
 
     .venv/bin/python benchmarks/bench_query_config.py --world /tmp/worlds/h1 --world /tmp/worlds/hw1 \
-        --config pnp2000=pnp_max_iters:2000 --config anchors3=anchor_references:3 --json query_config.json
+        --config pnp1000=pnp_max_iters:1000 --config anchors3=anchor_references:3 --json query_config.json
 
 Each world's references are labelled once with the workers' labelling (the evaluation's
 :func:`geoloc.evaluation.references.label_references`) and its queries analysed once; then every query is
-answered by the workers' query stage (:func:`geoloc.localize.query.geolocate`) under each configuration, with
-its EXIF GPS prior (and compass) and with no prior. The first configuration is the default ``QueryConfig()``
+answered by the workers' query stage (:func:`geoloc.localize.query.geolocate`, through the evaluation's
+:func:`geoloc.evaluation.queries.answer_run`, as ``geoloc eval world`` does) under each configuration, with its
+EXIF GPS prior (and compass) and with no prior. The first configuration is the default ``QueryConfig()``
 (``balanced``); each ``--config NAME=FIELD:VALUE,...`` replaces fields of it. Printed per world, configuration
 and prior: the shares within 1 / 5 / 10 m and of headings within 5 deg, the median error, how often the
-uncertainty radius holds the truth, the anchored share, and the stage's process CPU (``time.process_time``
-around ``geolocate``: all its threads) as a ratio to the default's on the same queries; then how many rank-1
+uncertainty radius holds the truth, the anchored share, and the process CPU of the run (``time.process_time``
+around it: every thread of the stage) as a ratio to the default's on the same queries; then how many rank-1
 answers moved by more than 0.5 m against the default. Accuracy does not depend on the load; the CPU ratios do
 when other jobs run.
 """
@@ -19,8 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
-import statistics
 import sys
 import time
 from dataclasses import fields, replace
@@ -28,10 +27,9 @@ from pathlib import Path
 from typing import Any
 
 from geoloc.evaluation.ground_truth import shown_by_references
-from geoloc.evaluation.queries import photo_priors
+from geoloc.evaluation.queries import EvalRun, answer_run
 from geoloc.evaluation.references import analyze, label_references
-from geoloc.evaluation.summaries import angle_error_deg
-from geoloc.localize.query import QueryConfig, geolocate
+from geoloc.localize.query import QueryConfig
 from geoloc.localize.retrieval import default_vocabulary
 from geoloc.sim.world import load_world
 from workers.context import method_context
@@ -61,7 +59,11 @@ def parse_config(text: str) -> tuple[str, QueryConfig]:
 
 
 def answer_world(world_dir: Path, configs: dict[str, QueryConfig], say: Any) -> dict[str, Any]:
-    """Every query of the world under every configuration and prior: per-query rows and summaries."""
+    """Every query of the world under every configuration and prior (:func:`answer_run`, as ``geoloc eval world``).
+
+    Each run's summary is the evaluation's (:func:`geoloc.evaluation.summaries.run_summary`, per-query rows in
+    ``per_query``), with ``cpu_s``: this process's CPU time around the run (every thread of the stage).
+    """
     context = method_context()
     world = load_world(world_dir)
     city = world.load_map()
@@ -69,49 +71,20 @@ def answer_world(world_dir: Path, configs: dict[str, QueryConfig], say: Any) -> 
     started = time.perf_counter()
     labelled = label_references(world, city, vocabulary, "model", lambda _msg: None, context)
     queries = [q for q in world.queries if "track" not in q.record]
-    analysed = {q.name: analyze(q.path, None, context) for q in queries}
+    labelled.queries = {q.name: analyze(q.path, None, context) for q in queries}
     reference_names = [r.name for r in world.references]
-    shown = {q.name: bool(shown_by_references(world, q.name, reference_names)["building"]) for q in queries}
+    shown = {q.name: shown_by_references(world, q.name, reference_names) for q in queries}
     say(f"{world_dir}: {len(labelled.labelled)} references labelled, {len(queries)} queries analysed "
         f"in {time.perf_counter() - started:.0f} s")  # fmt: skip
     out: dict[str, Any] = {}
     for name, config in configs.items():
         for prior_kind in PRIORS:
-            rows = []
-            for query in queries:
-                photo, evidence = analysed[query.name]
-                prior, heading = photo_priors(photo, city, prior_kind)
-                cpu0 = time.process_time()
-                answer = geolocate(
-                    city, photo, evidence, labelled.store, vocabulary, config,
-                    position_prior=prior, heading_prior=heading, top_n=10, context=context,
-                )  # fmt: skip
-                cpu_ms = 1e3 * (time.process_time() - cpu0)
-                best, truth = answer.poses[0], query.pose
-                rows.append({
-                    "name": query.name, "kind": query.record["kind"], "shown": shown[query.name],
-                    "error_m": math.hypot(best.x_m - truth.x_m, best.y_m - truth.y_m),
-                    "heading_error_deg": angle_error_deg(best.yaw_deg, truth.yaw_deg),
-                    "radius_m": best.uncertainty_radius_m, "source": best.source, "cpu_ms": cpu_ms,
-                })  # fmt: skip
-            out.setdefault(name, {})[prior_kind] = {"rows": rows, "summary": summarise(rows)}
+            run = EvalRun(f"{name}/{prior_kind}", prior_kind, "model", "transferred", config)
+            cpu0 = time.process_time()
+            summary = answer_run(world, city, labelled, vocabulary, run, queries, shown, lambda _msg: None, context)
+            summary["cpu_s"] = time.process_time() - cpu0
+            out.setdefault(name, {})[prior_kind] = summary
     return out
-
-
-def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
-    """Shares within 1 / 5 / 10 m and 5 deg, the median error, radius and anchored shares, the CPU sum."""
-    errors = [r["error_m"] for r in rows]
-    n = len(rows)
-    return {
-        "within_1m": sum(e <= 1 for e in errors) / n,
-        "within_5m": sum(e <= 5 for e in errors) / n,
-        "within_10m": sum(e <= 10 for e in errors) / n,
-        "heading_within_5deg": sum(r["heading_error_deg"] <= 5 for r in rows) / n,
-        "median_m": statistics.median(errors),
-        "radius_holds_truth": sum(r["error_m"] <= r["radius_m"] for r in rows) / n,
-        "anchored": sum(r["source"] == "anchors" for r in rows) / n,
-        "cpu_ms_sum": sum(r["cpu_ms"] for r in rows),
-    }
 
 
 def main() -> int:
@@ -128,16 +101,16 @@ def main() -> int:
         results["worlds"][str(world_dir)] = answers
         for prior_kind in PRIORS:
             default = answers["default"][prior_kind]
-            default_error = {r["name"]: r["error_m"] for r in default["rows"]}
+            default_error = {r["name"]: r["error_m"] for r in default["per_query"]}
             for name in configs:
                 run = answers[name][prior_kind]
-                s = run["summary"]
-                moved = sum(abs(r["error_m"] - default_error[r["name"]]) > MOVED_M for r in run["rows"])
+                s = run["all"]
+                moved = sum(abs(r["error_m"] - default_error[r["name"]]) > MOVED_M for r in run["per_query"])
                 print(f"{world_dir.name:>8} {prior_kind:4} {name:>12}: within 1/5/10 m "
                       f"{s['within_1m']:.2f}/{s['within_5m']:.2f}/{s['within_10m']:.2f}, median "
-                      f"{s['median_m']:.1f} m, heading 5 deg {s['heading_within_5deg']:.2f}, radius "
-                      f"{s['radius_holds_truth']:.2f}, anchored {s['anchored']:.2f}, CPU "
-                      f"x{s['cpu_ms_sum'] / default['summary']['cpu_ms_sum']:.2f}, moved > {MOVED_M} m: {moved}",
+                      f"{s['median_error_m']:.1f} m, heading 5 deg {s['heading_within_5deg']:.2f}, radius "
+                      f"{run['uncertainty_radius_holds_truth']:.2f}, anchored {run['anchored_share']:.2f}, CPU "
+                      f"x{run['cpu_s'] / default['cpu_s']:.2f}, moved > {MOVED_M} m: {moved}",
                       flush=True)  # fmt: skip
         args.json.write_text(json.dumps(results, indent=1))
     return 0

@@ -76,7 +76,6 @@ def anchored_pose(
             photo.intrinsics,
             threshold_px=config.pnp_threshold_px,
             min_inliers=config.pnp_min_inliers,
-            max_iters=config.pnp_max_iters,
             proposals=[proposal_of[key] for key in keys],
         )
         if estimate is not None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.bench_query_config import parse_config, summarise
+from benchmarks.bench_query_config import parse_config
 from geoloc.localize.query import QueryConfig
 
 
@@ -29,14 +29,3 @@ def test_config_fields_are_replaced_with_their_types() -> None:
 def test_bad_configs_are_refused_with_the_reason(text: str, reason: str) -> None:
     with pytest.raises(SystemExit, match=reason):
         parse_config(text)
-
-
-def test_summary_shares_and_median() -> None:
-    rows = [
-        {"error_m": e, "heading_error_deg": h, "radius_m": 10.0, "source": s, "cpu_ms": 100.0}
-        for e, h, s in [(0.5, 1.0, "anchors"), (4.0, 7.0, "likelihood"), (12.0, 2.0, "likelihood"), (30.0, 90.0, "x")]
-    ]
-    summary = summarise(rows)
-    assert (summary["within_1m"], summary["within_5m"], summary["within_10m"]) == (0.25, 0.5, 0.5)
-    assert summary["heading_within_5deg"] == 0.5 and summary["median_m"] == 8.0
-    assert summary["radius_holds_truth"] == 0.5 and summary["anchored"] == 0.25 and summary["cpu_ms_sum"] == 400.0
