@@ -26,7 +26,7 @@ from db.rows import ReferenceRow
 from geoloc.core.geo import LocalFrame
 from geoloc.localize.sequence import SequenceMember, group_sequences, place_labelled_sequence
 from geoloc.localize.sequence.frames import frame_from_arrays
-from geoloc.localize.sequence.stage import LabelledFrame, PlacedSequence
+from geoloc.localize.sequence.stage import LabelledFrame, PlacedSequence, capture_seconds
 from geoloc.maps import CityMap
 from workers.handlers import register
 from workers.method_handlers import (
@@ -71,7 +71,8 @@ def _walk_frame(db: Database, city: CityMap, row: ReferenceRow) -> tuple[dict[st
     if arrays is None:  # labelled before the label job stored it: label it alone again
         arrays = label_alone(city, row).walk_frame()
     gps_xy, prior = reference_priors(city, row)
-    return arrays, LabelledFrame(frame_from_arrays(arrays), gps_xy, heading_prior=prior)
+    time_s = capture_seconds(_capture_time(row["capture_time"]))
+    return arrays, LabelledFrame(frame_from_arrays(arrays), gps_xy, heading_prior=prior, capture_time_s=time_s)
 
 
 def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> PlacedSequence:

@@ -18,10 +18,22 @@ import numpy as np
 
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.anchors import MapAnchors
+from geoloc.localize.labeling import LabelOptions
+from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.reference import LabelCues, LabelledReference
+from geoloc.maps import CityMap
 from geoloc.vision.evidence import PhotoEvidence
 from geoloc.vision.features import Features
 from geoloc.vision.image_model import ImageModel
+
+MAP_SPREAD_HALF_SIZE_M = 10.0
+MAP_SPREAD_CELL_M = 2.0
+"""The grid (half-size, spacing, m) over which :func:`map_position_covariance` weighs the map's likelihood.
+
+The label's own grid: on Helsinki seed 1's walks, +-15 m at 1 m placed the references the same (within 2 m
+0.57 against 0.58) for ten times the CPU (33 against 3.5 ms a frame)."""
+MAP_SPREAD_YAW_OFFSETS_DEG = (-1.0, 0.0, 1.0)
+"""Headings around the label's at which the spread is weighed (deg)."""
 
 _OPTIONAL_MODEL_ARRAYS = ("identity_building_ids", "identity_prob", "distance_m", "top_tan_elevation")
 """The image model's optional arrays, stored only when set."""
@@ -62,6 +74,31 @@ class FrameLabel:
             dict(labelled.timings_ms),
             labelled.analysis,
         )
+
+
+def map_position_covariance(city_map: CityMap, frame: FrameLabel, options: LabelOptions = LabelOptions()) -> np.ndarray:
+    """(2, 2) m^2 spread of the map's likelihood alone around a frame's label, at its heading: what the map says.
+
+    The label's own covariance weighs its GPS prior and is cut off by its refinement's +-6 m grid, so a label on
+    a uniform facade, which the map cannot place along the street, looks sure of itself and, in a walk's graph,
+    counts the GPS a second time. Here the weights are the geometry-only likelihood ** ``options.sharpness``
+    over :data:`MAP_SPREAD_HALF_SIZE_M` / :data:`MAP_SPREAD_CELL_M` positions around the label (not inside a
+    building) at :data:`MAP_SPREAD_YAW_OFFSETS_DEG` from its heading, with no GPS prior; the spread is about
+    their weighted mean, plus the cell's own variance. Where nothing has weight: the grid's half-size squared.
+    """
+    offsets = np.arange(-MAP_SPREAD_HALF_SIZE_M, MAP_SPREAD_HALF_SIZE_M + MAP_SPREAD_CELL_M / 2, MAP_SPREAD_CELL_M)
+    east, north = np.meshgrid(offsets, offsets, indexing="ij")
+    positions = np.stack([east.ravel(), north.ravel()], axis=1) + np.array([frame.x_m, frame.y_m])
+    positions = positions[~city_map.inside_buildings(positions)]
+    likelihood = MapLikelihood(city_map, frame.cues.image_model.without_identity(), options.likelihood)
+    yaws = frame.yaw_deg + np.asarray(MAP_SPREAD_YAW_OFFSETS_DEG)
+    weights = np.power(likelihood.of_poses(positions, yaws).astype(float), options.sharpness).sum(axis=1)
+    total = float(weights.sum())
+    if not total > 0:
+        return np.eye(2) * MAP_SPREAD_HALF_SIZE_M**2
+    weights /= total
+    centred = positions - weights @ positions
+    return np.asarray((centred * weights[:, None]).T @ centred + np.eye(2) * MAP_SPREAD_CELL_M**2 / 12.0)
 
 
 def frame_arrays(frame: FrameLabel) -> dict[str, np.ndarray]:

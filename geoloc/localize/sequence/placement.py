@@ -3,10 +3,21 @@
 One planar pose per frame (position east/north in m, heading), with these factors:
 
 - the frame's own label (:func:`geoloc.localize.labeling.label_reference`: the map likelihood around its GPS):
-  its position with the label's covariance (floored) and its heading with
+  its position with the covariance of what the map alone says there (the caller's
+  :attr:`SequenceFrame.position_covariance`, floored) and its heading with
   :attr:`PlacementOptions.label_yaw_sigma_deg`, under a Cauchy loss: a label on the mirror view across the
   street is an outlier the neighbours overrule;
-- its GPS tag, sigma its stated accuracy, under a Huber loss (a jump beside tall buildings);
+- its GPS tag: the tag is the frame's position plus an error that a walk's fixes share, one AR(1) process along
+  the walk (each fix's error its predecessor's times ``exp(-distance / gps_correlation_m)`` plus fresh noise, a
+  stationary sigma of the tag's stated accuracy; gtsam's Point2 variables), plus
+  :attr:`PlacementOptions.gps_white_sigma_m` of each fix's own, under a Huber loss (a jump beside tall
+  buildings). A phone's error drifts with the satellites it sees and the walls around it, so fixes a few metres
+  apart are off the same way: taken as independent, fifteen of them would pin the walk to their common error;
+- the step between consecutive captures, when both have a capture time and the walk's speed can be measured:
+  its distance is the speed times the time between them (sigma :attr:`PlacementOptions.step_sigma_m` plus
+  :attr:`PlacementOptions.step_sigma_fraction` of it), Cauchy (a pause). The speed is the median of the
+  consecutive relative poses' distance over their time apart. Such a step joins the parts of a walk that see
+  no common facade, so a part whose position the map fixes (a corner, a gap) places the rest;
 - its compass, when it has one (:class:`geoloc.photos.heading_prior.HeadingPrior`'s mean and sigma), Cauchy;
 - relative poses to the frames 1 to ``max(steps)`` further along the walk, both ways
   (:mod:`geoloc.localize.sequence.relative`), sigma ``edge_sigma_m + edge_sigma_per_m * distance`` and
@@ -23,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import gtsam
 import numpy as np
@@ -41,6 +53,8 @@ START_AGREEMENT_DEG = 10.0
 """Two predictions of a frame's starting pose agree within these (m, deg) (:func:`_consensus_start`)."""
 LOOSE_SIGMA = 1e4
 """Sigma of a factor's components it does not constrain (a compass says nothing of position)."""
+GPS_ERROR_KEY = 1_000_000
+"""gtsam key of frame k's GPS error is ``GPS_ERROR_KEY + k`` (frame k's pose is key k)."""
 
 
 @dataclass(frozen=True)
@@ -71,17 +85,24 @@ class PlacementOptions:
     cauchy_k: float = 1.0
     huber_k: float = 1.5
     max_iterations: int = 100
+    gps_correlation_m: float | None = 80.0
+    gps_white_sigma_m: float = 1.5
+    step_sigma_m: float = 0.5
+    step_sigma_fraction: float = 0.3
+    min_speed_samples: int = 3
 
 
 @dataclass(frozen=True)
 class SequenceFrame:
     """One frame of a sequence as the placement sees it (local frame of the map: metres, bearings in deg).
 
-    x_m, y_m, yaw_deg, position_covariance: its label's pose and (2, 2) m^2 covariance. gps_xy, gps_sigma_m:
+    x_m, y_m, yaw_deg, position_covariance: its label's pose and (2, 2) m^2 covariance (a walk's: what the map
+    alone says, :func:`geoloc.localize.sequence.frames.map_position_covariance`). gps_xy, gps_sigma_m:
     its GPS tag and that tag's sigma. heading_prior: its compass (None: none). features, anchors, intrinsics:
     its keypoints, their 3D points on the map seen from the label's pose, and its camera. label_yaw_sigma_deg:
     its label's heading sigma (deg; None: :attr:`PlacementOptions.label_yaw_sigma_deg`; a track's query frames
-    answered by the likelihood alone are less sure of their heading than an anchored one).
+    answered by the likelihood alone are less sure of their heading than an anchored one). capture_time_s: when
+    it was taken (s on any one clock the walk shares; None: unknown, no step factor to or from it).
     """
 
     x_m: float
@@ -95,6 +116,7 @@ class SequenceFrame:
     anchors: MapAnchors
     intrinsics: Intrinsics
     label_yaw_sigma_deg: float | None = None
+    capture_time_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -247,9 +269,10 @@ def place_sequence(
         covariance = _local(frame.position_covariance + floor, frame.yaw_deg, yaw_sigma)
         label_noise = _robust("cauchy", options.cauchy_k, noise.Gaussian.Covariance(covariance))
         graph.add(gtsam.PriorFactorPose2(k, label, label_noise))
-        gps_sigmas = np.array([frame.gps_sigma_m, frame.gps_sigma_m, LOOSE_SIGMA])
-        gps_noise = _robust("huber", options.huber_k, noise.Diagonal.Sigmas(gps_sigmas))
-        graph.add(gtsam.PriorFactorPose2(k, gtsam.Pose2(frame.gps_xy[0], frame.gps_xy[1], 0.0), gps_noise))
+        if options.gps_correlation_m is None:
+            gps_sigmas = np.array([frame.gps_sigma_m, frame.gps_sigma_m, LOOSE_SIGMA])
+            gps_noise = _robust("huber", options.huber_k, noise.Diagonal.Sigmas(gps_sigmas))
+            graph.add(gtsam.PriorFactorPose2(k, gtsam.Pose2(frame.gps_xy[0], frame.gps_xy[1], 0.0), gps_noise))
         prior = frame.heading_prior
         if prior is not None:
             compass_sigmas = np.array([LOOSE_SIGMA, LOOSE_SIGMA, math.radians(prior.sigma_deg)])
@@ -271,6 +294,9 @@ def place_sequence(
         measured = gtsam.Pose2(motion.forward_m, motion.left_m, math.radians(-motion.turn_deg))
         graph.add(gtsam.BetweenFactorPose2(motion.source, motion.target, measured, motion_noise))
         n_edges[[motion.source, motion.target]] += 1
+    if options.gps_correlation_m is not None:
+        _add_correlated_gps(graph, initial, frames, options, options.gps_correlation_m)
+    _add_steps(graph, frames, edges, options)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(options.max_iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
@@ -284,3 +310,88 @@ def place_sequence(
         covariance = rotation @ np.asarray(marginals.marginalCovariance(k))[:2, :2] @ rotation.T
         placed.append(PlacedPose(pose.x(), pose.y(), _bearing_deg(pose), covariance, int(n_edges[k])))
     return placed
+
+
+def _gps_residual(
+    tag_xy: np.ndarray, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list[np.ndarray] | None
+) -> np.ndarray:
+    """A fix minus (the frame's position + its GPS error); d/d pose is the pose's rotation (gtsam's tangent)."""
+    pose, error = values.atPose2(this.keys()[0]), values.atPoint2(this.keys()[1])
+    if jacobians is not None:
+        jacobians[0] = np.hstack([-pose.rotation().matrix(), np.zeros((2, 1))])
+        jacobians[1] = -np.eye(2)
+    return np.asarray(tag_xy - np.array([pose.x(), pose.y()]) - error)
+
+
+def _ar1_residual(
+    rho: float, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list[np.ndarray] | None
+) -> np.ndarray:
+    """A GPS error minus ``rho`` times its predecessor's: the AR(1) process's fresh noise."""
+    before, after = values.atPoint2(this.keys()[0]), values.atPoint2(this.keys()[1])
+    if jacobians is not None:
+        jacobians[0] = -rho * np.eye(2)
+        jacobians[1] = np.eye(2)
+    return np.asarray(after - rho * before)
+
+
+def _add_correlated_gps(
+    graph: gtsam.NonlinearFactorGraph,
+    initial: gtsam.Values,
+    frames: Sequence[SequenceFrame],
+    options: PlacementOptions,
+    correlation_m: float,
+) -> None:
+    """Each fix as the frame's position plus a shared AR(1) error along the walk (the module docstring)."""
+    noise = gtsam.noiseModel
+    fix_noise = _robust("huber", options.huber_k, noise.Isotropic.Sigma(2, options.gps_white_sigma_m))
+    for k, frame in enumerate(frames):
+        tag = np.asarray(frame.gps_xy, dtype=float)
+        initial.insert(GPS_ERROR_KEY + k, np.zeros(2))
+        graph.add(gtsam.CustomFactor(fix_noise, [k, GPS_ERROR_KEY + k], partial(_gps_residual, tag)))
+        if k == 0:
+            graph.add(gtsam.PriorFactorPoint2(GPS_ERROR_KEY, np.zeros(2), noise.Isotropic.Sigma(2, frame.gps_sigma_m)))
+            continue
+        rho = math.exp(-math.dist(frame.gps_xy, frames[k - 1].gps_xy) / correlation_m)
+        fresh_sigma = max(frame.gps_sigma_m * math.sqrt(1.0 - rho**2), 0.05)  # two fixes at one spot: nearly equal
+        graph.add(
+            gtsam.CustomFactor(
+                noise.Isotropic.Sigma(2, fresh_sigma),
+                [GPS_ERROR_KEY + k - 1, GPS_ERROR_KEY + k],
+                partial(_ar1_residual, rho),
+            )
+        )
+
+
+def walk_speed_m_s(frames: Sequence[SequenceFrame], edges: Sequence[RelativePose], min_samples: int) -> float | None:
+    """The walk's speed (m/s): the median of its consecutive frames' relative-pose distances over their time apart.
+
+    None with fewer than ``min_samples`` such edges (or frames without capture times).
+    """
+    speeds = []
+    for edge in edges:
+        if abs(edge.target - edge.source) != 1:
+            continue
+        t_source, t_target = frames[edge.source].capture_time_s, frames[edge.target].capture_time_s
+        if t_source is not None and t_target is not None and t_target != t_source:
+            speeds.append(edge.distance_m / abs(t_target - t_source))
+    return float(np.median(speeds)) if len(speeds) >= min_samples else None
+
+
+def _add_steps(
+    graph: gtsam.NonlinearFactorGraph,
+    frames: Sequence[SequenceFrame],
+    edges: Sequence[RelativePose],
+    options: PlacementOptions,
+) -> None:
+    """Consecutive frames' distance from their capture times and the walk's speed (the module docstring)."""
+    speed = walk_speed_m_s(frames, edges, options.min_speed_samples)
+    if speed is None:
+        return
+    for k in range(len(frames) - 1):
+        t_before, t_after = frames[k].capture_time_s, frames[k + 1].capture_time_s
+        if t_before is None or t_after is None:
+            continue
+        step_m = speed * abs(t_after - t_before)
+        sigma = options.step_sigma_m + options.step_sigma_fraction * step_m
+        step_noise = _robust("cauchy", options.cauchy_k, gtsam.noiseModel.Isotropic.Sigma(1, sigma))
+        graph.add(gtsam.RangeFactorPose2(k, k + 1, step_m, step_noise))

@@ -13,10 +13,11 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import UTC, datetime
 
 from geoloc.localize.labeling import KnownPose
 from geoloc.localize.reference import LabelledReference, label_at_pose
-from geoloc.localize.sequence.frames import FrameLabel
+from geoloc.localize.sequence.frames import FrameLabel, map_position_covariance
 from geoloc.localize.sequence.grouping import SequenceMember, group_sequences
 from geoloc.localize.sequence.placement import (
     DEFAULT_GPS_SIGMA_M,
@@ -38,13 +39,15 @@ class LabelledFrame:
 
     alone: what the placement needs of its label alone (:class:`geoloc.localize.sequence.frames.FrameLabel`:
     built from the label, or read back from the store); gps_xy, gps_sigma_m: its GPS tag (local m) and that
-    tag's sigma (m); heading_prior: its compass prior (None: none).
+    tag's sigma (m); heading_prior: its compass prior (None: none); capture_time_s: its capture time (POSIX s;
+    None: unknown).
     """
 
     alone: FrameLabel
     gps_xy: tuple[float, float]
     gps_sigma_m: float = DEFAULT_GPS_SIGMA_M
     heading_prior: HeadingPrior | None = None
+    capture_time_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -61,19 +64,21 @@ class PlacedSequence:
     n_edges: int
 
 
-def _frame(frame: LabelledFrame) -> SequenceFrame:
+def _frame(city_map: CityMap, frame: LabelledFrame) -> SequenceFrame:
+    """The graph's frame: the label's pose with what the map alone says of its position (its GPS comes in once)."""
     alone = frame.alone
     return SequenceFrame(
         alone.x_m,
         alone.y_m,
         alone.yaw_deg,
-        alone.position_covariance,
+        map_position_covariance(city_map, alone),
         frame.gps_xy,
         frame.gps_sigma_m,
         frame.heading_prior,
         alone.cues.features,
         alone.anchors,
         alone.intrinsics,
+        capture_time_s=frame.capture_time_s,
     )
 
 
@@ -86,7 +91,7 @@ def place_labelled_sequence(
     relative pose joins comes back as None (its own label stands).
     """
     t0 = time.perf_counter()
-    graph_frames = [_frame(frame) for frame in frames]
+    graph_frames = [_frame(city_map, frame) for frame in frames]
     edges = relative_poses(graph_frames, options)
     poses = place_sequence(graph_frames, options, edges)
     share_ms = 1e3 * (time.perf_counter() - t0) / max(len(frames), 1)
@@ -137,6 +142,7 @@ def place_photo_walks(
                 FrameLabel.of(labelled[name], photos[name].intrinsics),
                 xy_of[name],
                 heading_prior=compass_prior_at(photos[name], city_map, xy_of[name]),
+                capture_time_s=capture_seconds(photos[name].capture.time),
             )
             for name in names
         ]
@@ -144,6 +150,16 @@ def place_photo_walks(
         labelled.update((name, ref) for name, ref in zip(names, placed.references, strict=True) if ref is not None)
         walks.append(placed)
     return walks
+
+
+def capture_seconds(taken: datetime | None) -> float | None:
+    """A capture time as POSIX seconds for a walk's steps, None when unknown.
+
+    A naive camera time is read as UTC: only differences within one walk, on one camera's clock, are used.
+    """
+    if taken is None:
+        return None
+    return (taken if taken.tzinfo is not None else taken.replace(tzinfo=UTC)).timestamp()
 
 
 def _local_gps(city_map: CityMap, photo: Photo) -> tuple[float, float]:
