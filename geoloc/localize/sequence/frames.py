@@ -76,22 +76,31 @@ class FrameLabel:
         )
 
 
-def map_position_covariance(city_map: CityMap, frame: FrameLabel, options: LabelOptions = LabelOptions()) -> np.ndarray:
-    """(2, 2) m^2 spread of the map's likelihood alone around a frame's label, at its heading: what the map says.
+def map_position_covariance(
+    city_map: CityMap,
+    image_model: ImageModel,
+    x_m: float,
+    y_m: float,
+    yaw_deg: float,
+    options: LabelOptions = LabelOptions(),
+) -> np.ndarray:
+    """(2, 2) m^2 spread of the map's likelihood alone around a label's pose, at its heading: what the map says.
+
+    image_model: the photo's (its identities are not used); x_m, y_m, yaw_deg: the label's pose (local m, bearing).
 
     The label's own covariance weighs its GPS prior and is cut off by its refinement's +-6 m grid, so a label on
     a uniform facade, which the map cannot place along the street, looks sure of itself and, in a walk's graph,
     counts the GPS a second time. Here the weights are the geometry-only likelihood ** ``options.sharpness``
-    over :data:`MAP_SPREAD_HALF_SIZE_M` / :data:`MAP_SPREAD_CELL_M` positions around the label (not inside a
+    over :data:`MAP_SPREAD_HALF_SIZE_M` / :data:`MAP_SPREAD_CELL_M` positions around the pose (not inside a
     building) at :data:`MAP_SPREAD_YAW_OFFSETS_DEG` from its heading, with no GPS prior; the spread is about
     their weighted mean, plus the cell's own variance. Where nothing has weight: the grid's half-size squared.
     """
     offsets = np.arange(-MAP_SPREAD_HALF_SIZE_M, MAP_SPREAD_HALF_SIZE_M + MAP_SPREAD_CELL_M / 2, MAP_SPREAD_CELL_M)
     east, north = np.meshgrid(offsets, offsets, indexing="ij")
-    positions = np.stack([east.ravel(), north.ravel()], axis=1) + np.array([frame.x_m, frame.y_m])
+    positions = np.stack([east.ravel(), north.ravel()], axis=1) + np.array([x_m, y_m])
     positions = positions[~city_map.inside_buildings(positions)]
-    likelihood = MapLikelihood(city_map, frame.cues.image_model.without_identity(), options.likelihood)
-    yaws = frame.yaw_deg + np.asarray(MAP_SPREAD_YAW_OFFSETS_DEG)
+    likelihood = MapLikelihood(city_map, image_model.without_identity(), options.likelihood)
+    yaws = yaw_deg + np.asarray(MAP_SPREAD_YAW_OFFSETS_DEG)
     weights = np.power(likelihood.of_poses(positions, yaws).astype(float), options.sharpness).sum(axis=1)
     total = float(weights.sum())
     if not total > 0:

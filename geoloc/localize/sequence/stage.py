@@ -71,7 +71,7 @@ def _frame(city_map: CityMap, frame: LabelledFrame) -> SequenceFrame:
         alone.x_m,
         alone.y_m,
         alone.yaw_deg,
-        map_position_covariance(city_map, alone),
+        map_position_covariance(city_map, alone.cues.image_model, alone.x_m, alone.y_m, alone.yaw_deg),
         frame.gps_xy,
         frame.gps_sigma_m,
         frame.heading_prior,

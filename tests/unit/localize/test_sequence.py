@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
@@ -11,12 +12,19 @@ import pytest
 from contracts.settings import shared_path
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.anchors import MapAnchors
+from geoloc.localize.likelihood import image_model_from_map
 from geoloc.localize.sequence import PlacementOptions, SequenceFrame, SequenceMember, group_sequences, place_sequence
+from geoloc.localize.sequence.frames import map_position_covariance
+from geoloc.localize.sequence.placement import PlacedPose, walk_speed_m_s
 from geoloc.localize.sequence.relative import RelativePose, pose_in_frame
+from geoloc.maps import city_map_from_footprints
+from geoloc.maps.raycast import cast_panoramas
 from geoloc.photos.capture import photo_device
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.photos.photo import load_photo
 from geoloc.vision.features import Features
+from geoloc.vision.image_model import bin_offsets_deg
+from tests.scenes import box
 
 T0 = datetime(2025, 6, 1, 10, 0, 0)
 
@@ -161,3 +169,66 @@ def test_a_wrong_edge_does_not_pull_the_walk_apart() -> None:
     placed = place_sequence(frames, PlacementOptions(), edges)
     errors = [math.hypot(p.x_m - t[0], p.y_m - t[1]) for p, t in zip(placed, truth, strict=True)]
     assert max(errors) < 0.5, errors
+
+
+def _offset_walk(offset_m: float, corner_frames: tuple[int, ...], times: bool) -> list[SequenceFrame]:
+    """A 10-frame walk whose GPS fixes are all ``offset_m`` east of the truth, as a phone's drift puts them.
+
+    Its labels, where the map says nothing along the street, sit at the fixes with a wide along-street spread;
+    the ``corner_frames`` see the end of a block and are labelled at the truth. times: a capture every 5 s.
+    """
+    frames = []
+    for i, (x, y, yaw) in enumerate(_walk(10)):
+        corner = i in corner_frames
+        frame = _frame(x + (0.0 if corner else offset_m), y, yaw, (x + offset_m, y), yaw)
+        spread = np.diag([1.0, 0.25]) if corner else np.diag([40.0, 0.25])
+        frames.append(replace(frame, position_covariance=spread, capture_time_s=5.0 * i if times else None))
+    return frames
+
+
+def _split_edges(split: bool) -> list[RelativePose]:
+    """The walk's edges; split: none between frames 0-4 and 5-9 (the two parts see no common facade)."""
+    return [e for e in _edges(_walk(10)) if not split or (e.source < 5) == (e.target < 5)]
+
+
+def _east_errors(placed: list[PlacedPose]) -> np.ndarray:
+    return np.array([p.x_m - t[0] for p, t in zip(placed, _walk(10), strict=True)])
+
+
+def test_fixes_off_together_do_not_pin_the_walk_the_map_places() -> None:
+    frames, edges = _offset_walk(5.0, (8, 9), times=False), _split_edges(False)
+    correlated = _east_errors(place_sequence(frames, PlacementOptions(), edges))
+    independent = _east_errors(place_sequence(frames, PlacementOptions(gps_correlation_m=None), edges))
+    # Ten fixes taken as independent outweigh the two corner frames; as one drifting error they do not.
+    assert np.abs(correlated).max() < 1.0, correlated
+    assert independent.min() > 3.0, independent
+
+
+def test_capture_times_join_the_parts_of_a_walk_that_see_nothing_in_common() -> None:
+    edges = _split_edges(True)
+    with_times = _east_errors(place_sequence(_offset_walk(5.0, (8, 9), True), PlacementOptions(), edges))
+    without = _east_errors(place_sequence(_offset_walk(5.0, (8, 9), False), PlacementOptions(), edges))
+    # The first part sees no corner: its steps to the second part, which does, bring it nearer.
+    assert np.abs(with_times[:5]).max() < np.abs(without[:5]).min() - 0.5, (with_times, without)
+    assert np.abs(with_times[5:]).max() < 1.0
+
+
+def test_walk_speed_is_the_median_of_consecutive_edges_over_their_time() -> None:
+    frames = _offset_walk(0.0, (), times=True)  # 7 m every 5 s
+    edges = _edges(_walk(10), steps=(1, 2))
+    assert walk_speed_m_s(frames, edges, 3) == pytest.approx(1.4)
+    assert walk_speed_m_s(frames, edges[:4], 3) is None  # frames 0-1 both ways, 0-2 both ways: 2 samples
+    untimed = [replace(f, capture_time_s=None) for f in frames]
+    assert walk_speed_m_s(untimed, edges, 3) is None
+
+
+def test_the_maps_spread_is_wide_along_a_uniform_wall_and_narrow_where_it_ends() -> None:
+    wall = city_map_from_footprints([box(-100, 10, 100, 30)], heights_m=[15.0])  # 200 m long, 10 m north
+    offsets = bin_offsets_deg(Intrinsics.from_hfov(640, 480, 60.0))
+
+    def east_sigma_m(x_m: float, yaw_deg: float) -> float:
+        model = image_model_from_map(cast_panoramas(wall, np.array([[x_m, 0.0]])), 0, yaw_deg, offsets, False)
+        return math.sqrt(map_position_covariance(wall, model, x_m, 0.0, yaw_deg)[0, 0])
+
+    assert east_sigma_m(0.0, 0.0) > 5.0  # the middle of the wall: anywhere along it looks the same
+    assert east_sigma_m(96.0, 45.0) < 2.5  # its east end in view

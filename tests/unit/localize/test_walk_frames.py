@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -9,7 +11,7 @@ from contracts.settings import shared_path
 from db.blobs import pack_arrays, unpack_arrays
 from geoloc.localize.reference import LabelledReference, label_reference_photo
 from geoloc.localize.sequence.frames import FrameLabel, frame_arrays, frame_from_arrays
-from geoloc.localize.sequence.stage import LabelledFrame, compass_prior_at, place_labelled_sequence
+from geoloc.localize.sequence.stage import LabelledFrame, capture_seconds, compass_prior_at, place_labelled_sequence
 from geoloc.maps import CityMap
 from geoloc.photos.photo import load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
@@ -35,14 +37,15 @@ def walk(tmp_path_factory: pytest.TempPathFactory) -> tuple[CityMap, list[Labell
         gps_xy = (next(xy), next(xy))
         labelled = label_reference_photo(city, photo, gps_xy, evidence=evidence, context=method_context())
         alone = FrameLabel.of(labelled, photo.intrinsics)
-        frames.append(LabelledFrame(alone, gps_xy, heading_prior=compass_prior_at(photo, city, gps_xy)))
+        prior, taken = compass_prior_at(photo, city, gps_xy), capture_seconds(photo.capture.time)
+        frames.append(LabelledFrame(alone, gps_xy, heading_prior=prior, capture_time_s=taken))
     return city, frames
 
 
 def _stored(frame: LabelledFrame) -> LabelledFrame:
     """The frame as the sequence job reads it back: its arrays through the store's blob format."""
     alone = frame_from_arrays(unpack_arrays(pack_arrays(frame_arrays(frame.alone))))
-    return LabelledFrame(alone, frame.gps_xy, frame.gps_sigma_m, frame.heading_prior)
+    return replace(frame, alone=alone)
 
 
 def _arrays(ref: LabelledReference) -> dict[str, np.ndarray]:
