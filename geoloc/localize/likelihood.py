@@ -21,7 +21,8 @@ facade and the map has none still cost 1, and far facades still count less. m_k 
 for the identity-aware one m_k = P_k(b_k) + unknown_weight * (1 - sum_b P_k(b)), the probability
 that the building seen in bin k is the map's b_k (the paper's indicator, softened by identity
 probabilities; ``unknown_weight`` = 0 gives the paper's hard requirement, where a column with no
-identity evidence cannot match).
+identity evidence cannot match). Identities that may be wrong (``identity_trust`` t < 1) count as
+t m_k + (1 - t): with t = 0 a pose that does not show the named buildings is not penalised at all.
 
 Distance term (beyond the paper, ``use_distance``): where the image model knows a bin's facade
 distance d_hat_k (from the facade's base line, :mod:`geoloc.vision.ground`), S's term is also multiplied by
@@ -84,13 +85,16 @@ class LikelihoodOptions:
     """How the likelihood scores a pose (module docstring): one options object, passed whole.
 
     sigma_m: distance weight scale (m). use_identity: the identity-aware likelihood where the image model
-    carries identities (False: the paper's geometry-only one). unknown_weight, normalization ("weighted" or
+    carries identities (False: the paper's geometry-only one). identity_trust: the chance that the model's
+    identities are right: each bin's identity factor m_k becomes ``identity_trust * m_k + (1 - identity_trust)``
+    (1: as given; 0: the geometry-only likelihood). unknown_weight, normalization ("weighted" or
     "paper"), use_distance, distance_sigma_log: see the module docstring. use_skyline: the skyline term where
     building heights are known (``building_height_m``); height_sigma_log: its spread.
     """
 
     sigma_m: float = DEFAULT_SIGMA_M
     use_identity: bool = True
+    identity_trust: float = 1.0
     unknown_weight: float = DEFAULT_UNKNOWN_WEIGHT
     normalization: str = "weighted"
     use_distance: bool = True
@@ -196,7 +200,7 @@ def _terms(
     if options.use_distance and image_model.distance_m is not None and np.isfinite(image_model.distance_m).any():
         log_distance_hat = np.log(image_model.distance_m).astype(np.float32)  # NaN where unknown
     if options.use_identity and image_model.has_identity:
-        identity_lut = _identity_lookup(image_model, panoramas, options.unknown_weight)
+        identity_lut = _identity_lookup(image_model, panoramas, options.unknown_weight, options.identity_trust)
     skyline = _skyline_logs(image_model, building_height_m if options.use_skyline else None)
     log_rise, log_top_hat = skyline if skyline is not None else (None, None)
     return _Terms(yaws, window, present, theta_hat, log_distance_hat, identity_lut, log_rise, log_top_hat)
@@ -361,8 +365,13 @@ def _skyline_logs(
     return log_rise.astype(np.float32), np.log(top_hat).astype(np.float32)
 
 
-def _identity_lookup(image_model: ImageModel, panoramas: Panoramas, unknown_weight: float) -> np.ndarray:
-    """(K, B + 1) table: match probability of bin k with map building b (column b + 1; column 0 = no hit)."""
+def _identity_lookup(
+    image_model: ImageModel, panoramas: Panoramas, unknown_weight: float, trust: float = 1.0
+) -> np.ndarray:
+    """(K, B + 1) table: match probability of bin k with map building b (column b + 1; column 0 = no hit).
+
+    trust: :attr:`LikelihoodOptions.identity_trust` (the table is ``trust * m + (1 - trust)`` where a facade is hit).
+    """
     if image_model.identity_prob is None or image_model.identity_building_ids is None:
         raise ValueError("the image model carries no building identities")
     n_buildings = int(max(panoramas.building_id.max(initial=-1), image_model.identity_building_ids.max(initial=-1))) + 1
@@ -371,8 +380,11 @@ def _identity_lookup(image_model: ImageModel, panoramas: Panoramas, unknown_weig
     lut = np.repeat(unknown[:, None], n_buildings + 1, axis=1).astype(np.float32)
     ids = np.asarray(image_model.identity_building_ids, dtype=np.int64)
     lut[:, ids + 1] += prob
+    lut = np.clip(lut, 0.0, 1.0)
+    if trust < 1.0:
+        lut = (trust * lut + (1.0 - trust)).astype(np.float32)
     lut[:, 0] = 0.0
-    return np.clip(lut, 0.0, 1.0)
+    return lut
 
 
 def image_model_from_map(

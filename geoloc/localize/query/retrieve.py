@@ -65,3 +65,26 @@ def transfer(
 
 def _reference_evidence(ref: StoredReference, match: ReferenceMatch) -> ReferenceEvidence:
     return ReferenceEvidence(ref.reference_id, ref.features, ref.keypoint_prob, ref.building_ids, match.score, match)
+
+
+def identity_trust(
+    stored: dict[Hashable, StoredReference],
+    matches: Sequence[ReferenceMatch],
+    k: int,
+    position_prior: PositionPrior | None,
+    view_m: float,
+) -> float:
+    """How far to trust the identities the top ``k`` references transfer, by how near the nearest one stands.
+
+    ``exp(-d^2 / (2 (sigma^2 + view_m^2)))`` of the nearest one's distance d (m) to the position prior, sigma the
+    prior's (m): two cameras that see one facade stand within a few view distances of each other, and a reference
+    150 m from the query that shares repeated shop fronts with it transfers the buildings it sees, which the query
+    does not. 1 without a prior, with ``view_m`` 0, or when a reference's position is unknown.
+    """
+    if position_prior is None or view_m <= 0:
+        return 1.0
+    xy = np.array([stored[m.reference_id].position_xy for m in matches[:k]], dtype=float).reshape(-1, 2)
+    if len(xy) == 0 or not np.all(np.isfinite(xy)):
+        return 1.0
+    nearest_m = float(position_prior.distances_m(xy).min())
+    return float(np.exp(-0.5 * nearest_m**2 / (position_prior.sigma_m**2 + view_m**2)))

@@ -14,7 +14,7 @@ from geoloc.localize.query.anchored import anchored_pose
 from geoloc.localize.query.answer import AnswerPose, QueryAnswer, building_entries, identity_at
 from geoloc.localize.query.config import SPARE_POSES, QueryConfig
 from geoloc.localize.query.fusion import anchored_answer, likelihood_answers, rank_poses
-from geoloc.localize.query.retrieve import retrieve, transfer
+from geoloc.localize.query.retrieve import identity_trust, retrieve, transfer
 from geoloc.localize.query.trust import choose_anchored
 from geoloc.localize.retrieval import Vocabulary
 from geoloc.localize.store import ReferenceStore
@@ -59,7 +59,11 @@ def geolocate(
     transferred = transfer(evidence, stored, matches, config.k)
     identity = identity_override if identity_override is not None else transferred
     model = image_model_with_identity(evidence, identity, photo.intrinsics)
-    likelihood = MapLikelihood(city_map, model, LikelihoodOptions(use_identity=config.use_identity))
+    trust = 1.0  # ground-truth identities (the evaluation's ceiling) are trusted
+    if identity_override is None:
+        trust = identity_trust(stored, matches, config.k, position_prior, config.identity_view_m)
+    options = LikelihoodOptions(use_identity=config.use_identity, identity_trust=trust)
+    likelihood = MapLikelihood(city_map, model, options)
     timings["transfer"] = 1e3 * (time.perf_counter() - t0)
 
     t0 = time.perf_counter()
@@ -96,6 +100,7 @@ def geolocate(
         final_identity = identity_at(likelihood, poses[0], evidence.building_mask, photo.intrinsics)
     search: dict[str, Any] = dict(localization.search)
     search.update(
+        identity_trust=round(trust, 4),
         anchors={
             "trusted": bool(choice.trusted),
             "inliers": 0 if choice.estimate is None else choice.estimate.n_inliers,

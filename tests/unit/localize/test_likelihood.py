@@ -97,6 +97,42 @@ def test_identity_breaks_the_tie_between_twin_buildings() -> None:
     assert any(x < 0 for x in x_geometry) and any(x > 0 for x in x_geometry)
 
 
+def test_identity_trust_runs_from_the_identity_aware_likelihood_to_the_geometry_only_one() -> None:
+    city = twin_buildings()
+    grid = grid_around(city, (20.0, 20.0), 150.0, 10.0)
+    pano = cast_panoramas(city, grid.positions)
+    true_index, twin_index = (
+        int(np.flatnonzero(np.all(np.isclose(pano.positions, xy), axis=1))[0]) for xy in ((-70.0, 20.0), (130.0, 20.0))
+    )
+    # The identities name the East twin while the camera looks at the West one: wrong identities.
+    wrong = image_model_from_map(pano, twin_index, 201.0, OFFSETS, with_identity=True)
+    wrong_ids = wrong.identity_building_ids
+    model = image_model_from_map(pano, true_index, 201.0, OFFSETS, with_identity=True)
+    model = ImageModel(
+        model.offsets_deg,
+        model.facade_present,
+        model.orientation_deg,
+        wrong_ids,
+        wrong.identity_prob,
+        bin_deg=model.bin_deg,
+    )
+    yaw = _yaw_index(201.0)
+
+    def at_truth(options: LikelihoodOptions) -> float:
+        return float(pose_likelihood(pano, model, YAWS, options)[true_index, yaw])
+
+    geometry = pose_likelihood(pano, model, YAWS, LikelihoodOptions(use_identity=False))
+    np.testing.assert_array_equal(pose_likelihood(pano, model, YAWS, LikelihoodOptions(identity_trust=0.0)), geometry)
+    np.testing.assert_array_equal(
+        pose_likelihood(pano, model, YAWS, LikelihoodOptions(identity_trust=1.0)),
+        pose_likelihood(pano, model, YAWS, LikelihoodOptions()),
+    )
+    assert at_truth(LikelihoodOptions()) == pytest.approx(0.0, abs=1e-6)  # trusted, wrong identities rule it out
+    geometry_at_truth = at_truth(LikelihoodOptions(use_identity=False))
+    assert geometry_at_truth > 0.9
+    assert at_truth(LikelihoodOptions(identity_trust=0.3)) == pytest.approx(0.7 * geometry_at_truth, rel=1e-5)
+
+
 def test_posterior_heatmap_and_ranking() -> None:
     city = street_canyon()
     grid, pano, true_index, model = _setup(city, (0.0, 0.0), 60.0, (0.0, -10.0), 0.0)
