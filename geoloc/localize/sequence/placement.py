@@ -315,7 +315,7 @@ def place_sequence(
 def _gps_residual(
     tag_xy: np.ndarray, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list[np.ndarray] | None
 ) -> np.ndarray:
-    """A fix minus (the frame's position + its GPS error); d/d pose is the pose's rotation (gtsam's tangent)."""
+    """A fix minus (the frame's position + its GPS error); d/d pose is minus the pose's rotation (gtsam's tangent)."""
     pose, error = values.atPose2(this.keys()[0]), values.atPoint2(this.keys()[1])
     if jacobians is not None:
         jacobians[0] = np.hstack([-pose.rotation().matrix(), np.zeros((2, 1))])

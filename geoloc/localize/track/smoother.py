@@ -64,8 +64,9 @@ class TrackOptions:
     Every field is described beside it; all sigmas are one standard deviation.
     """
 
-    # The shared graph's options: which edges, their sigmas, the robust losses.
-    placement: PlacementOptions = field(default_factory=PlacementOptions)
+    # The shared graph's options: which edges, their sigmas, the robust losses. Each frame's GPS independent, as
+    # the tracks were measured (a walk's fixes as one drifting error, issue 19, is not measured on tracks yet).
+    placement: PlacementOptions = field(default_factory=lambda: PlacementOptions(gps_correlation_m=None))
     # A frame's own answer: the least position sigma (m), and how much less a likelihood answer's position is
     # trusted than its radius says.
     position_floor_m: float = 0.5
