@@ -104,6 +104,20 @@ def vanishing_point_yaw(
     return yaw % 360.0, support
 
 
+def position_spread(positions: np.ndarray, weights: np.ndarray, cell_m: float) -> np.ndarray | None:
+    """(2, 2) m^2 spread of (P, 2) grid positions about their mean under (P,) weights, plus a cell's own variance.
+
+    None when nothing has weight.
+    """
+    total = weights.sum()
+    if not total > 0:
+        return None
+    w = weights / total
+    centred = positions - w @ positions
+    spread: np.ndarray = (centred * w[:, None]).T @ centred + np.eye(2) * (cell_m**2 / 12.0)
+    return spread
+
+
 def refine_pose(
     likelihood: MapLikelihood,
     x_m: float,
@@ -153,16 +167,8 @@ def refine_pose(
         )
         if support:
             best_yaw, vp_bins = vp_yaw, support
-    by_position = weight.sum(axis=1)
-    total = by_position.sum()
-    cell_variance = cell_m**2 / 12.0
-    if total > 0:
-        w = by_position / total
-        mean = w @ positions
-        centred = positions - mean
-        covariance = (centred * w[:, None]).T @ centred + np.eye(2) * cell_variance
-    else:
-        covariance = np.eye(2) * half_size_m**2
+    spread = position_spread(positions, weight.sum(axis=1), cell_m)
+    covariance = spread if spread is not None else np.eye(2) * half_size_m**2
     return RefinedPose(
         float(positions[best_p, 0]),
         float(positions[best_p, 1]),

@@ -21,6 +21,7 @@ from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.labeling import LabelOptions
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.reference import LabelCues, LabelledReference
+from geoloc.localize.refinement import position_spread
 from geoloc.maps import CityMap
 from geoloc.vision.evidence import PhotoEvidence
 from geoloc.vision.features import Features
@@ -102,12 +103,8 @@ def map_position_covariance(
     likelihood = MapLikelihood(city_map, image_model.without_identity(), options.likelihood)
     yaws = yaw_deg + np.asarray(MAP_SPREAD_YAW_OFFSETS_DEG)
     weights = np.power(likelihood.of_poses(positions, yaws).astype(float), options.sharpness).sum(axis=1)
-    total = float(weights.sum())
-    if not total > 0:
-        return np.eye(2) * MAP_SPREAD_HALF_SIZE_M**2
-    weights /= total
-    centred = positions - weights @ positions
-    return np.asarray((centred * weights[:, None]).T @ centred + np.eye(2) * MAP_SPREAD_CELL_M**2 / 12.0)
+    spread = position_spread(positions, weights, MAP_SPREAD_CELL_M)
+    return spread if spread is not None else np.eye(2) * MAP_SPREAD_HALF_SIZE_M**2
 
 
 def frame_arrays(frame: FrameLabel) -> dict[str, np.ndarray]:

@@ -7,7 +7,7 @@ from geoloc.core.camera import Intrinsics
 from geoloc.localize.likelihood import LikelihoodOptions, default_yaws_deg, image_model_from_map, pose_likelihood
 from geoloc.localize.posterior import grid_around, pose_posterior, position_heatmap, top_poses
 from geoloc.maps import city_map_from_footprints
-from geoloc.maps.raycast import cast_panoramas
+from geoloc.maps.raycast import Panoramas, cast_panoramas
 from geoloc.vision.image_model import ImageModel, bin_offsets_deg
 from tests.scenes import l_shaped_building, square_building, street_canyon, twin_buildings
 
@@ -74,14 +74,22 @@ def test_square_is_ambiguous_by_symmetry() -> None:
         assert lik[index, _yaw_index(yaw)] == pytest.approx(1.0, abs=1e-5)
 
 
-def test_identity_breaks_the_tie_between_twin_buildings() -> None:
+def _twins() -> tuple[Panoramas, int, int]:
+    """Panoramas over the twin buildings and the grid indices of a pose at the West one and of its twin pose.
+
+    The camera (yaw 201 deg) looks south-west into the concave corner of the West building; its twin pose is 200 m
+    east.
+    """
     city = twin_buildings()
-    # Look south-west into the concave corner of the West building; its twin pose is 200 m east.
-    grid = grid_around(city, (20.0, 20.0), 150.0, 10.0)
-    pano = cast_panoramas(city, grid.positions)
+    pano = cast_panoramas(city, grid_around(city, (20.0, 20.0), 150.0, 10.0).positions)
     true_index, twin_index = (
         int(np.flatnonzero(np.all(np.isclose(pano.positions, xy), axis=1))[0]) for xy in ((-70.0, 20.0), (130.0, 20.0))
     )
+    return pano, true_index, twin_index
+
+
+def test_identity_breaks_the_tie_between_twin_buildings() -> None:
+    pano, true_index, twin_index = _twins()
     model = image_model_from_map(pano, true_index, 201.0, OFFSETS, with_identity=True)
     assert model.identity_building_ids.tolist() == [0]
     yaw = _yaw_index(201.0)
@@ -98,12 +106,7 @@ def test_identity_breaks_the_tie_between_twin_buildings() -> None:
 
 
 def test_identity_trust_runs_from_the_identity_aware_likelihood_to_the_geometry_only_one() -> None:
-    city = twin_buildings()
-    grid = grid_around(city, (20.0, 20.0), 150.0, 10.0)
-    pano = cast_panoramas(city, grid.positions)
-    true_index, twin_index = (
-        int(np.flatnonzero(np.all(np.isclose(pano.positions, xy), axis=1))[0]) for xy in ((-70.0, 20.0), (130.0, 20.0))
-    )
+    pano, true_index, twin_index = _twins()
     # The identities name the East twin while the camera looks at the West one: wrong identities.
     wrong = image_model_from_map(pano, twin_index, 201.0, OFFSETS, with_identity=True)
     wrong_ids = wrong.identity_building_ids
