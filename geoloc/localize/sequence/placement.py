@@ -13,11 +13,10 @@ One planar pose per frame (position east/north in m, heading), with these factor
   :attr:`PlacementOptions.gps_white_sigma_m` of each fix's own, under a Huber loss (a jump beside tall
   buildings). A phone's error drifts with the satellites it sees and the walls around it, so fixes a few metres
   apart are off the same way: taken as independent, fifteen of them would pin the walk to their common error;
-- the step between consecutive captures, when both have a capture time and the walk's speed can be measured:
-  its distance is the speed times the time between them (sigma :attr:`PlacementOptions.step_sigma_m` plus
-  :attr:`PlacementOptions.step_sigma_fraction` of it), Cauchy (a pause). The speed is the median of the
-  consecutive relative poses' distance over their time apart. Such a step joins the parts of a walk that see
-  no common facade, so a part whose position the map fixes (a corner, a gap) places the rest;
+- the step between consecutive captures, when both have a capture time and the walk's pace can be measured
+  (:func:`walk_pace`): its distance is the speed times the time between them, with the pace's measured
+  spread as sigma, Cauchy (a pause). Such a step joins the parts of a walk that see no common facade, so a
+  part whose position the map fixes (a corner, a gap) places the rest;
 - its compass, when it has one (:class:`geoloc.photos.heading_prior.HeadingPrior`'s mean and sigma), Cauchy;
 - relative poses to the frames 1 to ``max(steps)`` further along the walk, both ways
   (:mod:`geoloc.localize.sequence.relative`), sigma ``edge_sigma_m + edge_sigma_per_m * distance`` and
@@ -69,7 +68,10 @@ class PlacementOptions:
     aside). edge_sigma_m, edge_sigma_per_m, edge_yaw_sigma_deg: an edge's sigmas. label_yaw_sigma_deg,
     label_position_floor_m: a label's heading sigma and the floor of its position sigma (2 deg and 0.5 m were
     the best of 2-10 deg and 0.25-2 m on seed 1). cauchy_k, huber_k: the robust losses' scales (in sigmas).
-    max_iterations: Levenberg-Marquardt's.
+    max_iterations: Levenberg-Marquardt's. gps_correlation_m (None: each fix independent, as tracks have it),
+    gps_white_sigma_m: the GPS model (module docstring). step_sigma_m, step_sigma_fraction: a step's sigma is
+    the larger of step_sigma_m and the pace's spread, plus this fraction of the step. min_speed_samples: the
+    consecutive edges a pace needs (:func:`walk_pace`).
     """
 
     steps: tuple[int, ...] = (1, 2, 3)
@@ -88,7 +90,7 @@ class PlacementOptions:
     gps_correlation_m: float | None = 80.0
     gps_white_sigma_m: float = 1.5
     step_sigma_m: float = 0.5
-    step_sigma_fraction: float = 0.3
+    step_sigma_fraction: float = 0.0
     min_speed_samples: int = 3
 
 
@@ -362,19 +364,47 @@ def _add_correlated_gps(
         )
 
 
-def walk_speed_m_s(frames: Sequence[SequenceFrame], edges: Sequence[RelativePose], min_samples: int) -> float | None:
-    """The walk's speed (m/s): the median of its consecutive frames' relative-pose distances over their time apart.
+@dataclass(frozen=True)
+class WalkPace:
+    """How a walk's captures are spaced.
 
-    None with fewer than ``min_samples`` such edges (or frames without capture times).
+    speed_m_s: the walker's speed (m/s); spread_m: the spread (m) of a step's distance about the speed times
+    the time between its two captures (1.4826 x the median absolute residual, a standard deviation's estimate).
     """
-    speeds = []
+
+    speed_m_s: float
+    spread_m: float
+
+
+def walk_pace(
+    frames: Sequence[SequenceFrame], edges: Sequence[RelativePose], options: PlacementOptions
+) -> WalkPace | None:
+    """The walk's pace, measured on its consecutive frames' relative poses (both ways count).
+
+    The speed is the median of their distances over their time apart, the spread the robust spread of their
+    distances about it: a walker's pauses to take each photo, and the edges' own errors, are in it. Both
+    medians set the wrong edges aside while fewer than half are wrong. None with fewer than
+    ``options.min_speed_samples`` such edges (or frames without capture times).
+    """
+    distances, seconds = [], []
     for edge in edges:
         if abs(edge.target - edge.source) != 1:
             continue
-        t_source, t_target = frames[edge.source].capture_time_s, frames[edge.target].capture_time_s
-        if t_source is not None and t_target is not None and t_target != t_source:
-            speeds.append(edge.distance_m / abs(t_target - t_source))
-    return float(np.median(speeds)) if len(speeds) >= min_samples else None
+        apart_s = _seconds_apart(frames, edge.source, edge.target)
+        if apart_s is not None and apart_s > 0.0:
+            distances.append(edge.distance_m)
+            seconds.append(apart_s)
+    if len(distances) < options.min_speed_samples:
+        return None
+    distance_m, apart = np.asarray(distances), np.asarray(seconds)
+    speed = float(np.median(distance_m / apart))
+    spread = 1.4826 * float(np.median(np.abs(distance_m - speed * apart)))
+    return WalkPace(speed, spread)
+
+
+def _seconds_apart(frames: Sequence[SequenceFrame], i: int, j: int) -> float | None:
+    t_i, t_j = frames[i].capture_time_s, frames[j].capture_time_s
+    return None if t_i is None or t_j is None else abs(t_j - t_i)
 
 
 def _add_steps(
@@ -383,15 +413,15 @@ def _add_steps(
     edges: Sequence[RelativePose],
     options: PlacementOptions,
 ) -> None:
-    """Consecutive frames' distance from their capture times and the walk's speed (the module docstring)."""
-    speed = walk_speed_m_s(frames, edges, options.min_speed_samples)
-    if speed is None:
+    """Consecutive frames' distance from their capture times and the walk's pace (the module docstring)."""
+    pace = walk_pace(frames, edges, options)
+    if pace is None:
         return
     for k in range(len(frames) - 1):
-        t_before, t_after = frames[k].capture_time_s, frames[k + 1].capture_time_s
-        if t_before is None or t_after is None:
+        apart_s = _seconds_apart(frames, k, k + 1)
+        if apart_s is None:
             continue
-        step_m = speed * abs(t_after - t_before)
-        sigma = options.step_sigma_m + options.step_sigma_fraction * step_m
+        step_m = pace.speed_m_s * apart_s
+        sigma = max(options.step_sigma_m, pace.spread_m) + options.step_sigma_fraction * step_m
         step_noise = _robust("cauchy", options.cauchy_k, gtsam.noiseModel.Isotropic.Sigma(1, sigma))
         graph.add(gtsam.RangeFactorPose2(k, k + 1, step_m, step_noise))
