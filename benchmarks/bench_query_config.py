@@ -22,10 +22,10 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
+from benchmarks.config_args import parse_config
 from geoloc.evaluation.ground_truth import shown_by_references
 from geoloc.evaluation.queries import EvalRun, answer_run
 from geoloc.evaluation.references import analyze, label_references
@@ -36,26 +36,6 @@ from workers.context import method_context
 
 PRIORS = ("gps", "none")
 MOVED_M = 0.5
-BOOLEANS = {"true": True, "yes": True, "1": True, "false": False, "no": False, "0": False}
-
-
-def parse_config(text: str) -> tuple[str, QueryConfig]:
-    """``NAME=FIELD:VALUE,...`` -> (name, the default QueryConfig with those fields replaced)."""
-    name, _, assignments = text.partition("=")
-    kinds = {f.name: type(getattr(QueryConfig(), f.name)) for f in fields(QueryConfig)}
-    changes: dict[str, Any] = {}
-    for assignment in filter(None, assignments.split(",")):
-        field, _, value = assignment.partition(":")
-        if field not in kinds:
-            raise SystemExit(f"--config {text}: QueryConfig has no field {field!r}")
-        kind = kinds[field]
-        try:
-            changes[field] = BOOLEANS[value.lower()] if kind is bool else kind(value)
-        except (KeyError, ValueError):
-            raise SystemExit(f"--config {text}: {field} is {kind.__name__}, not {value!r}") from None
-    if not name or not changes:
-        raise SystemExit(f"--config {text}: expected NAME=FIELD:VALUE[,FIELD:VALUE...]")
-    return name, replace(QueryConfig(), **changes)
 
 
 def answer_world(world_dir: Path, configs: dict[str, QueryConfig], say: Any) -> dict[str, Any]:
@@ -94,7 +74,7 @@ def main() -> int:
     parser.add_argument("--config", action="append", default=[], help="NAME=FIELD:VALUE,... (repeatable)")
     parser.add_argument("--json", type=Path, default=Path("query_config.json"))
     args = parser.parse_args()
-    configs = {"default": QueryConfig(), **dict(parse_config(text) for text in args.config)}
+    configs = {"default": QueryConfig(), **dict(parse_config(text, QueryConfig()) for text in args.config)}
     results: dict[str, Any] = {"configs": {n: c.as_dict() for n, c in configs.items()}, "worlds": {}}
     for world_dir in args.world:
         answers = answer_world(world_dir, configs, lambda msg: print(msg, flush=True))

@@ -1,15 +1,16 @@
 """The sequence job: a map's walks of references placed jointly on the map, in the background (issue 19).
 
-Each reference of a walk is labelled alone first (:func:`workers.method_handlers.label_reference`, which then
-queues this job for its map unless one already waits) and is served with that label meanwhile. The job groups the
-map's references into walks (:func:`geoloc.localize.sequence.group_sequences`) and, for each walk that is wholly
-labelled and not yet placed as it stands, re-labels each reference alone again (the same, deterministic label),
-places the walk (:func:`geoloc.localize.sequence.place_labelled_sequence`) and stores every frame the placement
-joined to the others with its new pose, identities and anchors, in one transaction per walk: queries see the old
-walk or the new one, never a mix. Every reference of a placed walk gets ``placement`` = ``sequence`` (a frame no
-relative pose joined keeps its own label's pose). A reference added later is labelled ``alone`` and queues the
-job again, which re-places its whole walk (the part that changed is the walk: walks are short). A walk with a
-reference still being labelled waits for the job that reference's label job queues.
+Each reference of a walk is labelled alone first (:func:`workers.method_handlers.label_reference`, which then queues
+this job for its map unless one already waits) and is served with that label meanwhile. The job groups the map's
+references into walks (:func:`geoloc.localize.sequence.group_sequences`) and, for each walk that is wholly labelled
+and not yet placed as it stands, reads back each reference's stored label alone (labelling it alone again, the same
+deterministic label, when it was stored without one), places the walk
+(:func:`geoloc.localize.sequence.place_labelled_sequence`) and stores every frame the placement joined to the others
+with its new pose, identities and anchors, in one transaction per walk: queries see the old walk or the new one,
+never a mix. Every reference of a placed walk gets ``placement`` = ``sequence`` (a frame no relative pose joined
+keeps its own label's pose). A reference added later is labelled ``alone`` and queues the job again, which re-places
+its whole walk (the part that changed is the walk: walks are short). A walk with a reference still being labelled
+waits for the job that reference's label job queues.
 """
 
 from __future__ import annotations

@@ -49,22 +49,16 @@ def analyze(path: Path, labels: np.ndarray | None, context: MethodContext) -> tu
     return photo, analyze_photo(photo, labels, context=context)
 
 
-def label_references(
-    world: World,
-    city: CityMap,
-    vocabulary: Vocabulary,
-    segmentation: str,
-    say: Callable[[str], None],
-    context: MethodContext,
-) -> LabelledWorld:
-    """Label every reference of ``world`` with ``segmentation`` ("model" or "gt"); stores and Table I figures."""
-    store, gt_store = InMemoryReferenceStore(vocabulary), InMemoryReferenceStore(vocabulary)
-    labelled: dict[str, LabelledReference] = {}
-    accuracy: dict[str, list[float]] = {"greedy": [], "marginalized": []}
-    heading_errors, position_errors, radius_held, orientation = [], [], [], []
-    walk_ids: list[int | None] = []  # each reference's walk (walk worlds; None in a scattered one)
-    timings: dict[str, list[float]] = defaultdict(list)
+def label_alone(
+    world: World, city: CityMap, segmentation: str, say: Callable[[str], None], context: MethodContext
+) -> tuple[dict[str, Photo], dict[str, LabelledReference]]:
+    """Every reference of ``world`` labelled alone, as the workers' label job does (its compass the heading prior).
+
+    segmentation: "model" (the network) or "gt" (ground-truth labels). Returns the photos and their labels, by
+    name in the world's order (a walk's frames are placed afterwards: :func:`place_photo_walks`).
+    """
     photos: dict[str, Photo] = {}
+    labelled: dict[str, LabelledReference] = {}
     for i, image in enumerate(world.references):
         gt = world.gt(image.name)
         photo, evidence = analyze(image.path, gt["labels"] if segmentation == "gt" else None, context)
@@ -77,6 +71,24 @@ def label_references(
         )
         photos[image.name] = photo
         say(f"[{segmentation}] reference {i + 1}/{len(world.references)} {image.name} labelled")
+    return photos, labelled
+
+
+def label_references(
+    world: World,
+    city: CityMap,
+    vocabulary: Vocabulary,
+    segmentation: str,
+    say: Callable[[str], None],
+    context: MethodContext,
+) -> LabelledWorld:
+    """Label every reference of ``world`` with ``segmentation`` ("model" or "gt"); stores and Table I figures."""
+    store, gt_store = InMemoryReferenceStore(vocabulary), InMemoryReferenceStore(vocabulary)
+    accuracy: dict[str, list[float]] = {"greedy": [], "marginalized": []}
+    heading_errors, position_errors, radius_held, orientation = [], [], [], []
+    walk_ids: list[int | None] = []  # each reference's walk (walk worlds; None in a scattered one)
+    timings: dict[str, list[float]] = defaultdict(list)
+    photos, labelled = label_alone(world, city, segmentation, say, context)
     walks = place_photo_walks(city, photos, labelled)  # the workers' sequence job, on the same photos
     for walk in walks:
         say(f"walk of {len(walk.references)} references placed ({walk.n_edges} relative poses)")

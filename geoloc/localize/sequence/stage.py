@@ -115,12 +115,16 @@ def compass_prior_at(photo: Photo, city_map: CityMap, xy: tuple[float, float]) -
 
 
 def place_photo_walks(
-    city_map: CityMap, photos: dict[str, Photo], labelled: dict[str, LabelledReference]
+    city_map: CityMap,
+    photos: dict[str, Photo],
+    labelled: dict[str, LabelledReference],
+    options: PlacementOptions = PlacementOptions(),
 ) -> list[PlacedSequence]:
     """Group geo-tagged photos labelled alone into walks by what they carry and place each walk, as the workers do.
 
     photos, labelled: by name, in upload order (the grouping's tie-breaker), every photo with EXIF GPS.
-    ``labelled`` is updated in place with each walk's re-labelled frames; returns the placed walks.
+    ``labelled`` is updated in place with each walk's re-labelled frames; returns the placed walks. options: the
+    placement's (the workers use the default; ``benchmarks/bench_walk_placement.py`` compares others).
     """
     xy_of = {name: _local_gps(city_map, photo) for name, photo in photos.items()}
     members = [
@@ -146,7 +150,7 @@ def place_photo_walks(
             )
             for name in names
         ]
-        placed = place_labelled_sequence(city_map, frames)
+        placed = place_labelled_sequence(city_map, frames, options)
         labelled.update((name, ref) for name, ref in zip(names, placed.references, strict=True) if ref is not None)
         walks.append(placed)
     return walks

@@ -1,0 +1,104 @@
+"""Walk-placement options side by side on walk worlds: how each places the references, and its CPU.
+
+    .venv/bin/python benchmarks/bench_walk_placement.py --world /tmp/worlds/hw1 --world /tmp/worlds/bw1 \
+        --config independent=gps_correlation_m:none --config loose=step_sigma_fraction:0.3 --json walks.json
+
+Each world's references are labelled alone once, as the workers' label job labels them (the evaluation's
+:func:`geoloc.evaluation.references.label_alone`, network segmentation, the compass as heading prior); then
+every walk is placed and its frames re-labelled by the workers' sequence stage
+(:func:`geoloc.localize.sequence.stage.place_photo_walks`, as ``geoloc eval world`` runs it) under each
+configuration, from the same labels alone. The first configuration is the default ``PlacementOptions()``; each
+``--config NAME=FIELD:VALUE,...`` replaces fields of it (``benchmarks/config_args.py``). Printed per world and
+configuration: the references' position error (within 1 / 2 m, median) and heading error (within 2 / 5 deg)
+against the manifest's truth, as ``reference_labelling`` reports them, how many references moved by more than
+0.5 m against the default, and the placement's process CPU as a ratio to the default's. Only the references
+are measured: the queries' figures need ``geoloc eval world``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.config_args import parse_config
+from geoloc.evaluation.references import label_alone
+from geoloc.evaluation.summaries import angle_error_deg
+from geoloc.localize.sequence import PlacementOptions
+from geoloc.localize.sequence.stage import place_photo_walks
+from geoloc.sim.world import load_world
+from workers.context import method_context
+
+MOVED_M = 0.5
+
+
+def place_world(world_dir: Path, configs: dict[str, PlacementOptions], say: Any) -> dict[str, Any]:
+    """Every walk of the world placed under every configuration, from one labelling alone (module docstring).
+
+    Returns per configuration the per-reference ``errors`` (name, position error m, heading error deg), their
+    shares and medians, and ``cpu_s``: this process's CPU time around the placement.
+    """
+    world = load_world(world_dir)
+    city = world.load_map()
+    started = time.perf_counter()
+    photos, alone = label_alone(world, city, "model", lambda _msg: None, method_context())
+    say(f"{world_dir}: {len(alone)} references labelled alone in {time.perf_counter() - started:.0f} s")
+    out: dict[str, Any] = {}
+    for name, options in configs.items():
+        labelled = dict(alone)
+        cpu0 = time.process_time()
+        place_photo_walks(city, photos, labelled, options)
+        cpu_s = time.process_time() - cpu0
+        rows = []
+        for image in world.references:
+            label, pose = labelled[image.name].label, image.pose
+            error_m = math.hypot(label.x_m - pose.x_m, label.y_m - pose.y_m)
+            rows.append((image.name, error_m, angle_error_deg(label.yaw_deg, pose.yaw_deg)))
+        position = np.array([r[1] for r in rows])
+        heading = np.array([r[2] for r in rows])
+        out[name] = {
+            "within_1m": float(np.mean(position <= 1.0)),
+            "within_2m": float(np.mean(position <= 2.0)),
+            "median_m": float(np.median(position)),
+            "heading_within_2deg": float(np.mean(heading <= 2.0)),
+            "heading_within_5deg": float(np.mean(heading <= 5.0)),
+            "cpu_s": cpu_s,
+            "errors": rows,
+        }
+    return out
+
+
+def main() -> int:
+    """Place the worlds' walks under each configuration; print the comparison and write the JSON."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--world", type=Path, action="append", required=True, help="a walk world folder (repeatable)")
+    parser.add_argument("--config", action="append", default=[], help="NAME=FIELD:VALUE,... (repeatable)")
+    parser.add_argument("--json", type=Path, default=Path("walk_placement.json"))
+    args = parser.parse_args()
+    default = PlacementOptions()
+    configs = {"default": default, **dict(parse_config(text, default) for text in args.config)}
+    results: dict[str, Any] = {"configs": {n: asdict(c) for n, c in configs.items()}, "worlds": {}}
+    for world_dir in args.world:
+        placed = place_world(world_dir, configs, lambda msg: print(msg, flush=True))
+        results["worlds"][str(world_dir)] = placed
+        base = {name: error for name, error, _ in placed["default"]["errors"]}
+        for name in configs:
+            s = placed[name]
+            moved = sum(abs(error - base[ref]) > MOVED_M for ref, error, _ in s["errors"])
+            print(f"{world_dir.name:>8} {name:>12}: references within 1/2 m {s['within_1m']:.2f}/{s['within_2m']:.2f}, "
+                  f"median {s['median_m']:.2f} m, headings within 2/5 deg {s['heading_within_2deg']:.2f}/"
+                  f"{s['heading_within_5deg']:.2f}, moved > {MOVED_M} m: {moved}, CPU "
+                  f"x{s['cpu_s'] / placed['default']['cpu_s']:.2f}", flush=True)  # fmt: skip
+        args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
