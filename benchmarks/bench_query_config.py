@@ -18,14 +18,13 @@ when other jobs run.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.config_args import parse_config
+from benchmarks.config_args import comparison_arguments, parse_config
 from geoloc.evaluation.ground_truth import shown_by_references
 from geoloc.evaluation.queries import EvalRun, answer_run
 from geoloc.evaluation.references import analyze, label_references
@@ -69,11 +68,7 @@ def answer_world(world_dir: Path, configs: dict[str, QueryConfig], say: Any) -> 
 
 def main() -> int:
     """Answer the worlds under each configuration; print the comparison and write the JSON."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--world", type=Path, action="append", required=True, help="a world folder (repeatable)")
-    parser.add_argument("--config", action="append", default=[], help="NAME=FIELD:VALUE,... (repeatable)")
-    parser.add_argument("--json", type=Path, default=Path("query_config.json"))
-    args = parser.parse_args()
+    args = comparison_arguments(__doc__.split("\n")[0], "query_config.json")
     configs = {"default": QueryConfig(), **dict(parse_config(text, QueryConfig()) for text in args.config)}
     results: dict[str, Any] = {"configs": {n: c.as_dict() for n, c in configs.items()}, "worlds": {}}
     for world_dir in args.world:

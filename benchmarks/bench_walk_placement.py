@@ -17,7 +17,6 @@ are measured: the queries' figures need ``geoloc eval world``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -26,11 +25,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from benchmarks.config_args import parse_config
+from benchmarks.config_args import comparison_arguments, parse_config
 from geoloc.evaluation.references import label_alone
-from geoloc.evaluation.summaries import angle_error_deg
+from geoloc.evaluation.summaries import angle_error_deg, reference_heading_summary, reference_position_summary
 from geoloc.localize.sequence import PlacementOptions
 from geoloc.localize.sequence.stage import place_photo_walks
 from geoloc.sim.world import load_world
@@ -43,7 +40,8 @@ def place_world(world_dir: Path, configs: dict[str, PlacementOptions], say: Any)
     """Every walk of the world placed under every configuration, from one labelling alone (module docstring).
 
     Returns per configuration the per-reference ``errors`` (name, position error m, heading error deg), their
-    shares and medians, and ``cpu_s``: this process's CPU time around the placement.
+    ``position`` and ``heading`` summaries (the evaluation's reference summaries), and ``cpu_s``: this process's CPU
+    time around the placement.
     """
     world = load_world(world_dir)
     city = world.load_map()
@@ -61,14 +59,9 @@ def place_world(world_dir: Path, configs: dict[str, PlacementOptions], say: Any)
             label, pose = labelled[image.name].label, image.pose
             error_m = math.hypot(label.x_m - pose.x_m, label.y_m - pose.y_m)
             rows.append((image.name, error_m, angle_error_deg(label.yaw_deg, pose.yaw_deg)))
-        position = np.array([r[1] for r in rows])
-        heading = np.array([r[2] for r in rows])
         out[name] = {
-            "within_1m": float(np.mean(position <= 1.0)),
-            "within_2m": float(np.mean(position <= 2.0)),
-            "median_m": float(np.median(position)),
-            "heading_within_2deg": float(np.mean(heading <= 2.0)),
-            "heading_within_5deg": float(np.mean(heading <= 5.0)),
+            "position": reference_position_summary([r[1] for r in rows]),
+            "heading": reference_heading_summary([r[2] for r in rows]),
             "cpu_s": cpu_s,
             "errors": rows,
         }
@@ -77,11 +70,7 @@ def place_world(world_dir: Path, configs: dict[str, PlacementOptions], say: Any)
 
 def main() -> int:
     """Place the worlds' walks under each configuration; print the comparison and write the JSON."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--world", type=Path, action="append", required=True, help="a walk world folder (repeatable)")
-    parser.add_argument("--config", action="append", default=[], help="NAME=FIELD:VALUE,... (repeatable)")
-    parser.add_argument("--json", type=Path, default=Path("walk_placement.json"))
-    args = parser.parse_args()
+    args = comparison_arguments(__doc__.split("\n")[0], "walk_placement.json")
     default = PlacementOptions()
     configs = {"default": default, **dict(parse_config(text, default) for text in args.config)}
     results: dict[str, Any] = {"configs": {n: asdict(c) for n, c in configs.items()}, "worlds": {}}
@@ -91,10 +80,11 @@ def main() -> int:
         base = {name: error for name, error, _ in placed["default"]["errors"]}
         for name in configs:
             s = placed[name]
+            p, h = s["position"], s["heading"]
             moved = sum(abs(error - base[ref]) > MOVED_M for ref, error, _ in s["errors"])
-            print(f"{world_dir.name:>8} {name:>12}: references within 1/2 m {s['within_1m']:.2f}/{s['within_2m']:.2f}, "
-                  f"median {s['median_m']:.2f} m, headings within 2/5 deg {s['heading_within_2deg']:.2f}/"
-                  f"{s['heading_within_5deg']:.2f}, moved > {MOVED_M} m: {moved}, CPU "
+            print(f"{world_dir.name:>8} {name:>12}: references within 1/2 m {p['within_1m']:.2f}/{p['within_2m']:.2f}, "
+                  f"median {p['median_m']:.2f} m, headings within 2/5 deg {h['within_2deg']:.2f}/"
+                  f"{h['within_5deg']:.2f}, moved > {MOVED_M} m: {moved}, CPU "
                   f"x{s['cpu_s'] / placed['default']['cpu_s']:.2f}", flush=True)  # fmt: skip
         args.json.write_text(json.dumps(results, indent=1))
     return 0

@@ -8,21 +8,20 @@ type is refused with the reason.
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import fields, replace
-from typing import TYPE_CHECKING, Any, TypeVar
-
-if TYPE_CHECKING:
-    from _typeshed import DataclassInstance
+from pathlib import Path
+from typing import Any, TypeVar, cast
 
 BOOLEANS = {"true": True, "yes": True, "1": True, "false": False, "no": False, "0": False}
 
-Options = TypeVar("Options", bound="DataclassInstance")
+Options = TypeVar("Options")
 
 
 def parse_config(text: str, default: Options) -> tuple[str, Options]:
     """``NAME=FIELD:VALUE,...`` -> (name, ``default`` with those fields replaced); SystemExit with the reason."""
     name, _, assignments = text.partition("=")
-    kinds = {f.name: type(getattr(default, f.name)) for f in fields(default)}
+    kinds = {f.name: type(getattr(default, f.name)) for f in fields(cast(Any, default))}
     changes: dict[str, Any] = {}
     for assignment in filter(None, assignments.split(",")):
         field, _, value = assignment.partition(":")
@@ -40,4 +39,13 @@ def parse_config(text: str, default: Options) -> tuple[str, Options]:
             raise SystemExit(f"--config {text}: {field} is {kind.__name__}, not {value!r}") from None
     if not name or not changes:
         raise SystemExit(f"--config {text}: expected NAME=FIELD:VALUE[,FIELD:VALUE...]")
-    return name, replace(default, **changes)
+    return name, cast(Options, replace(cast(Any, default), **changes))
+
+
+def comparison_arguments(description: str, json_default: str) -> argparse.Namespace:
+    """The comparison benchmarks' command line: ``--world`` (repeatable), ``--config`` (repeatable), ``--json``."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--world", type=Path, action="append", required=True, help="a world folder (repeatable)")
+    parser.add_argument("--config", action="append", default=[], help="NAME=FIELD:VALUE,... (repeatable)")
+    parser.add_argument("--json", type=Path, default=Path(json_default))
+    return parser.parse_args()
