@@ -165,7 +165,7 @@ def world(
     runs: str | None = typer.Option(
         None,
         "--runs",
-        help="Comma-separated runs to do (default all): ours/gps, ours/none, gt_identities/gps, "
+        help="Comma-separated runs to do (default all): ours/gps, ours/none, gt_poses/gps, gt_identities/gps, "
         "gt_segmentation/gps, paper_identity/none, paper_geometry/none.",
     ),
     max_queries: int | None = typer.Option(None, "--max-queries", min=1, help="Only the first N queries."),

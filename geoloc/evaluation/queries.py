@@ -33,7 +33,9 @@ class EvalRun:
     """One way of answering the queries.
 
     Prior ("gps", "none", or "given": the caller's per-query priors, e.g. a named place's), segmentation
-    ("model" or "gt"), identities ("transferred" or "gt") and the query configuration.
+    ("model" or "gt"), identities ("transferred" or "gt"), the query configuration, and the references' poses
+    ("placed": as the service labels and places them; "truth": each re-labelled at its manifest pose, its
+    identities and anchors from there, :func:`geoloc.evaluation.references.references_at_truth`).
     """
 
     name: str
@@ -41,6 +43,7 @@ class EvalRun:
     segmentation: str
     identities: str
     config: QueryConfig
+    references: str = "placed"
 
 
 def transfer_tables(

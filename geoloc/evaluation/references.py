@@ -23,7 +23,8 @@ from geoloc.evaluation.summaries import (
     reference_position_summary,
 )
 from geoloc.localize.identity import identity_accuracy
-from geoloc.localize.reference import LabelledReference, label_reference_photo, stored_reference
+from geoloc.localize.labeling import KnownPose
+from geoloc.localize.reference import LabelledReference, label_at_pose, label_reference_photo, stored_reference
 from geoloc.localize.retrieval import Vocabulary
 from geoloc.localize.sequence.stage import compass_prior_at, place_photo_walks
 from geoloc.maps import CityMap
@@ -136,3 +137,27 @@ def label_references(
     if any(w is not None for w in walk_ids):
         summary["per_walk"] = per_walk_summary(walk_ids, position_errors, heading_errors)
     return LabelledWorld(store, gt_store, labelled, summary, {})
+
+
+TRUTH_POSITION_SIGMA_M = 0.1
+"""Position sigma (m) a reference re-labelled at its true pose reports (:func:`references_at_truth`)."""
+
+
+def references_at_truth(
+    world: World, city: CityMap, labelled: LabelledWorld, vocabulary: Vocabulary
+) -> InMemoryReferenceStore:
+    """A store of the world's references, each re-labelled at its manifest pose (the ``gt_poses`` run).
+
+    Each keeps its own photo's analysis (segmentation, features, vanishing points) from ``labelled``; only its
+    planar pose (position, heading) is the truth, from which its identities are marginalised and its anchors cast,
+    as the sequence stage does at a placed pose (:func:`geoloc.localize.reference.label_at_pose`). Its answers
+    are the ceiling of what right anchors give the rest of the method.
+    """
+    store = InMemoryReferenceStore(vocabulary)
+    for image in world.references:
+        ref, pose = labelled.labelled[image.name], image.pose
+        known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, TRUTH_POSITION_SIGMA_M**2 * np.eye(2))
+        intrinsics = load_photo(image.path).intrinsics
+        at_truth = label_at_pose(city, intrinsics, ref.cues, ref.timings_ms, known, analysis=ref.analysis)
+        store.add(stored_reference(image.name, at_truth))
+    return store

@@ -13,7 +13,8 @@ Runs (each query is answered once per run; :func:`default_runs`):
   :data:`geoloc.localize.grid.DEFAULT_PRIOR_RADIUS_M`) and its compass, when it has one, as the heading prior
   (as the API reads a photo), network segmentation, transferred identities;
 - ``ours/none``: the same without any prior (neither position nor heading);
-- ablation ladder under the GPS prior: ``gt_identities/gps`` (perfect transfer: the query's identities
+- ablation ladder under the GPS prior: ``gt_poses/gps`` (every reference at its true pose: the anchors'
+  ceiling, the rest as the service does it), ``gt_identities/gps`` (perfect transfer: the query's identities
   from the renderer), ``gt_segmentation/gps`` (ground-truth labels for references and queries);
 - the paper's method without the map anchors, no prior: ``paper_identity/none`` and
   ``paper_geometry/none`` (Fig. 7's two curves).
@@ -46,7 +47,7 @@ from geoloc.core.context import MethodContext
 from geoloc.evaluation.ground_truth import SHOWN_MIN_SHARE, gps_baseline, shown_by_references
 from geoloc.evaluation.photos import evaluate_photos
 from geoloc.evaluation.queries import KS, EvalRun, answer_run, transfer_tables
-from geoloc.evaluation.references import LabelledWorld, analyze, label_references
+from geoloc.evaluation.references import LabelledWorld, analyze, label_references, references_at_truth
 from geoloc.evaluation.summaries import QUERY_KINDS, TOP_N, angle_error_deg
 from geoloc.evaluation.tracks import evaluate_tracks
 from geoloc.localize.query import QueryConfig
@@ -84,6 +85,7 @@ def default_runs(config: QueryConfig) -> list[EvalRun]:
     return [
         EvalRun("ours/gps", "gps", "model", "transferred", config),
         EvalRun("ours/none", "none", "model", "transferred", config),
+        EvalRun("gt_poses/gps", "gps", "model", "transferred", config, references="truth"),
         EvalRun("gt_identities/gps", "gps", "model", "gt", config),
         EvalRun("gt_segmentation/gps", "gps", "gt", "transferred", config),
         EvalRun("paper_identity/none", "none", "model", "transferred", paper),
@@ -147,9 +149,15 @@ def evaluate_world(
     result["tables_segmentation"] = table_segmentation
     result.update(transfer_tables(world, worlds[table_segmentation], vocabulary, config, queries, shown))
     result["runs"] = {}
+    at_truth: dict[str, LabelledWorld] = {}
     for run in runs if queries else []:
         say(f"run {run.name}")
         labelled = worlds[run.segmentation]
+        if run.references == "truth":
+            if run.segmentation not in at_truth:
+                store = references_at_truth(world, city, labelled, vocabulary)
+                at_truth[run.segmentation] = replace(labelled, store=store)
+            labelled = at_truth[run.segmentation]
         result["runs"][run.name] = answer_run(world, city, labelled, vocabulary, run, queries, shown, say, context)
     if track_frames:
         say("tracks")

@@ -11,6 +11,7 @@ from PIL import Image
 
 from contracts.settings import models_dir, shared_path
 from geoloc.evaluation.figures import HEIGHT, WIDTH, write_world_figures
+from geoloc.evaluation.references import label_references, references_at_truth
 from geoloc.evaluation.world import KS, EvalRun, default_runs, evaluate_world
 from geoloc.localize.query import QueryConfig
 from geoloc.localize.reference import label_reference_photo
@@ -129,3 +130,35 @@ def test_evaluation_writes_every_key(world_dir: Path, tmp_path: Path) -> None:
     figures = write_world_figures(result, tmp_path / "eval.json")  # what `geoloc eval world --json` writes beside it
     assert [p.name for p in figures] == ["eval.error_cdf.png", "eval.top_n.png"]
     assert all(Image.open(p).size == (WIDTH, HEIGHT) for p in figures)
+
+
+def _anchor_agreement(anchors_building_id: np.ndarray, xy: np.ndarray, truth: np.ndarray) -> float:
+    """Share of anchored keypoints on a building whose anchor names the renderer's building there."""
+    h, w = truth.shape
+    at = truth[np.clip(np.round(xy[:, 1]).astype(int), 0, h - 1), np.clip(np.round(xy[:, 0]).astype(int), 0, w - 1)]
+    used = (anchors_building_id >= 0) & (at >= 0)
+    return float(np.mean(anchors_building_id[used] == at[used]))
+
+
+def test_references_at_truth_are_cast_from_their_manifest_poses(world_dir: Path) -> None:
+    world = load_world(world_dir)
+    city = world.load_map()
+    vocabulary = default_vocabulary(models_dir())
+    labelled = label_references(world, city, vocabulary, "gt", lambda _msg: None, method_context())
+    stored = references_at_truth(world, city, labelled, vocabulary).load([im.name for im in world.references])
+    placed, at_truth = [], []
+    for image in world.references:
+        ref, pose = stored[image.name], image.pose
+        np.testing.assert_allclose(ref.position_xy, (pose.x_m, pose.y_m), atol=1e-6)
+        valid = ref.anchors.valid
+        xyz = ref.anchors.xyz[valid]
+        # Each anchor lies as far from the true camera as it says: cast from there.
+        np.testing.assert_allclose(
+            np.hypot(xyz[:, 0] - pose.x_m, xyz[:, 1] - pose.y_m), ref.anchors.distance_m[valid], rtol=1e-4
+        )
+        truth = world.gt(image.name)["building_id"]
+        at_truth.append(_anchor_agreement(ref.anchors.building_id, ref.features.xy, truth))
+        own = labelled.labelled[image.name]
+        placed.append(_anchor_agreement(own.anchors.building_id, own.cues.features.xy, truth))
+    # From the true poses the anchors name the buildings the renderer drew, more often than from the labels.
+    assert np.median(at_truth) >= 0.9 and np.mean(at_truth) > np.mean(placed), (at_truth, placed)
