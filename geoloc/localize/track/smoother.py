@@ -96,6 +96,9 @@ class TrackOptions:
     anchored_edges_only: bool = True
     # Start the optimiser at the headings the motions and the frames' votes agree on (geoloc.localize.track.starts).
     motion_starts: bool = True
+    # A frame with no position prior is answered again near the track's anchored frames (geoloc.localize.track.stage:
+    # anchored_priors): within max_step_m per frame between them plus this margin (m) of the anchor's own error.
+    anchored_prior_margin_m: float = 10.0
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from geoloc.localize.query.answer import AnswerPose
 from geoloc.localize.sequence.placement import SequenceFrame
 from geoloc.localize.sequence.relative import RelativePose, pose_in_frame
 from geoloc.localize.track.smoother import R90_PER_SIGMA, TrackOptions, label_frame, place_track, radius_90_m
+from geoloc.localize.track.stage import anchored_priors
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.vision.features import Features
 
@@ -134,3 +135,25 @@ def test_a_likelihood_answer_that_says_anywhere_gets_a_weak_finite_label() -> No
     node = _nodes([_answer(3.0, 4.0, 10.0, math.inf, "likelihood")] * len(TRUTH))[0]
     assert np.isfinite(node.position_covariance).all()
     assert node.position_covariance[0, 0] == TrackOptions().weak_label[0] ** 2 and node.position_covariance[0, 1] == 0
+
+
+def test_a_track_without_priors_is_answered_again_near_the_anchored_frames_most_agree_with() -> None:
+    options = TrackOptions()  # 12 m a frame at most, 10 m of margin
+    likelihood = [_answer(300.0 + 40 * i, -200.0, 0.0, 20.0, "likelihood") for i in range(len(TRUTH))]
+    alone: list[AnswerPose | None] = list(likelihood)
+    alone[2], alone[3] = _answer(*TRUTH[2]), _answer(TRUTH[3][0] + 1.0, TRUTH[3][1], TRUTH[3][2])
+    alone[7] = _answer(500.0, 500.0, 0.0)  # anchored, but on a wrong reference far away: agrees with no other
+    alone[8] = None
+    priors = anchored_priors(alone, [None] * len(TRUTH), options)
+    assert priors[2] is None and priors[3] is None  # the agreeing anchored frames keep their answers
+    for i, prior in enumerate(priors):
+        if i in (2, 3):
+            continue
+        assert prior is not None
+        j = 2 if i <= 2 else 3  # the nearest agreeing anchored frame in frame order
+        assert (prior.x_m, prior.y_m) == (alone[j].x_m, alone[j].y_m)  # type: ignore[union-attr]
+        assert math.isclose(2.0 * prior.sigma_m, 12.0 * abs(i - j) + 10.0)  # its reach is the prior's radius
+    # Frames that came with a prior keep it; a track nothing anchored gets no prior at all.
+    gps = PositionPrior.from_radius(0.0, 0.0, 50.0)
+    assert anchored_priors(alone, [gps] * len(TRUTH), options) == [None] * len(TRUTH)
+    assert anchored_priors(likelihood, [None] * len(TRUTH), options) == [None] * len(TRUTH)
