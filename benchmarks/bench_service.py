@@ -129,10 +129,10 @@ def send(service: Service, call: Call[Any], what: str) -> Sent[dict[str, Any]]:
         raise SystemExit(f"{service.name}: {what}: {exc}") from exc
 
 
-def upload_map(service: Service, timeout_s: float = 600.0) -> None:
-    """Upload the Helsinki map and wait until it is parsed (a commit before maps as jobs answers it parsed)."""
-    osm = shared_path("data", "osm", "helsinki.osm.pbf")
-    uploaded = send(service, calls.upload_map(osm, "helsinki", {"wait_s": 60.0}), "map upload failed").value
+def upload_map(service: Service, timeout_s: float = 600.0, osm: Path | None = None) -> None:
+    """Upload a map (default Helsinki) and wait until it is parsed (a commit before maps as jobs answers it parsed)."""
+    osm = osm or shared_path("data", "osm", "helsinki.osm.pbf")
+    uploaded = send(service, calls.upload_map(osm, osm.name.split(".")[0], {"wait_s": 60.0}), "map upload failed").value
     service.map_id = int(uploaded["id"])
     deadline = time.monotonic() + timeout_s
     while uploaded.get("status", "done") not in ("done", "failed"):

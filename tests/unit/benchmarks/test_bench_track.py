@@ -1,0 +1,37 @@
+"""The track benchmark's reading of a world (its query tracks, each frame in order with its truth) and summary."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from benchmarks.track_checks import track_summary, world_tracks
+from contracts.settings import shared_path
+from geoloc.sim.world import WorldOptions, generate_world
+
+
+def test_world_tracks_lists_each_track_in_frame_order_with_its_truth(tmp_path: Path) -> None:
+    opts = WorldOptions(
+        n_references=4, n_queries=1, seed=2, capture="walk", radius_m=100.0, query_tracks=2, track_length=3
+    )
+    generate_world(shared_path("data", "osm", "helsinki.osm.pbf"), tmp_path, opts)
+    tracks = world_tracks(tmp_path)
+    manifest = {image["file"]: image for image in json.loads((tmp_path / "manifest.json").read_text())["images"]}
+    assert sorted(tracks) == [0, 1] and all(len(frames) == 3 for frames in tracks.values())
+    for track, frames in tracks.items():
+        for index, (path, truth) in enumerate(frames):
+            record = manifest[str(path.relative_to(tmp_path))]
+            assert (record["track"], record["index"]) == (track, index)  # the single query is no track frame
+            assert truth == (record["pose"]["lat"], record["pose"]["lon"])
+
+
+def test_the_summary_counts_a_frame_without_a_pose_as_outside_and_judges_the_median() -> None:
+    rows = [
+        {"wall_s": 4.0, "errors_m": [0.5, 3.0]},
+        {"wall_s": 7.0, "errors_m": [12.0, None]},
+        {"wall_s": 5.0, "errors_m": []},
+    ]
+    summary = track_summary(rows)
+    assert summary["wall_s_median"] == 5.0 and summary["wall_s_max"] == 7.0 and summary["passes"]
+    assert (summary["frames"], summary["within_1m"], summary["within_5m"], summary["within_10m"]) == (4, 0.25, 0.5, 0.5)
+    assert not track_summary(rows[1:2])["passes"]  # 7 s > 6 s
