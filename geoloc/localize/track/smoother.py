@@ -17,8 +17,9 @@ Levenberg-Marquardt on planar poses), fed with a query frame's evidence instead 
 A frame with no answer of its own starts where a neighbour's edge puts it and is placed by its neighbours
 (its label factor is loose). Outliers (:func:`_outliers`): a frame whose own answer lies farther from its
 placed pose than :attr:`TrackOptions.outlier_min_m` and ``outlier_sigmas`` of its radius (or whose heading is
-off by more than :attr:`TrackOptions.outlier_yaw_deg`), or a frame no edge joins whose answer lies farther
-from its placed neighbours than walking allows (``max_step_m`` per frame plus both radii). The track is then
+off by more than :attr:`TrackOptions.outlier_yaw_deg`), or whose placed pose lies farther from the joined frames
+nearest it in frame order (one on each side) than walking allows (``max_step_m`` per frame plus both radii: its
+motions were set aside), or a frame no edge joins whose answer lies that far from them. The track is then
 placed again with the outliers' labels loosened, so an outlier's pose is the track's, and it cannot pull its
 neighbours; a frame no edge joins keeps its own answer.
 """
@@ -204,7 +205,7 @@ def _start_unanswered(
 
 
 def _outliers(answers: Sequence[AnswerPose | None], poses: Sequence[PlacedPose], options: TrackOptions) -> list[bool]:
-    """Which frames' own answers the track disagrees with (the module docstring's two tests)."""
+    """Which frames' own answers the track disagrees with (the module docstring's tests)."""
     flags = []
     for k, (alone, pose) in enumerate(zip(answers, poses, strict=True)):
         if alone is None:
@@ -215,18 +216,36 @@ def _outliers(answers: Sequence[AnswerPose | None], poses: Sequence[PlacedPose],
             turn = abs((alone.yaw_deg - pose.yaw_deg + 180.0) % 360.0 - 180.0)
             radius = alone.uncertainty_radius_m if math.isfinite(alone.uncertainty_radius_m) else math.inf
             limit = max(options.outlier_min_m, options.outlier_sigmas * radius / R90_PER_SIGMA)
-            flags.append(off > limit or turn > options.outlier_yaw_deg)
+            # A frame its motions could not hold (the robust loss set them aside) sits at its own answer, far
+            # from the rest: a photo from elsewhere, whatever matches joined it.
+            placed_apart = _beyond_reach(pose.x_m, pose.y_m, radius_90_m(pose.position_covariance), k, poses, options)
+            flags.append(off > limit or turn > options.outlier_yaw_deg or placed_apart)
             continue
-        gaps = [
-            math.hypot(alone.x_m - poses[j].x_m, alone.y_m - poses[j].y_m)
-            - options.max_step_m * abs(j - k)
-            - alone.uncertainty_radius_m
-            - radius_90_m(poses[j].position_covariance)
-            for j in range(len(poses))
-            if j != k and poses[j].n_edges > 0
-        ]
-        flags.append(bool(gaps) and min(gaps) > 0.0)
+        flags.append(_beyond_reach(alone.x_m, alone.y_m, alone.uncertainty_radius_m, k, poses, options))
     return flags
+
+
+def _beyond_reach(
+    x_m: float, y_m: float, radius_m: float, k: int, poses: Sequence[PlacedPose], options: TrackOptions
+) -> bool:
+    """Whether frame k's position (its 90 % radius, m) is out of walking reach of the track's joined frames.
+
+    The joined frames nearest to k in frame order, one before it and one after (those that exist), are the
+    track's where k stands; out of reach: farther from each one's placed pose than ``max_step_m`` per frame
+    between them plus both radii. Farther joined frames allow more walking, so they would excuse any answer.
+    False when no other frame is joined.
+    """
+    joined = [j for j in range(len(poses)) if j != k and poses[j].n_edges > 0]
+    nearest = [max((j for j in joined if j < k), default=None), min((j for j in joined if j > k), default=None)]
+    gaps = [
+        math.hypot(x_m - poses[j].x_m, y_m - poses[j].y_m)
+        - options.max_step_m * abs(j - k)
+        - radius_m
+        - radius_90_m(poses[j].position_covariance)
+        for j in nearest
+        if j is not None
+    ]
+    return bool(gaps) and min(gaps) > 0.0
 
 
 def smooth_track(

@@ -6,6 +6,7 @@ A wrong frame is flagged and does not pull the others; a frame with no answer of
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -15,6 +16,7 @@ from geoloc.localize.grid import PositionPrior
 from geoloc.localize.query.answer import AnswerPose
 from geoloc.localize.sequence.placement import SequenceFrame
 from geoloc.localize.sequence.relative import RelativePose, pose_in_frame
+from geoloc.localize.sequence.twoview import TwoViewMotion, motion_factor
 from geoloc.localize.track.smoother import R90_PER_SIGMA, TrackOptions, label_frame, place_track, radius_90_m
 from geoloc.localize.track.stage import anchored_priors
 from geoloc.photos.heading_prior import HeadingPrior
@@ -157,3 +159,27 @@ def test_a_track_without_priors_is_answered_again_near_the_anchored_frames_most_
     gps = PositionPrior.from_radius(0.0, 0.0, 50.0)
     assert anchored_priors(alone, [gps] * len(TRUTH), options) == [None] * len(TRUTH)
     assert anchored_priors(likelihood, [None] * len(TRUTH), options) == [None] * len(TRUTH)
+
+
+def test_a_frame_from_elsewhere_that_matches_its_neighbours_is_flagged_too() -> None:
+    options = TrackOptions()
+    answers = _own_answers(np.random.default_rng(2))
+    answers[4] = _answer(180.0, -95.0, 270.0, radius_m=20.0, source="likelihood")  # answered where it was taken
+    nodes = _nodes(answers)
+    nodes[4] = replace(nodes[4], gps_xy=(183.0, -90.0))  # and its own GPS says so
+    # Repeated shop fronts: two-view motions join it to its neighbours as if it were the next step.
+    motions = []
+    for a, b in ((3, 4), (4, 5)):
+        forward, left, turn = pose_in_frame(TRUTH[a][:2], TRUTH[a][2], TRUTH[b][:2], TRUTH[b][2])
+        direction = TwoViewMotion(a, b, forward / math.hypot(forward, left), left / math.hypot(forward, left), turn, 80)
+        across, turn_sigma = options.motion_sigmas_deg
+        motions.append(
+            motion_factor(direction, options.motion_step_m, options.motion_along_sigma_m, across, turn_sigma)
+        )
+    smoothed = place_track(nodes, answers, _edges(skip=4), options, motions)
+    # Joined, yet the robust loss set its motions aside: it sits at its own answer, out of walking reach.
+    assert smoothed.poses[4].n_edges == 2
+    assert math.hypot(smoothed.poses[4].x_m - 180.0, smoothed.poses[4].y_m + 95.0) < 20.0
+    assert smoothed.outliers == [k == 4 for k in range(len(TRUTH))]
+    errors = _errors(smoothed.poses)
+    assert max(errors[:4] + errors[5:]) < 1.5, errors
