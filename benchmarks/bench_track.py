@@ -60,17 +60,17 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=Path("track.json"))
     args = parser.parse_args()
 
-    tracks = world_tracks(args.world)
+    world = load_world(args.world)
+    tracks = world_tracks(world)
     if not tracks:
         raise SystemExit(f"{args.world} has no query tracks (geoloc sim world --query-tracks N)")
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench-track-"))
-    manifest = json.loads((args.world / "manifest.json").read_text())
     figures: dict[str, Any] = {**run_figures(), "world": str(args.world), "workers": args.workers}
     print(f"machine: {figures['machine']}; work folder {workdir}")
     service = Service("current", Path(__file__).resolve().parent.parent, workdir / "data", args.workers, {})
     try:
-        upload_map(service, osm=Path(manifest["map"]["path"]))
-        references = [image.path for image in load_world(args.world).references]
+        upload_map(service, osm=Path(world.manifest["map"]["path"]))
+        references = [image.path for image in world.references]
         figures["labelling"] = label_references(service, references)
         print(f"{len(references)} references labelled and placed in {figures['labelling']['wall_s']} s")
         figures["tracks"] = {}

@@ -6,20 +6,22 @@ import statistics
 from pathlib import Path
 from typing import Any
 
-from geoloc.sim.world import load_world
+from geoloc.evaluation.tracks import world_tracks as tracks_of
+from geoloc.sim.world import World
 
 MUST_HOLD_S = 6.0
 """Issue 20: a 10-frame track answered within this many seconds end to end on the 2-core machine."""
 
 
-def world_tracks(world_dir: Path) -> dict[int, list[tuple[Path, tuple[float, float]]]]:
-    """The world's query tracks: per track, its frames in order as (photo, true (lat, lon))."""
-    tracks: dict[int, list[tuple[int, Path, tuple[float, float]]]] = {}
-    for image in load_world(world_dir).queries:
-        if "track" in image.record:
-            truth = (image.record["pose"]["lat"], image.record["pose"]["lon"])
-            tracks.setdefault(image.record["track"], []).append((image.record["index"], image.path, truth))
-    return {t: [(path, truth) for _, path, truth in sorted(frames)] for t, frames in sorted(tracks.items())}
+def world_tracks(world: World) -> dict[int, list[tuple[Path, tuple[float, float]]]]:
+    """Per query track, its frames in order as (photo, true (lat, lon)).
+
+    The tracks are the evaluation's (:func:`geoloc.evaluation.tracks.world_tracks`).
+    """
+    return {
+        track: [(image.path, (image.record["pose"]["lat"], image.record["pose"]["lon"])) for image in frames]
+        for track, frames in tracks_of(world.queries).items()
+    }
 
 
 def track_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:

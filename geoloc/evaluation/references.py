@@ -5,12 +5,13 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from geoloc.core.camera import Intrinsics
 from geoloc.core.context import MethodContext
 from geoloc.evaluation.facades import orientation_errors
 from geoloc.evaluation.ground_truth import gt_keypoint_identity
@@ -42,6 +43,7 @@ class LabelledWorld:
     labelled: dict[str, LabelledReference]
     summary: dict[str, Any]
     queries: dict[str, tuple[Photo, PhotoEvidence]]
+    intrinsics: dict[str, Intrinsics] = field(default_factory=dict)  # each reference's camera, from its EXIF
 
 
 def analyze(path: Path, labels: np.ndarray | None, context: MethodContext) -> tuple[Photo, PhotoEvidence]:
@@ -136,7 +138,8 @@ def label_references(
     }
     if any(w is not None for w in walk_ids):
         summary["per_walk"] = per_walk_summary(walk_ids, position_errors, heading_errors)
-    return LabelledWorld(store, gt_store, labelled, summary, {})
+    intrinsics = {name: photo.intrinsics for name, photo in photos.items()}
+    return LabelledWorld(store, gt_store, labelled, summary, {}, intrinsics)
 
 
 TRUTH_POSITION_SIGMA_M = 0.1
@@ -157,7 +160,7 @@ def references_at_truth(
     for image in world.references:
         ref, pose = labelled.labelled[image.name], image.pose
         known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, TRUTH_POSITION_SIGMA_M**2 * np.eye(2))
-        intrinsics = load_photo(image.path).intrinsics
+        intrinsics = labelled.intrinsics[image.name]
         at_truth = label_at_pose(city, intrinsics, ref.cues, ref.timings_ms, known, analysis=ref.analysis)
         store.add(stored_reference(image.name, at_truth))
     return store

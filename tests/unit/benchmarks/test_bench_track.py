@@ -7,7 +7,7 @@ from pathlib import Path
 
 from benchmarks.track_checks import track_summary, world_tracks
 from contracts.settings import shared_path
-from geoloc.sim.world import WorldOptions, generate_world
+from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 
 def test_world_tracks_lists_each_track_in_frame_order_with_its_truth(tmp_path: Path) -> None:
@@ -15,7 +15,7 @@ def test_world_tracks_lists_each_track_in_frame_order_with_its_truth(tmp_path: P
         n_references=4, n_queries=1, seed=2, capture="walk", radius_m=100.0, query_tracks=2, track_length=3
     )
     generate_world(shared_path("data", "osm", "helsinki.osm.pbf"), tmp_path, opts)
-    tracks = world_tracks(tmp_path)
+    tracks = world_tracks(load_world(tmp_path))
     manifest = {image["file"]: image for image in json.loads((tmp_path / "manifest.json").read_text())["images"]}
     assert sorted(tracks) == [0, 1] and all(len(frames) == 3 for frames in tracks.values())
     for track, frames in tracks.items():
