@@ -10,7 +10,10 @@ labelled and their walks placed), then each track is posted alone, its photos in
 its priors, the service's default). Per track: the wall time from the request to the answer (upload, every
 frame's analysis and answer, the smoother), the workers' CPU seconds over it, the job's ``timings_ms``, and
 its frames' errors against the manifest (the rank-1 pose the API returns). Printed: the median and the
-largest wall time beside the must-hold, and the frames' shares within 1 / 5 / 10 m.
+largest wall time beside the must-hold, and the frames' shares within 1 / 5 / 10 m. With ``--compare-eval
+EVAL.json`` (``geoloc eval world``'s JSON of the same world), also how many frames the API answered as the
+evaluation did (:func:`track_checks.agreement_with_evaluation`): the evaluation measures what ships only if they
+are the same.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from typing import Any
 
 from bench_service import Service, _distance_m, label_references, load_average, send, upload_map
 from local_service import run_figures
-from track_checks import MUST_HOLD_S, track_summary, world_tracks
+from track_checks import MUST_HOLD_S, agreement_with_evaluation, track_summary, world_tracks
 
 from geoloc.client import calls
 from geoloc.sim.world import load_world
@@ -58,6 +61,11 @@ def main() -> None:
     parser.add_argument("--wait-s", type=float, default=120.0, help="the request's wait_s (s)")
     parser.add_argument("--workdir", type=Path, help="folder for the service (default: temp)")
     parser.add_argument("--json", type=Path, default=Path("track.json"))
+    parser.add_argument(
+        "--compare-eval",
+        type=Path,
+        help="the JSON of `geoloc eval world` on the same world: count the frames the API answered as it did",
+    )
     args = parser.parse_args()
 
     world = load_world(args.world)
@@ -88,6 +96,14 @@ def main() -> None:
         f"(must hold <= {MUST_HOLD_S:.0f} s: {verdict}); frames within 1 / 5 / 10 m "
         f"{summary['within_1m']} / {summary['within_5m']} / {summary['within_10m']}"
     )
+    if args.compare_eval is not None:
+        figures["agreement_with_evaluation"] = agreement = agreement_with_evaluation(
+            figures["tracks"], json.loads(args.compare_eval.read_text())
+        )
+        print(
+            f"frames answered as `geoloc eval world` answered them: {agreement['same']} of {agreement['frames']}"
+            f"; differing (track, frame, API error m, evaluation error m): {agreement['differ']}"
+        )
     args.json.write_text(json.dumps(figures, indent=2))
     print(f"wrote {args.json}")
 

@@ -63,6 +63,18 @@ class StoredReference:
             alt_anchor_distance_m=None if alternative is None else alternative.distance_m,
         )
 
+    def read_back(self) -> StoredReference:
+        """Itself as the workers read it back from the service's store: through the stored format's dtypes.
+
+        The store keeps descriptors as float16 and anchors as float32
+        (:class:`contracts.references.ReferenceKeypoints`), so a query matches what comes back, not what was
+        computed: a descriptor rounded to float16 can swap a nearest neighbour or a ratio test, and so an answer.
+        What is read back is exactly this (the format's arrays are written and read losslessly, :mod:`db.blobs`).
+        """
+        return StoredReference.from_keypoints(
+            self.reference_id, ReferenceKeypoints.from_arrays(self.keypoints().to_arrays())
+        )
+
     @classmethod
     def from_keypoints(cls, reference_id: Hashable, keypoints: ReferenceKeypoints) -> StoredReference:
         """A reference read back from its stored keypoints (:class:`contracts.references.ReferenceKeypoints`)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from benchmarks.track_checks import track_summary, world_tracks
+from benchmarks.track_checks import agreement_with_evaluation, track_summary, world_tracks
 from contracts.settings import shared_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
@@ -35,3 +35,17 @@ def test_the_summary_counts_a_frame_without_a_pose_as_outside_and_judges_the_med
     assert summary["wall_s_median"] == 5.0 and summary["wall_s_max"] == 7.0 and summary["passes"]
     assert (summary["frames"], summary["within_1m"], summary["within_5m"], summary["within_10m"]) == (4, 0.25, 0.5, 0.5)
     assert not track_summary(rows[1:2])["passes"]  # 7 s > 6 s
+
+
+def test_agreement_with_the_evaluation_allows_the_wgs84_round_trip_and_no_more() -> None:
+    tracks = {"0": {"errors_m": [1.0, 7.59, 300.0]}, "1": {"errors_m": [None, 2.0]}}
+    per_frame = [
+        {"track": 0, "index": 0, "error_m": 1.2},  # 0.2 m apart: the same answer measured in two frames
+        {"track": 0, "index": 1, "error_m": 7.61},
+        {"track": 0, "index": 2, "error_m": 305.0},  # 5 m at 300 m: within 2 %
+        {"track": 1, "index": 0, "error_m": 3.0},  # the API answered nothing
+        {"track": 1, "index": 1, "error_m": 2.5},  # 0.5 m apart: another answer
+    ]
+    agreement = agreement_with_evaluation(tracks, {"tracks": {"gps": {"per_frame": per_frame}}})
+    assert (agreement["frames"], agreement["same"]) == (5, 3)
+    assert agreement["differ"] == [(1, 0, None, 3.0), (1, 1, 2.0, 2.5)]
