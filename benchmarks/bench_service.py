@@ -26,6 +26,9 @@ environment), and each ``--variant`` one more service of this checkout with othe
    and heading, the number of locations), which must agree: the speed-ups do not change what the method
    computes.
 
+With ``--compare-eval EVAL.json`` (``geoloc eval world``'s JSON of ``--world``), this checkout's answers of the
+first round are compared with the evaluation's ``ours/gps`` (:mod:`eval_agreement`).
+
 6. The floor (issue 23): the segmentation network's own CPU per query photo, measured in this process after
    the queries (:func:`segmentation_cpu`: the workers' session and threads, the median per photo); each
    service's worker CPU per query over it, and each stage's median over the service's segmentation stage.
@@ -55,6 +58,7 @@ from typing import Any
 
 import numpy as np
 from baseline import export_commit, service_checks
+from eval_agreement import query_agreement
 from local_service import REPO_ROOT, LocalService, status_mb
 
 from contracts.settings import shared_path
@@ -282,6 +286,7 @@ def main() -> None:
     )
     parser.add_argument("--workdir", type=Path, help="folder for the services and the world (default: temp)")
     parser.add_argument("--json", type=Path, default=Path("service.json"))
+    parser.add_argument("--compare-eval", type=Path, help="`geoloc eval world`'s JSON of --world: the same answers?")
     args = parser.parse_args()
 
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="bench-service-"))
@@ -354,6 +359,16 @@ def main() -> None:
         figures["concurrent_queries"] = {name: concurrent_queries(services[name], queries) for name in names}
 
         figures["answers"] = {name: compare_answers(runs[name], runs["current"]) for name in names if name != "current"}
+        if args.compare_eval is not None:  # this checkout's first round against the evaluation's ours/gps
+            truth = {im.path.name: (im.record["pose"]["lat"], im.record["pose"]["lon"]) for im in world.queries}
+            errors = {
+                Path(r["photo"]).stem: _distance_m(r["locations"][0][:2], truth[r["photo"]]) if r["locations"] else None
+                for r in runs["current"][: len(queries)]
+            }
+            agreement = query_agreement(errors, json.loads(args.compare_eval.read_text()))
+            figures["agreement_with_evaluation"] = agreement
+            print(f"queries answered as `geoloc eval world` answered them: {agreement['same']} of "
+                  f"{agreement['photos']}; differing (query, API m, evaluation m): {agreement['differ']}")  # fmt: skip
         for name, row in figures["answers"].items():
             row["speedup_p50"] = round(
                 figures["queries"][name]["wall_ms_p50"] / figures["queries"]["current"]["wall_ms_p50"], 2

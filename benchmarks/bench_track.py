@@ -12,7 +12,7 @@ frame's analysis and answer, the smoother), the workers' CPU seconds over it, th
 its frames' errors against the manifest (the rank-1 pose the API returns). Printed: the median and the
 largest wall time beside the must-hold, and the frames' shares within 1 / 5 / 10 m. With ``--compare-eval
 EVAL.json`` (``geoloc eval world``'s JSON of the same world), also how many frames the API answered as the
-evaluation did (:func:`track_checks.agreement_with_evaluation`): the evaluation measures what ships only if they
+evaluation did (:mod:`eval_agreement`): the evaluation measures what ships only if they
 are the same.
 """
 
@@ -26,8 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from bench_service import Service, _distance_m, label_references, load_average, send, upload_map
+from eval_agreement import track_agreement
 from local_service import run_figures
-from track_checks import MUST_HOLD_S, agreement_with_evaluation, track_summary, world_tracks
+from track_checks import MUST_HOLD_S, track_summary, world_tracks
 
 from geoloc.client import calls
 from geoloc.sim.world import load_world
@@ -97,11 +98,11 @@ def main() -> None:
         f"{summary['within_1m']} / {summary['within_5m']} / {summary['within_10m']}"
     )
     if args.compare_eval is not None:
-        figures["agreement_with_evaluation"] = agreement = agreement_with_evaluation(
+        figures["agreement_with_evaluation"] = agreement = track_agreement(
             figures["tracks"], json.loads(args.compare_eval.read_text())
         )
         print(
-            f"frames answered as `geoloc eval world` answered them: {agreement['same']} of {agreement['frames']}"
+            f"frames answered as `geoloc eval world` answered them: {agreement['same']} of {agreement['photos']}"
             f"; differing (track, frame, API error m, evaluation error m): {agreement['differ']}"
         )
     args.json.write_text(json.dumps(figures, indent=2))

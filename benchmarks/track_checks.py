@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import statistics
 from pathlib import Path
 from typing import Any
@@ -42,35 +41,3 @@ def track_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "frames": len(errors),
         **{f"within_{d}m": round(sum(e <= d for e in located) / len(errors), 3) for d in (1, 5, 10)},
     }
-
-
-SAME_ANSWER_M = 0.25
-SAME_ANSWER_SHARE = 0.02
-"""Two answers of a frame are the same when their errors differ by at most the larger of these (m, share of the
-error): the API's pose comes back in WGS84 and is measured there, the evaluation's in the map's local metres, which
-moves an error by a few centimetres (2 % at 500 m)."""
-
-
-def agreement_with_evaluation(tracks: dict[str, dict[str, Any]], evaluation: dict[str, Any]) -> dict[str, Any]:
-    """How many frames the API answered as ``geoloc eval world`` did (its JSON), both with each frame's GPS prior.
-
-    tracks: the benchmark's per-track rows (``errors_m`` in frame order) by track number; evaluation: the JSON of
-    ``geoloc eval world`` on the same world (``tracks.gps.per_frame``). Returns ``frames`` compared, ``same`` (the
-    errors within :data:`SAME_ANSWER_M` or :data:`SAME_ANSWER_SHARE`) and ``differ``: (track, index, API error,
-    evaluation error) of the others.
-    """
-    by_frame = {
-        (int(r["track"]), int(r["index"])): float(r["error_m"]) for r in evaluation["tracks"]["gps"]["per_frame"]
-    }
-    differ = []
-    frames = 0
-    for track, row in sorted(tracks.items(), key=lambda item: int(item[0])):
-        for index, api in enumerate(row["errors_m"]):
-            theirs = by_frame.get((int(track), index))
-            if theirs is None:
-                continue
-            frames += 1
-            mine = math.inf if api is None else float(api)
-            if not (mine == theirs or abs(mine - theirs) <= max(SAME_ANSWER_M, SAME_ANSWER_SHARE * theirs)):
-                differ.append((int(track), index, api, theirs))
-    return {"frames": frames, "same": frames - len(differ), "differ": differ}

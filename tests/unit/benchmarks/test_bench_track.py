@@ -5,7 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from benchmarks.track_checks import agreement_with_evaluation, track_summary, world_tracks
+from benchmarks.eval_agreement import query_agreement, track_agreement
+from benchmarks.track_checks import track_summary, world_tracks
 from contracts.settings import shared_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
@@ -46,6 +47,12 @@ def test_agreement_with_the_evaluation_allows_the_wgs84_round_trip_and_no_more()
         {"track": 1, "index": 0, "error_m": 3.0},  # the API answered nothing
         {"track": 1, "index": 1, "error_m": 2.5},  # 0.5 m apart: another answer
     ]
-    agreement = agreement_with_evaluation(tracks, {"tracks": {"gps": {"per_frame": per_frame}}})
-    assert (agreement["frames"], agreement["same"]) == (5, 3)
-    assert agreement["differ"] == [(1, 0, None, 3.0), (1, 1, 2.0, 2.5)]
+    agreement = track_agreement(tracks, {"tracks": {"gps": {"per_frame": per_frame}}})
+    assert (agreement["photos"], agreement["same"]) == (5, 3)
+    assert agreement["differ"] == [((1, 0), None, 3.0), ((1, 1), 2.0, 2.5)]
+    queries = {"query_000": 4.0, "query_001": None, "query_002": 12.0, "track_00_00": 1.0}
+    per_query = [{"name": "query_000", "error_m": 4.1}, {"name": "query_001", "error_m": 9.0}]
+    per_query.append({"name": "query_002", "error_m": 11.0})
+    single = query_agreement(queries, {"runs": {"ours/gps": {"per_query": per_query}}})
+    assert (single["photos"], single["same"]) == (3, 1)  # a track frame is not a single query of the evaluation
+    assert single["differ"] == [("query_001", None, 9.0), ("query_002", 12.0, 11.0)]
