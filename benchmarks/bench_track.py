@@ -12,8 +12,7 @@ frame's analysis and answer, the smoother), the workers' CPU seconds over it, th
 its frames' errors against the manifest (the rank-1 pose the API returns). Printed: the median and the
 largest wall time beside the must-hold, and the frames' shares within 1 / 5 / 10 m. With ``--compare-eval
 EVAL.json`` (``geoloc eval world``'s JSON of the same world), also how many frames the API answered as the
-evaluation did (:mod:`eval_agreement`): the evaluation measures what ships only if they
-are the same.
+evaluation did (:mod:`eval_agreement`): the evaluation measures what ships only if they are the same.
 """
 
 from __future__ import annotations
