@@ -24,11 +24,8 @@ environment), and each ``--variant`` one more service of this checkout with othe
    (``/proc/PID/clear_refs``), while answering queries.
 5. Answers: each query's ranked locations on every other service next to this checkout's (rank 1 position
    and heading, the number of locations), which must agree: the speed-ups do not change what the method
-   computes.
-
-With ``--compare-eval EVAL.json`` (``geoloc eval world``'s JSON of ``--world``), this checkout's answers of the
-first round are compared with the evaluation's ``ours/gps`` (:mod:`eval_agreement`).
-
+   computes. With ``--compare-eval EVAL.json`` (``geoloc eval world``'s JSON of ``--world``), this checkout's
+   answers of the first round are also compared with the evaluation's ``ours/gps`` (:mod:`eval_agreement`).
 6. The floor (issue 23): the segmentation network's own CPU per query photo, measured in this process after
    the queries (:func:`segmentation_cpu`: the workers' session and threads, the median per photo); each
    service's worker CPU per query over it, and each stage's median over the service's segmentation stage.
