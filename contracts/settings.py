@@ -181,7 +181,11 @@ class Settings(BaseSettings):
         description="the preset of a query that names none: `fast`, `balanced` or `accurate` (the query stage's "
         "configurations, `geoloc/localize/query/config.py: PRESETS`)",
     )
-    ready_worker_s: float = Field(default=30.0, ge=0, description="`/readyz` needs a worker heartbeat this recent")
+    ready_worker_s: float = Field(
+        default=30.0,
+        ge=0,
+        description="`/readyz` needs a heartbeat this recent from a worker that takes queries (not a map-only one)",
+    )
     seg_threads: int | None = Field(
         default=None,
         ge=1,

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Sequence
 from typing import Any, cast, overload
 
 from contracts.jobs import JobPayload
@@ -374,15 +375,15 @@ def jobs_to_publish(
 # --- worker registry (for /readyz and for finding who runs what) ---------------------------------
 
 
-def register_worker(db: Database, worker_id: str, pid: int, hostname: str) -> None:
-    """Record a worker process as alive."""
+def register_worker(db: Database, worker_id: str, pid: int, hostname: str, kinds: Sequence[str] = ()) -> None:
+    """Record a worker process as alive, with the job kinds it claims (empty: every kind)."""
     now = time.time()
     db.execute(
-        "INSERT INTO workers (worker_id, pid, hostname, started_at, heartbeat_at) VALUES (?, ?, ?, ?, ?)"
+        "INSERT INTO workers (worker_id, pid, hostname, started_at, heartbeat_at, kinds) VALUES (?, ?, ?, ?, ?, ?)"
         " ON CONFLICT (worker_id) DO UPDATE SET pid = excluded.pid, hostname = excluded.hostname,"
         " started_at = excluded.started_at, heartbeat_at = excluded.heartbeat_at, stopped_at = NULL,"
-        " current_job_id = NULL",
-        (worker_id, pid, hostname, now, now),
+        " current_job_id = NULL, kinds = excluded.kinds",
+        (worker_id, pid, hostname, now, now, ",".join(kinds) or None),
     )
 
 
@@ -400,6 +401,11 @@ def stop_worker(db: Database, worker_id: str) -> None:
         "UPDATE workers SET stopped_at = ?, current_job_id = NULL WHERE worker_id = ?",
         (time.time(), worker_id),
     )
+
+
+def claimed_kinds(worker: WorkerRow) -> tuple[str, ...]:
+    """The job kinds a registered worker claims; empty: every kind."""
+    return tuple(worker["kinds"].split(",")) if worker["kinds"] else ()
 
 
 def live_workers(db: Database, within_s: float) -> list[WorkerRow]:

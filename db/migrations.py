@@ -312,6 +312,13 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         CREATE INDEX queries_track ON queries(track_id, frame_index);
         """,
     ),
+    (
+        11,
+        "workers: the job kinds each worker claims (NULL: every kind); /readyz counts those that take queries",
+        """
+        ALTER TABLE workers ADD COLUMN kinds TEXT;
+        """,
+    ),
 ]
 
 LATEST_VERSION = MIGRATIONS[-1][0]

@@ -165,3 +165,4 @@ class WorkerRow(TypedDict):
     heartbeat_at: float
     current_job_id: int | None
     stopped_at: float | None
+    kinds: str | None  # the job kinds it claims, comma-separated; None: every kind

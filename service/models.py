@@ -320,7 +320,10 @@ class Readiness(BaseModel):
     )
     schema_version: int
     expected_schema_version: int
-    live_workers: int = Field(description="Worker processes with a heartbeat within `GEOLOC_READY_WORKER_S`")
+    live_workers: int = Field(
+        description="Worker processes that take queries and references (not those that only parse maps) with a "
+        "heartbeat within `GEOLOC_READY_WORKER_S`"
+    )
     problems: list[str] = Field(default_factory=list)
 
 

@@ -21,7 +21,7 @@ from service.errors import error_body
 from service.models import About, ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
 from service.tenancy import require_job
 from workers.broker import broker_problem
-from workers.context import model_problems
+from workers.context import model_problems, runs_method_jobs
 
 router = APIRouter()
 MODEL_CHECK_TTL_S = 10.0
@@ -62,7 +62,8 @@ def readyz(request: Request) -> Readiness | JSONResponse:
     """Report whether the service can take work; 503 with every reason in ``problems`` when not.
 
     Ready when the database answers at the current schema version, the broker answers (distributed
-    profile), the models the workers need are built and current, and a worker heartbeat is recent.
+    profile), the models the workers need are built and current, and a worker that takes queries and references
+    has a recent heartbeat (a worker that only parses maps, as ``serve --workers 0`` runs one, is not counted).
     """
     settings = app_settings(request)
     problems: list[str] = []
@@ -72,7 +73,8 @@ def readyz(request: Request) -> Readiness | JSONResponse:
         try:
             db.execute("SELECT 1").fetchone()
             version = schema_version(db)
-            workers = len(job_store.live_workers(db, settings.ready_worker_s))
+            live = job_store.live_workers(db, settings.ready_worker_s)
+            workers = sum(runs_method_jobs(job_store.claimed_kinds(worker)) for worker in live)
             database_ok = True
         finally:
             db.close()
@@ -88,7 +90,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
         problems.append(f"database schema version {version}, expected {LATEST_VERSION}")
     problems += model_problems_cached(settings)
     if workers == 0:
-        problems.append(f"no worker heartbeat in the last {settings.ready_worker_s:.0f} s")
+        problems.append(f"no worker that takes queries has a heartbeat in the last {settings.ready_worker_s:.0f} s")
     readiness = Readiness(
         status="not_ready" if problems else "ready",
         profile="distributed" if settings.distributed else "embedded",

@@ -69,7 +69,9 @@ class ProcessState:
         """Register the process and start its heartbeat/reconciler/retention thread."""
         db = connect(self.settings.database)
         try:
-            job_store.register_worker(db, self.worker.worker_id, os.getpid(), socket.gethostname())
+            job_store.register_worker(
+                db, self.worker.worker_id, os.getpid(), socket.gethostname(), self.settings.worker_kinds
+            )
         finally:
             db.close()
         self.thread.start()

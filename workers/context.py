@@ -13,6 +13,7 @@ onnxruntime's CUDA provider is refused like a missing model: a worker does not s
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 
@@ -90,6 +91,14 @@ MODEL_FREE_KINDS = (LOAD_MAP,)
 """Job kinds whose handlers need no built models (a map's parse)."""
 
 
+def runs_method_jobs(kinds: Sequence[str]) -> bool:
+    """Whether a worker claiming ``kinds`` (empty: every kind) runs the method's jobs (queries, references).
+
+    A worker that claims only model-free kinds (``serve --workers 0``'s map parser) does not.
+    """
+    return not kinds or any(kind not in MODEL_FREE_KINDS for kind in kinds)
+
+
 def needs_models(settings: Settings) -> bool:
     """Whether this process's workers run the method's jobs: all do, but those that claim only model-free kinds."""
-    return not settings.worker_kinds or any(kind not in MODEL_FREE_KINDS for kind in settings.worker_kinds)
+    return runs_method_jobs(settings.worker_kinds)

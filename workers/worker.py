@@ -95,7 +95,7 @@ class Worker:
         """The main loop; returns the number of jobs run."""
         db = connect(self.database)
         migrate(db)
-        job_store.register_worker(db, self.worker_id, os.getpid(), socket.gethostname())
+        job_store.register_worker(db, self.worker_id, os.getpid(), socket.gethostname(), self.settings.worker_kinds)
         settle_heap()  # the imported modules and handlers: out of the collector's walks from the first job on
         log.info("worker %s started (handlers: %s)", self.worker_id, ", ".join(sorted(self.handlers)) or "none")
         jobs_run = 0

@@ -227,6 +227,29 @@ def test_migration_6_adds_the_map_attribution_to_an_existing_database(
     database.close()
 
 
+def test_workers_record_the_kinds_they_claim(tmp_path: Path, profile: Profile, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A worker registered before migration 11 claims every kind; one registered after keeps its kinds."""
+    path = profile.postgres.new_empty_database() if profile.postgres else tmp_path / "v10.sqlite3"
+    database = connect(path)
+    with monkeypatch.context() as patched:
+        patched.setattr(migrations, "MIGRATIONS", [m for m in migrations.MIGRATIONS if m[0] <= 10])
+        assert migrate(database) == 10
+    database.execute(  # as a worker of version 10 registered itself
+        "INSERT INTO workers (worker_id, pid, hostname, started_at, heartbeat_at) VALUES (?, ?, ?, ?, ?)",
+        ("old", 1, "h", time.time(), time.time()),
+    )
+    assert migrate(database) == LATEST_VERSION
+    job_store.register_worker(database, "maps", 2, "h", ("load_map",))
+    job_store.register_worker(database, "all", 3, "h")
+    job_store.register_worker(database, "two", 4, "h", ("label_reference", "load_map"))
+    kinds = {w["worker_id"]: job_store.claimed_kinds(w) for w in job_store.live_workers(database, 60)}
+    assert kinds == {"old": (), "maps": ("load_map",), "all": (), "two": ("label_reference", "load_map")}
+    job_store.register_worker(database, "maps", 5, "h")  # the same id started again without a restriction
+    again = [w for w in job_store.live_workers(database, 60) if w["worker_id"] == "maps"]
+    assert [job_store.claimed_kinds(w) for w in again] == [()]
+    database.close()
+
+
 def test_buildings_by_id(db) -> None:
     map_id = add_map(db)
     assert [b["building_id"] for b in map_store.list_buildings(db, map_id, building_ids=[1])] == [1]
