@@ -25,6 +25,7 @@ from tests.service_fixtures import (
     geoloc_command,
     get_job_row,
     jpeg_bytes,
+    read_rows,
     running_service,
     service_env,
     wait_for,
@@ -73,6 +74,11 @@ def test_cuda_without_a_gpu_no_start(tmp_path: Path, built_models: Path, args: l
 def test_api_alone_starts_and_readyz_says_why(tmp_path: Path, profile: Profile) -> None:
     env = profile.new_env()
     with running_service(tmp_path / "data", workers=0, **env) as service, service.client(None) as client:
+        # `serve --workers 0` still runs one worker, that takes only load_map jobs: once it has registered, /readyz
+        # must still count no worker, since none would answer a query.
+        sql = "SELECT kinds FROM workers WHERE stopped_at IS NULL"
+        registered = wait_for(lambda: read_rows(service.database, sql), timeout=60, what=service.log_tail)
+        assert [row["kinds"] for row in registered] == ["load_map"]
         ready = client.get("/readyz")
     assert ready.status_code == 503
     details = ready.json()["error"]["details"]
@@ -80,8 +86,6 @@ def test_api_alone_starts_and_readyz_says_why(tmp_path: Path, profile: Profile) 
     assert details["broker"] == ("ok" if profile.distributed else None)
     problems = details["problems"]
     assert any("segmentation model not found" in p for p in problems), problems
-    # `serve --workers 0` still runs one worker that takes only load_map jobs: /readyz must not count it, whether or
-    # not it has beaten by now, since no worker would answer a query.
     assert details["live_workers"] == 0, details
     assert any("no worker that takes queries has a heartbeat" in p for p in problems), problems
 
