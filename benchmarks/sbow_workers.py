@@ -39,12 +39,17 @@ def answer():
     return json.dumps({"pid": os.getpid(), "digest": hashlib.sha256(json.dumps(lists).encode()).hexdigest()})
 """
 
-CHILD = ANSWER + """
+CHILD = (
+    ANSWER
+    + """
 print(answer(), flush=True)
 sys.stdin.readline()
 """
+)
 
-POOL = ANSWER + """
+POOL = (
+    ANSWER
+    + """
 from workers.pool import fork_warmed
 r, w = os.pipe()
 def child(_):
@@ -60,6 +65,7 @@ sys.stdin.readline()
 for pid in pids:
     os.waitpid(pid, 0)
 """
+)
 """The pool's way (``GEOLOC_WORKER_START=fork``): one parent warms and forks the children with
 :func:`workers.pool.fork_warmed`, the function the service's pool uses; it prints each child's line."""
 

@@ -134,9 +134,7 @@ class IndexSnapshot:
     recent_changes: list[tuple[int, int]]
 
 
-def index_snapshot(
-    db: Database, map_id: int, *, lookback: int = 0, chunk_rows: int = 1 << 20
-) -> IndexSnapshot:
+def index_snapshot(db: Database, map_id: int, *, lookback: int = 0, chunk_rows: int = 1 << 20) -> IndexSnapshot:
     """Every document and postings row of a map's index, read in one snapshot with the log's mark.
 
     Also the log's rows within ``lookback`` of the mark (the changes the snapshot already holds).

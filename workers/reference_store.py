@@ -181,4 +181,3 @@ class DatabaseReferenceStore:
                 while len(_POSITIONS) > POSITION_CACHE_SIZE:
                     _POSITIONS.popitem(last=False)
         return {original: found[i] for i, original in zip(ids, reference_ids, strict=True) if i in found}
-

@@ -255,8 +255,12 @@ def aliked_keypoints(
         xy, scores = detect_keypoints(maps.score, max_keypoints, allowed_s, min_score=min_score)
         levels.append((maps, xy, scores, size[0] / w, size[1] / h))
     if not levels:
-        return Keypoints(np.zeros((0, 2), np.float32), np.zeros(0, np.float32),
-                         np.zeros((0, runtime.descriptor_dim), np.float32), np.zeros(0, np.float32))
+        return Keypoints(
+            np.zeros((0, 2), np.float32),
+            np.zeros(0, np.float32),
+            np.zeros((0, runtime.descriptor_dim), np.float32),
+            np.zeros(0, np.float32),
+        )
     level_of = np.concatenate([np.full(len(lv[1]), i) for i, lv in enumerate(levels)])
     all_scores = np.concatenate([lv[2] for lv in levels])
     keep = np.sort(np.argsort(-all_scores, kind="stable")[:max_keypoints])

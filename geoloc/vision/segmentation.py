@@ -172,9 +172,7 @@ def _group_probabilities(logits: np.ndarray, mapping: np.ndarray) -> np.ndarray:
     return probabilities
 
 
-def class_probabilities(
-    image_rgb: np.ndarray, *, session: Any, mapping: np.ndarray = CITYSCAPES_TO_OURS
-) -> np.ndarray:
+def class_probabilities(image_rgb: np.ndarray, *, session: Any, mapping: np.ndarray = CITYSCAPES_TO_OURS) -> np.ndarray:
     """Per-pixel probabilities of our classes at the image's resolution.
 
     Parameters

@@ -140,9 +140,7 @@ def test_counts_follow_the_jobs(tmp_path: Path, profile: Profile) -> None:
         accepted = _add_references(client, map_id, 4, seed0=300)
         db = connect(service.database)
         try:  # the job store moves the jobs as a worker would: one running, one failed, one done
-            claimed = [
-                job_store.claim_job(db, worker, lease_s=600, kinds=[LABEL_REFERENCE]) for _ in range(3)
-            ]
+            claimed = [job_store.claim_job(db, worker, lease_s=600, kinds=[LABEL_REFERENCE]) for _ in range(3)]
             assert [j["id"] if j else None for j in claimed] == [a["job_id"] for a in accepted[:3]]
             _running, failing, finishing = (j for j in claimed if j is not None)
             job_store.fail_job(db, failing["id"], worker, "deliberate failure", permanent=True)

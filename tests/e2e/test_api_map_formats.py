@@ -143,8 +143,6 @@ def test_mercator_geojson_without_crs_is_refused_with_the_way_out(
     assert snapshot(service) == before
 
 
-
-
 @pytest.mark.parametrize("case", BAD_CASES)
 def test_malformed_map_is_refused_and_nothing_is_stored(
     client: httpx.Client, service: RunningProcess, files: MapFiles, case: str

@@ -69,8 +69,9 @@ def client(service: RunningProcess) -> Iterator[httpx.Client]:
 def helsinki(client: httpx.Client) -> dict[str, Any]:
     path = shared_path("data", "osm", "helsinki.osm.pbf")
     with path.open("rb") as f:
-        response = client.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)},
-            data={"wait_s": "120", "name": "helsinki"})
+        response = client.post(
+            "/v1/maps", files={"file": ("helsinki.osm.pbf", f)}, data={"wait_s": "120", "name": "helsinki"}
+        )
     assert response.status_code == 201, response.text
     return response.json()
 
@@ -157,8 +158,9 @@ GEOJSON_MAP = (
 
 def test_geojson_map_upload_and_delete(client: httpx.Client, service: RunningProcess) -> None:
     before = Unchanged(service)
-    response = client.post("/v1/maps", files={"file": ("town.json", GEOJSON_MAP)},
-        data={"wait_s": "120", "name": "town"})
+    response = client.post(
+        "/v1/maps", files={"file": ("town.json", GEOJSON_MAP)}, data={"wait_s": "120", "name": "town"}
+    )
     assert response.status_code == 201, response.text
     created = response.json()
     assert created["source_format"] == "geojson" and created["building_count"] == 1

@@ -54,8 +54,9 @@ def test_a_walk_is_labelled_then_placed_jointly(
     ):
         osm = shared_path("data", "osm", "helsinki.osm.pbf")
         with osm.open("rb") as f:
-            map_id = client.post("/v1/maps", files={"file": (osm.name, f)},
-                data={"wait_s": "120", "name": "helsinki"}).json()["id"]
+            map_id = client.post(
+                "/v1/maps", files={"file": (osm.name, f)}, data={"wait_s": "120", "name": "helsinki"}
+            ).json()["id"]
         ids = {im.name: _upload(client, map_id, im.path)["id"] for im in world.references}
 
         def placed() -> dict[int, dict[str, Any]] | None:

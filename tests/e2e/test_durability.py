@@ -98,12 +98,14 @@ def test_a_corrupted_stored_photo_fails_its_job_the_others_go_on(tmp_path: Path,
 
 
 def test_a_map_deleted_under_a_running_job_fails_it_at_once(tmp_path: Path, built_models: Path) -> None:
-    with running_service(tmp_path / "data", workers=1, models=built_models) as service, service.client(
-        WRITE_KEY, timeout=120
-    ) as client:
+    with (
+        running_service(tmp_path / "data", workers=1, models=built_models) as service,
+        service.client(WRITE_KEY, timeout=120) as client,
+    ):
         with shared_path("data", "osm", "helsinki.osm.pbf").open("rb") as f:
-            map_id = client.post("/v1/maps", files={"file": ("h.osm.pbf", f)},
-                data={"wait_s": "120", "name": "h"}).json()["id"]
+            map_id = client.post(
+                "/v1/maps", files={"file": ("h.osm.pbf", f)}, data={"wait_s": "120", "name": "h"}
+            ).json()["id"]
         accepted = client.post(
             f"/v1/maps/{map_id}/references",
             files={"image": ("r.jpg", jpeg_bytes(1280, 960, seed=4))},
@@ -257,8 +259,11 @@ def test_a_full_disk_answers_507_stores_nothing_and_recovers(tmp_path: Path, pro
             for response in (
                 _upload_reference(client, map_id, jpeg_bytes(seed=2)),
                 client.post(f"/v1/maps/{map_id}/queries", files={"image": ("q.jpg", jpeg_bytes(seed=3))}),
-                client.post("/v1/maps", files={"file": ("m.geojson", json.dumps(ONE_BUILDING).replace(
-                    "Hall", "Other hall").encode())}, data={"wait_s": "120", "name": "other"}),  # fmt: skip
+                client.post(
+                    "/v1/maps",
+                    files={"file": ("m.geojson", json.dumps(ONE_BUILDING).replace("Hall", "Other hall").encode())},
+                    data={"wait_s": "120", "name": "other"},
+                ),  # fmt: skip
             ):
                 assert response.status_code == 507, response.text
                 error = response.json()["error"]
@@ -293,8 +298,12 @@ def test_a_full_disk_answers_507_stores_nothing_and_recovers(tmp_path: Path, pro
             assert recovered.status_code == 202, recovered.text
             assert client.get(f"/v1/references/{recovered.json()['id']}").status_code == 200
             other = json.dumps(ONE_BUILDING).replace("Hall", "Other hall").encode()
-            assert client.post("/v1/maps", files={"file": ("m.geojson", other)},
-                data={"wait_s": "120", "name": "o"}).status_code == 201
+            assert (
+                client.post(
+                    "/v1/maps", files={"file": ("m.geojson", other)}, data={"wait_s": "120", "name": "o"}
+                ).status_code
+                == 201
+            )
         if not profile.distributed:
             assert _integrity(service.database) == "ok"
         _assert_every_row_complete(service)

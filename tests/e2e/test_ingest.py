@@ -47,8 +47,9 @@ def service(tmp_path_factory: pytest.TempPathFactory, profile: Profile) -> Itera
 @pytest.fixture(scope="module")
 def helsinki_id(service: RunningProcess) -> int:
     with service.client(WRITE_KEY) as client, shared_path("data", "osm", "helsinki.osm.pbf").open("rb") as f:
-        response = client.post("/v1/maps", files={"file": ("helsinki.osm.pbf", f)},
-            data={"wait_s": "120", "name": "helsinki"})
+        response = client.post(
+            "/v1/maps", files={"file": ("helsinki.osm.pbf", f)}, data={"wait_s": "120", "name": "helsinki"}
+        )
     assert response.status_code == 201, response.text
     return int(response.json()["id"])
 

@@ -67,8 +67,9 @@ def service(tmp_path_factory: pytest.TempPathFactory, built_models: Path) -> Ite
 def answered(service: RunningProcess, map_file: Path) -> Iterator[tuple[httpx.Client, dict[str, Any]]]:
     with service.client(WRITE_KEY) as client:
         files = {"file": ("two.geojson", map_file.read_bytes())}
-        response = client.post("/v1/maps", files=files,
-            data={"wait_s": "120", "name": "two", "attribution": ATTRIBUTION})
+        response = client.post(
+            "/v1/maps", files=files, data={"wait_s": "120", "name": "two", "attribution": ATTRIBUTION}
+        )
         assert response.status_code == 201, response.text
         map_id = response.json()["id"]
         response = client.post(

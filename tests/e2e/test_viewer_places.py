@@ -26,8 +26,12 @@ def helsinki_service(tmp_path: Path) -> Iterator[tuple[str, httpx.Client]]:
     with running_service(tmp_path / "data", workers=0) as service, service.client(WRITE_KEY) as api:
         path = shared_path("data", "osm", "helsinki.osm.pbf")
         with path.open("rb") as f:
-            assert api.post("/v1/maps", files={"file": (path.name, f)},
-                data={"wait_s": "120", "name": "helsinki"}).status_code == 201
+            assert (
+                api.post(
+                    "/v1/maps", files={"file": (path.name, f)}, data={"wait_s": "120", "name": "helsinki"}
+                ).status_code
+                == 201
+            )
         yield service.base_url, api
 
 

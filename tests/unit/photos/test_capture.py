@@ -191,4 +191,3 @@ def test_bad_subseconds_and_offsets_are_left_out(tmp_path: Path) -> None:
 @pytest.mark.parametrize("data", [b"", b"not an image", b"\xff\xd8\xff\xe1\x00\x10Exif\x00\x00garbage!"])
 def test_never_raises(data: bytes) -> None:
     assert read_capture(data) == CaptureInfo()
-

@@ -211,8 +211,13 @@ def test_aliked_features_contract(exported: Path, tmp_path: Path) -> None:
     assert f.xy[:, 0].max() > 500  # not working pixels
     # The same content at the working size gives the same keypoints, scaled.
     work = cv2.resize(image, (640, 480), interpolation=cv2.INTER_AREA)
-    g = extract_features(work, cv2.resize(mask.astype(np.uint8), (640, 480), interpolation=cv2.INTER_NEAREST), 800,
-                         method="aliked", context=method_context())
+    g = extract_features(
+        work,
+        cv2.resize(mask.astype(np.uint8), (640, 480), interpolation=cv2.INTER_NEAREST),
+        800,
+        method="aliked",
+        context=method_context(),
+    )
     d = np.linalg.norm(((f.xy + 0.5) * f.scale - 0.5)[:, None, :] - g.xy[None, :, :], axis=2).min(axis=1)
     assert np.median(d) < 1e-3
     again = extract_features(image, mask, 800, method="aliked", context=method_context(), max_side=640)

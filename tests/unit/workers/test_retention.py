@@ -34,9 +34,7 @@ PLUGIN = TESTS_DIR / "answer_plugin.py"
 DAY_S = 86400.0
 
 
-def _query(
-    db: Database, data_dir: Path, map_id: int, photo: str, *, age_s: float, finished: bool
-) -> int:
+def _query(db: Database, data_dir: Path, map_id: int, photo: str, *, age_s: float, finished: bool) -> int:
     (data_dir / photo).parent.mkdir(parents=True, exist_ok=True)
     (data_dir / photo).write_bytes(b"photo")
     with transaction(db):
