@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from pydantic import ConfigDict
 
-from contracts.jobs import LABEL_REFERENCE, JobPayload, LabelReferencePayload
+from contracts.jobs import LABEL_REFERENCE, LOAD_MAP, JobPayload, LabelReferencePayload
 from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from db import LATEST_VERSION, Database, connect, migrate, migrations, sbow, schema_version, transaction
 from db import jobs as job_store
@@ -239,11 +239,11 @@ def test_workers_record_the_kinds_they_claim(tmp_path: Path, profile: Profile, m
         ("old", 1, "h", time.time(), time.time()),
     )
     assert migrate(database) == LATEST_VERSION
-    job_store.register_worker(database, "maps", 2, "h", ("load_map",))
+    job_store.register_worker(database, "maps", 2, "h", (LOAD_MAP,))
     job_store.register_worker(database, "all", 3, "h")
-    job_store.register_worker(database, "two", 4, "h", ("label_reference", "load_map"))
+    job_store.register_worker(database, "two", 4, "h", (LABEL_REFERENCE, LOAD_MAP))
     kinds = {w["worker_id"]: job_store.claimed_kinds(w) for w in job_store.live_workers(database, 60)}
-    assert kinds == {"old": (), "maps": ("load_map",), "all": (), "two": ("label_reference", "load_map")}
+    assert kinds == {"old": (), "maps": (LOAD_MAP,), "all": (), "two": (LABEL_REFERENCE, LOAD_MAP)}
     job_store.register_worker(database, "maps", 5, "h")  # the same id started again without a restriction
     again = [w for w in job_store.live_workers(database, 60) if w["worker_id"] == "maps"]
     assert [job_store.claimed_kinds(w) for w in again] == [()]
