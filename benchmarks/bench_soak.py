@@ -228,7 +228,10 @@ async def sampler(service: LocalService, database_url: str | None, every_s: floa
         row = await asyncio.to_thread(sample, time.monotonic() - t0, roles, service.data_dir, database_url)
         row["load_average"] = round(os.getloadavg()[0], 2)
         out.append(row)
-        rss = " ".join(f"{name.split()[0]}={p['rss_mb']:.0f}MB/{p['fds']}fd" for name, p in row["processes"].items())
+        rss = " ".join(
+            f"{name.split()[0]}={p['rss_mb']:.0f}MB(uss {p.get('uss_mb', float('nan')):.0f})/{p['fds']}fd"
+            for name, p in row["processes"].items()
+        )
         print(f"t={row['t_s']:6.0f}s queued={row['queued']:3d} db={row['db_bytes'] / 1e6:.1f}MB "
               f"store={row['store_bytes'] / 1e6:.1f}MB load={row['load_average']} {rss}", flush=True)  # fmt: skip
         try:

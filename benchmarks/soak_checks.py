@@ -1,9 +1,10 @@
 """The soak benchmark's samples and verdict (``benchmarks/bench_soak.py``), apart so the verdict is unit-tested.
 
 :func:`sample` reads, at one moment, each service process's resident memory (``/proc/PID/status`` ``VmRSS``,
-MB) and open file descriptors (``/proc/PID/fd``), the database size (the SQLite file with its ``-wal`` and
-``-shm``, or PostgreSQL's ``pg_database_size``), the store size (bytes under the data folder, less the
-database files and the linked models) and the queue depth (jobs ``queued``). :func:`verdict` turns a run's
+MB; beside it PSS and USS from ``/proc/PID/smaps_rollup``, reported, not judged) and open file descriptors
+(``/proc/PID/fd``), the database size (the SQLite file with its ``-wal`` and ``-shm``, or PostgreSQL's
+``pg_database_size``), the store size (bytes under the data folder, less the database files and the linked
+models) and the queue depth (jobs ``queued``). :func:`verdict` turns a run's
 samples and counts into the issue's checks.
 
 Decisions: a process's *level* is the median of its samples in a window (a sixth of the mark, at least three
@@ -36,8 +37,19 @@ RSS_TOLERANCE = 0.10
 DB_FILES = ("geoloc.sqlite3", "geoloc.sqlite3-wal", "geoloc.sqlite3-shm")
 
 
+ROLLUP_FIELDS = {"Pss": "pss_mb", "Pss_Anon": "pss_anon_mb", "Pss_File": "pss_file_mb", "Private_Clean": "uss_mb",
+                 "Private_Dirty": "uss_mb"}  # fmt: skip
+"""``/proc/PID/smaps_rollup`` lines read into a sample (USS: the private pages, clean and dirty, summed)."""
+
+
 def process_figures(pid: int) -> dict[str, float] | None:
-    """``{"rss_mb", "fds"}`` of a live process, None when it has gone."""
+    """``{"rss_mb", "fds"}`` of a live process and its ``smaps_rollup`` figures (:data:`ROLLUP_FIELDS`); None if gone.
+
+    RSS counts every page the process maps, shared ones whole: a worker forked from the pool
+    (``GEOLOC_WORKER_START=fork``) starts with the pool's pages in its RSS, and a page it frees and faults in again
+    moves between shared and private without changing what the machine holds. PSS (a shared page split between its
+    sharers) and USS (the pages only this process holds) say what it costs.
+    """
     try:
         rss_kb = next(
             int(line.split()[1])
@@ -45,9 +57,15 @@ def process_figures(pid: int) -> dict[str, float] | None:
             if line.startswith("VmRSS:")
         )
         fds = len(os.listdir(f"/proc/{pid}/fd"))
+        rollup = Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines()
     except (OSError, StopIteration):
         return None
-    return {"rss_mb": round(rss_kb / 1024.0, 1), "fds": fds}
+    figures: dict[str, float] = {"rss_mb": round(rss_kb / 1024.0, 1), "fds": fds}
+    for line in rollup:
+        key, _, value = line.partition(":")
+        if (name := ROLLUP_FIELDS.get(key)) is not None:
+            figures[name] = round(figures.get(name, 0.0) + int(value.split()[0]) / 1024.0, 1)
+    return figures
 
 
 def store_bytes(data_dir: Path) -> int:
@@ -159,6 +177,7 @@ def process_checks(samples: list[dict[str, Any]], mark_s: float) -> dict[str, di
         level = statistics.median(p["rss_mb"] for p in idle_early) if between_jobs else level_all
         final = statistics.median(p["rss_mb"] for p in idle_late) if between_jobs else final_all
         ratio = final / level if level else float("inf")
+        shares = _levels(idle_early if between_jobs else early, idle_late if between_jobs else late)
         fds_mark, fds_end = max(p["fds"] for p in early), min(p["fds"] for p in late)
         out[name] = {
             "alive_throughout": True,
@@ -173,7 +192,22 @@ def process_checks(samples: list[dict[str, Any]], mark_s: float) -> dict[str, di
             "fds_end_min": fds_end,
             "fds_end_max": max(p["fds"] for p in late),
             "fds_ok": fds_end <= fds_mark,
+            **shares,
         }
+    return out
+
+
+def _levels(early: list[dict[str, Any]], late: list[dict[str, Any]]) -> dict[str, float]:
+    """PSS and USS at the mark and at the end (medians, as the RSS level), and their ratios; where sampled."""
+    out: dict[str, float] = {}
+    for key in ("pss_mb", "uss_mb"):
+        first = [p[key] for p in early if key in p]
+        last = [p[key] for p in late if key in p]
+        if first and last:
+            level, final = statistics.median(first), statistics.median(last)
+            name = key.removesuffix("_mb")
+            out[f"{name}_mark_mb"], out[f"{name}_end_mb"] = round(level, 1), round(final, 1)
+            out[f"{name}_ratio"] = round(final / level if level else float("inf"), 3)
     return out
 
 

@@ -150,7 +150,7 @@ class Settings(BaseSettings):
         default="spawn",
         description="how the embedded profile starts its workers: `spawn` (separate `python -m workers` processes) "
         "or `fork` (Linux: one pool process imports and warms what every worker uses, then forks them: they share "
-        "those pages; opt-in until its hour-long soak passes, docs/operations.md)",
+        "those pages; worth it with four or more workers on a city-sized map, docs/operations.md)",
     )
     worker_nice: int = Field(
         default=10,

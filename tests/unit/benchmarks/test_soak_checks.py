@@ -104,3 +104,15 @@ def test_a_worker_level_is_taken_between_jobs_when_it_can_be() -> None:
     for i, sample in enumerate(series):  # the same mix with the worker's own memory growing between jobs
         sample["processes"]["worker 2"]["rss_mb"] += 0.5 * i
     assert failed(verdict(report(series))) == ["worker 2 resident memory within 10 % of its level at the mark"]
+
+
+def test_shared_and_private_memory_are_reported_beside_the_resident_size() -> None:
+    """PSS and USS levels come from the same samples as RSS's; reports written before they were sampled have none."""
+    series = samples({"worker 2": FLAT}, {"worker 2": FDS})
+    for i, sample in enumerate(series):  # resident size flat, its private part growing: pages unshared over time
+        sample["processes"]["worker 2"] |= {"pss_mb": 200.0 + 0.5 * i, "uss_mb": 100.0 + 1.0 * i}
+    figures = process_checks(series, MARK_S)["worker 2"]
+    assert abs(figures["rss_ratio"] - 1.0) < 0.01
+    assert figures["uss_mark_mb"] < figures["uss_end_mb"] and figures["uss_ratio"] > 1.5
+    assert 1.1 < figures["pss_ratio"] < figures["uss_ratio"]
+    assert "uss_ratio" not in process_checks(samples({"worker 2": FLAT}, {"worker 2": FDS}), MARK_S)["worker 2"]
