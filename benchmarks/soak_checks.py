@@ -174,10 +174,9 @@ def process_checks(samples: list[dict[str, Any]], mark_s: float) -> dict[str, di
         idle_early = _nearest(idle, mark_s + width, first=True)
         idle_late = _nearest(idle, end_start, first=False)
         between_jobs = len(idle) >= 2 * MIN_IDLE_SAMPLES
-        level = statistics.median(p["rss_mb"] for p in idle_early) if between_jobs else level_all
-        final = statistics.median(p["rss_mb"] for p in idle_late) if between_jobs else final_all
+        first, last = (idle_early, idle_late) if between_jobs else (early, late)
+        level, final = _medians(first, last, "rss_mb") or (level_all, final_all)
         ratio = final / level if level else float("inf")
-        shares = _levels(idle_early if between_jobs else early, idle_late if between_jobs else late)
         fds_mark, fds_end = max(p["fds"] for p in early), min(p["fds"] for p in late)
         out[name] = {
             "alive_throughout": True,
@@ -192,23 +191,20 @@ def process_checks(samples: list[dict[str, Any]], mark_s: float) -> dict[str, di
             "fds_end_min": fds_end,
             "fds_end_max": max(p["fds"] for p in late),
             "fds_ok": fds_end <= fds_mark,
-            **shares,
         }
+        for share in ("pss", "uss"):  # reported beside the RSS level, from the same samples; where sampled
+            if (found := _medians(first, last, f"{share}_mb")) is not None:
+                mark, end = found
+                out[name] |= {f"{share}_mark_mb": round(mark, 1), f"{share}_end_mb": round(end, 1),
+                              f"{share}_ratio": round(end / mark if mark else float("inf"), 3)}  # fmt: skip
     return out
 
 
-def _levels(early: list[dict[str, Any]], late: list[dict[str, Any]]) -> dict[str, float]:
-    """PSS and USS at the mark and at the end (medians, as the RSS level), and their ratios; where sampled."""
-    out: dict[str, float] = {}
-    for key in ("pss_mb", "uss_mb"):
-        first = [p[key] for p in early if key in p]
-        last = [p[key] for p in late if key in p]
-        if first and last:
-            level, final = statistics.median(first), statistics.median(last)
-            name = key.removesuffix("_mb")
-            out[f"{name}_mark_mb"], out[f"{name}_end_mb"] = round(level, 1), round(final, 1)
-            out[f"{name}_ratio"] = round(final / level if level else float("inf"), 3)
-    return out
+def _medians(first: list[dict[str, Any]], last: list[dict[str, Any]], key: str) -> tuple[float, float] | None:
+    """The median of ``key`` over the samples ``first`` and over ``last``; None where either has none of it."""
+    at_first = [p[key] for p in first if key in p]
+    at_last = [p[key] for p in last if key in p]
+    return (statistics.median(at_first), statistics.median(at_last)) if at_first and at_last else None
 
 
 def under_load(report: dict[str, Any]) -> list[dict[str, Any]]:

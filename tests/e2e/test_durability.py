@@ -263,7 +263,7 @@ def test_a_full_disk_answers_507_stores_nothing_and_recovers(tmp_path: Path, pro
                     "/v1/maps",
                     files={"file": ("m.geojson", json.dumps(ONE_BUILDING).replace("Hall", "Other hall").encode())},
                     data={"wait_s": "120", "name": "other"},
-                ),  # fmt: skip
+                ),
             ):
                 assert response.status_code == 507, response.text
                 error = response.json()["error"]
