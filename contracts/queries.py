@@ -22,6 +22,27 @@ DEFAULT_QUERY_PRESET: QueryPreset = "balanced"
 """The preset of parameters stored before presets existed (they were answered with today's ``balanced``)."""
 
 
+DEFAULT_PRIOR_RADIUS_M = 50.0
+"""A GPS prior's radius (m, about 2 sigma) when neither the request nor the photo states one (a street canyon's fix)."""
+MIN_GPS_PRIOR_RADIUS_M = 10.0
+"""The least radius (m) a GPS prior gets from the accuracy its device states (none is believed to the metre)."""
+
+
+def gps_prior_radius_m(stated_accuracy_m: float | None) -> float:
+    """The radius (m, about 2 sigma) of the prior a photo's GPS fix gives, from the accuracy its device states.
+
+    stated_accuracy_m: the photo's ``GPSHPositioningError`` or ``MAPGPSAccuracyMeters``
+    (``geoloc.photos.capture``), None when it states none: then :data:`DEFAULT_PRIOR_RADIUS_M`. Phones state
+    the radius of about 68 % confidence, 1.5 sigma per axis of a round Gaussian; the prior takes sigma as the
+    stated accuracy itself (radius twice it, at least :data:`MIN_GPS_PRIOR_RADIUS_M`), wider than that reading
+    because a fix beside tall buildings is off by more than its device says. Chosen on one track world
+    (docs/measurements.md, "The GPS's stated accuracy").
+    """
+    if stated_accuracy_m is None:
+        return DEFAULT_PRIOR_RADIUS_M
+    return max(2.0 * stated_accuracy_m, MIN_GPS_PRIOR_RADIUS_M)
+
+
 class PriorPosition(BaseModel):
     """A prior on the photo's position: a disc of ``radius_m`` (about 2 sigma) around (lat, lon)."""
 

@@ -38,6 +38,8 @@ class ImageInfo:
     height: int
     gps_lat: float | None = None
     gps_lon: float | None = None
+    gps_accuracy_m: float | None = None
+    """The horizontal accuracy (m) the device states for its GPS fix, None when it states none."""
     focal_length_35mm: float | None = None
     heading_deg: float | None = None
     """The compass heading (deg clockwise from true north), None without a compass."""
@@ -105,6 +107,7 @@ def _read_exif_into(path: Path, info: ImageInfo) -> None:
     capture = capture_of(block)
     info.capture_time = capture.time.isoformat() if capture.time is not None else None
     info.sequence_id = capture.sequence_id
+    info.gps_accuracy_m = capture.gps_accuracy_m if info.gps_lat is not None else None
     compass = capture.compass
     if compass is not None:
         info.heading_deg = compass.heading_deg

@@ -25,7 +25,7 @@ from fastapi.responses import FileResponse, JSONResponse
 from contracts.answers import QueryResult
 from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload
 from contracts.licenses import map_attribution
-from contracts.queries import PriorPosition, QueryParams, QueryPreset
+from contracts.queries import DEFAULT_PRIOR_RADIUS_M, PriorPosition, QueryParams, QueryPreset, gps_prior_radius_m
 from contracts.settings import Settings
 from db import Database, connect, transaction
 from db import jobs as job_store
@@ -58,7 +58,6 @@ from service.waiting import answered, long_poll
 from workers.broker import JobPublisher
 
 router = APIRouter(tags=["queries"])
-DEFAULT_PRIOR_RADIUS_M = 50.0
 
 
 def query_out(row: QueryRow, job: JobRow | None, attribution: str) -> QueryOut:
@@ -125,8 +124,8 @@ class QueryIntake(PhotoIntake):
     def check_photo(self, map_row: MapRow, info: ImageInfo) -> None:
         """The prior position, which must lie within the map's margin."""
         form, prior = self.form, None
-        radius_m = form.radius_m or DEFAULT_PRIOR_RADIUS_M
         if form.lat is not None and form.lon is not None:
+            radius_m = form.radius_m or DEFAULT_PRIOR_RADIUS_M
             prior = PriorPosition(lat=form.lat, lon=form.lon, radius_m=radius_m, source="request")
         elif form.place is not None:  # a named place overrides EXIF GPS (service.places)
             place = resolve_form_place(self.settings, map_row, form.place)
@@ -139,6 +138,7 @@ class QueryIntake(PhotoIntake):
                 place_kind=place.kind,
             )
         elif form.use_exif_gps and info.gps_lat is not None and info.gps_lon is not None:
+            radius_m = form.radius_m or gps_prior_radius_m(info.gps_accuracy_m)  # the fix's stated accuracy
             prior = PriorPosition(lat=info.gps_lat, lon=info.gps_lon, radius_m=radius_m, source="exif")
         if prior is not None:
             distance = distance_outside_bbox_m(prior.lat, prior.lon, map_row["bbox_wgs84"])
@@ -229,7 +229,14 @@ async def create_query(
     image: Annotated[UploadFile, File(description=f"The photo to geolocate ({ACCEPTED_NAMES}; checked by content)")],
     lat: Annotated[float | None, bounded_form("lat", "Prior position latitude (WGS84)")] = None,
     lon: Annotated[float | None, bounded_form("lon", "Prior position longitude (WGS84)")] = None,
-    radius_m: Annotated[float | None, bounded_form("radius_m", "Prior position radius (m, about 2 sigma)")] = None,
+    radius_m: Annotated[
+        float | None,
+        bounded_form(
+            "radius_m",
+            "Prior position radius (m, about 2 sigma); default 50, or with EXIF GPS twice the accuracy the photo "
+            "states (GPSHPositioningError or Mapillary's MAPGPSAccuracyMeters, at least 10)",
+        ),
+    ] = None,
     heading_deg: Annotated[float | None, bounded_form("heading_deg", "Prior heading, deg clockwise from north")] = None,
     use_exif_gps: Annotated[bool, Form(description="Use the photo's EXIF GPS as the prior position")] = True,
     place: Annotated[
@@ -260,7 +267,8 @@ async def create_query(
     A prior position (``lat``/``lon`` with ``radius_m``; else a ``place`` named in the map, the prior along
     its footprint or street (``radius_m``, when given, the distance from it), 422 ``ambiguous_place`` with
     candidates or ``unknown_place``; else
-    the photo's EXIF GPS unless ``use_exif_gps`` is false) and a prior heading (``heading_deg``, else the
+    the photo's EXIF GPS unless ``use_exif_gps`` is false, its radius from the accuracy the photo states) and a
+    prior heading (``heading_deg``, else the
     photo's compass with its accuracy as a robust prior: Mapillary's JSON, else EXIF GPSImgDirection) are
     used as priors and reported in ``result.search``. ``preset`` picks the query stage's configuration (fast,
     balanced, accurate; stored in ``params.preset``, the answer's ``search.preset`` and ``search.config``).

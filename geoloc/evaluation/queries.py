@@ -11,11 +11,12 @@ from typing import Any
 
 import numpy as np
 
+from contracts.queries import gps_prior_radius_m
 from geoloc.core.context import MethodContext
 from geoloc.evaluation.ground_truth import gt_identity_map
 from geoloc.evaluation.references import LabelledWorld
 from geoloc.evaluation.summaries import TOP_N, angle_error_deg, mean_or_none, run_summary
-from geoloc.localize.grid import DEFAULT_PRIOR_RADIUS_M, PositionPrior
+from geoloc.localize.grid import PositionPrior
 from geoloc.localize.identity import identity_accuracy
 from geoloc.localize.query import QueryConfig, geolocate, retrieve, transfer
 from geoloc.localize.retrieval import Vocabulary
@@ -86,13 +87,15 @@ def transfer_tables(
 def photo_priors(photo: Photo, city: CityMap, prior: str) -> tuple[PositionPrior | None, HeadingPrior | None]:
     """A query's (position, heading) priors for a run's ``prior``.
 
-    With "gps", what the service reads from the photo: its EXIF GPS (radius :data:`DEFAULT_PRIOR_RADIUS_M`) and
-    its compass when it has one; otherwise none.
+    With "gps", what the service reads from the photo: its EXIF GPS (radius
+    :func:`contracts.queries.gps_prior_radius_m` of the accuracy it states) and its compass when it has one;
+    otherwise none.
     """
     if prior != "gps" or photo.gps is None:
         return None, None
     x, y = (float(v) for v in city.frame.to_local(*photo.gps))
-    return PositionPrior.from_radius(x, y, DEFAULT_PRIOR_RADIUS_M), compass_prior_at(photo, city, (x, y))
+    radius_m = gps_prior_radius_m(photo.capture.gps_accuracy_m)
+    return PositionPrior.from_radius(x, y, radius_m), compass_prior_at(photo, city, (x, y))
 
 
 def answer_run(

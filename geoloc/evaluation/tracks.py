@@ -2,9 +2,9 @@
 
 Every track of a world (its frames: query photos with ``track`` and ``index`` in the manifest) goes through
 :func:`geoloc.localize.track.locate_track` once per prior: ``gps`` (each frame's EXIF GPS, radius
-:data:`geoloc.localize.grid.DEFAULT_PRIOR_RADIUS_M`, and its compass, as the service reads a photo) and ``none``
-(no prior at all). The stage answers each frame alone first, so the same frames answered one by one come from
-the same run (a frame's ``alone`` pose) and are reported beside the track's.
+:func:`contracts.queries.gps_prior_radius_m` of its stated accuracy, and its compass, as the service reads a
+photo) and ``none`` (no prior at all). The stage answers each frame alone first, so the same frames answered one
+by one come from the same run (a frame's ``alone`` pose) and are reported beside the track's.
 
 Figures (per prior): per frame, for the track's rank 1 and for the frame alone, the shares within 1 / 5 / 10 m
 and with heading within 2 / 5 deg, the median error, the share of the track's 90 % radius holding the truth;

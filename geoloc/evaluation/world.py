@@ -10,8 +10,8 @@ service's (memory instead of the database; both rank with the same SBoW formula)
 Runs (each query is answered once per run; :func:`default_runs`):
 
 - ``ours/gps``: the service's default: the query's EXIF GPS as the position prior (radius
-  :data:`geoloc.localize.grid.DEFAULT_PRIOR_RADIUS_M`) and its compass, when it has one, as the heading prior
-  (as the API reads a photo), network segmentation, transferred identities;
+  :func:`contracts.queries.gps_prior_radius_m` of the accuracy the photo states) and its compass, when it has
+  one, as the heading prior (as the API reads a photo), network segmentation, transferred identities;
 - ``ours/none``: the same without any prior (neither position nor heading);
 - ablation ladder under the GPS prior: ``gt_poses/gps`` (every reference at its true pose: the anchors'
   ceiling, the rest as the service does it), ``gt_identities/gps`` (perfect transfer: the query's identities

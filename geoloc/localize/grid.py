@@ -40,11 +40,9 @@ DEFAULT_QUERY_CELL_M = 10.0
 DEFAULT_SEARCH_RADIUS_M = 80.0
 PRIOR_REGION_SIGMAS = 3.0
 """A position prior limits the search to this many standard deviations around its centre."""
+MAX_PRIOR_WIDENING_M = 160.0
+"""A position prior's region with no open cell grows (doubling from one cell) by at most this much (m)."""
 MIN_BUILDING_PROBABILITY = 0.05  # identity mass a building needs (max over columns) to define the search region
-
-
-DEFAULT_PRIOR_RADIUS_M = 50.0
-"""Radius of a query's position prior when the request gives none (a phone's GPS in a street canyon)."""
 
 
 @dataclass(frozen=True)
@@ -163,7 +161,11 @@ def search_grid(
     search_radius_m: float,
     position_prior: PositionPrior | None,
 ) -> tuple[PoseGrid, str]:
-    """Candidate grid and a word on how it was chosen ("identified_buildings", "position_prior", "whole_map")."""
+    """Candidate grid and a word on how it was chosen ("identified_buildings", "position_prior", "whole_map").
+
+    A position prior's region that holds no open cell (its fix inside a block) grows to the nearest open ones, by
+    at most :data:`MAX_PRIOR_WIDENING_M`.
+    """
     if position_prior is not None:
         # The prior bounds the search; identities still weigh every pose inside it through the likelihood.
         region = position_prior.region(PRIOR_REGION_SIGMAS)
@@ -174,13 +176,25 @@ def search_grid(
     else:
         region = shapely.box(*city_map.bounds_m)
         reason = "whole_map"
+    grid = _grid_in(city_map, region, cell_m)
+    widen_m = cell_m
+    while position_prior is not None and not grid.valid.any() and widen_m <= MAX_PRIOR_WIDENING_M:
+        # A fix inside a block (a phone's jump beside tall buildings) can bound a region with no open ground: it
+        # grows to the nearest open cells, where the prior's own weight still falls off from the fix.
+        grid = _grid_in(city_map, shapely.buffer(region, widen_m), cell_m)
+        widen_m *= 2.0
+    return grid, reason
+
+
+def _grid_in(city_map: CityMap, region: shapely.Geometry, cell_m: float) -> PoseGrid:
+    """The grid of ``cell_m`` cells over ``region``'s bounds, valid where open (not in a building) and inside it."""
     min_x, min_y, max_x, max_y = (float(v) for v in shapely.bounds(region))
     # Snap the grid to multiples of the cell so that grids of different queries share positions.
     origin = np.floor(np.array([min_x, min_y]) / cell_m) * cell_m
     grid = make_grid(city_map, (origin[0], origin[1], max_x, max_y), cell_m)
     inside_region = shapely.contains_xy(region, *grid.positions.T)
     grid.valid[grid.valid] = inside_region
-    return grid, reason
+    return grid
 
 
 def localize(

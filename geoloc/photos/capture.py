@@ -7,7 +7,10 @@
 - EXIF ``GPSImgDirection`` + ``GPSImgDirectionRef`` ("T" true, "M" magnetic);
 - Mapillary's JSON in the 0th-IFD ``ImageDescription``: ``MAPCompassHeading`` (``TrueHeading``,
   ``MagneticHeading``, ``AccuracyDegrees``), ``MAPCaptureTime`` (``"2014_06_07_10_24_05_656"``, UTC),
-  ``MAPSequenceUUID`` and ``MAPPhotoUUID``.
+  ``MAPSequenceUUID``, ``MAPPhotoUUID`` and ``MAPGPSAccuracyMeters``;
+- the GPS fix's stated accuracy: EXIF ``GPSHPositioningError`` (metres), else Mapillary's
+  ``MAPGPSAccuracyMeters`` (a phone's horizontal accuracy: iOS and Android state the radius of about 68 %
+  confidence); a value that is not a finite number in (0, :data:`MAX_GPS_ACCURACY_M`] is left out.
 
 Like ``read_exif`` it never raises on bad metadata: a description that is not JSON, a heading that is not a
 finite number in [0, 360], an accuracy that is not a finite number in (0, 180] are left out (``None``).
@@ -48,6 +51,9 @@ CompassSource = Literal["exif", "mapillary"]
 CompassReference = Literal["true", "magnetic-converted"]
 TimeSource = Literal["exif", "mapillary"]
 
+MAX_GPS_ACCURACY_M = 10_000.0
+"""A stated GPS error above this (m) is not a fix's accuracy: it is left out."""
+
 DECLINATION_BOUND_DEG = 25.0
 """Bound (deg) on the magnetic declination where people take photos; widens a magnetic heading's accuracy."""
 
@@ -75,6 +81,7 @@ class CaptureInfo:
     time: the capture time (aware, or naive local camera time; rule in the module docstring).
     time_source: which field gave ``time``. sequence_id: Mapillary's ``MAPSequenceUUID`` (one walk).
     photo_id: Mapillary's ``MAPPhotoUUID``. compass: the preferred :class:`CompassReading`.
+    gps_accuracy_m: the horizontal accuracy the device states for its GPS fix (m; rule in the module docstring).
     """
 
     time: datetime | None = None
@@ -82,6 +89,7 @@ class CaptureInfo:
     sequence_id: str | None = None
     photo_id: str | None = None
     compass: CompassReading | None = None
+    gps_accuracy_m: float | None = None
 
 
 def _number(value: Any) -> float | None:
@@ -98,6 +106,13 @@ def _number(value: Any) -> float | None:
     else:
         return None
     return out if math.isfinite(out) else None
+
+
+def _rational(value: Any) -> Any:
+    """An EXIF rational ``(numerator, denominator)`` as a float (None over 0); any other value as it is."""
+    if isinstance(value, tuple) and len(value) == 2 and all(isinstance(v, int) for v in value):
+        return None if value[1] == 0 else value[0] / value[1]
+    return value
 
 
 def _heading(value: Any) -> float | None:
@@ -209,15 +224,21 @@ def _mapillary_compass(meta: dict[str, Any], declination_deg: float | None) -> t
 
 def _exif_compass(gps: dict[int, Any], declination_deg: float | None) -> tuple[CompassReading | None, ...]:
     """(true reading, magnetic reading) from ``GPSImgDirection`` and its ref, one of them set at most."""
-    value = gps.get(piexif.GPSIFD.GPSImgDirection)
-    if isinstance(value, tuple) and len(value) == 2 and all(isinstance(v, int) for v in value):
-        value = None if value[1] == 0 else value[0] / value[1]
-    heading = _heading(value)
+    heading = _heading(_rational(gps.get(piexif.GPSIFD.GPSImgDirection)))
     if heading is None:
         return None, None
     if (_ascii(gps.get(piexif.GPSIFD.GPSImgDirectionRef)) or "").upper() == "T":
         return CompassReading(heading, None, "exif", "true"), None
     return None, magnetic_to_true(heading, None, "exif", declination_deg)
+
+
+def _gps_accuracy(gps: dict[int, Any], meta: dict[str, Any]) -> float | None:
+    """The stated accuracy of the GPS fix (m): EXIF ``GPSHPositioningError``, else ``MAPGPSAccuracyMeters``."""
+    exif = _number(_rational(gps.get(piexif.GPSIFD.GPSHPositioningError)))
+    for stated in (exif, _number(meta.get("MAPGPSAccuracyMeters"))):
+        if stated is not None and 0.0 < stated <= MAX_GPS_ACCURACY_M:
+            return stated
+    return None
 
 
 def capture_from_exif(exif: dict[str, Any], *, declination_deg: float | None = None) -> CaptureInfo:
@@ -248,6 +269,7 @@ def capture_from_exif(exif: dict[str, Any], *, declination_deg: float | None = N
         sequence_id=sequence.strip() or None if isinstance(sequence, str) else None,
         photo_id=photo.strip() or None if isinstance(photo, str) else None,
         compass=compass,
+        gps_accuracy_m=_gps_accuracy(gps, meta),
     )
 
 

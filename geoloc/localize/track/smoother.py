@@ -7,7 +7,8 @@ Levenberg-Marquardt on planar poses), fed with a query frame's evidence instead 
   position sigma ``uncertainty_radius_m / R90_PER_SIGMA`` (its 90 % radius as a 2D Gaussian's sigma), times
   :attr:`TrackOptions.likelihood_scale` when the likelihood (not the map anchors) answered; heading sigma
   :attr:`TrackOptions.yaw_sigmas_deg`; Cauchy loss;
-- its position prior (the photo's GPS, sigma the prior's) under a Huber loss, its heading prior (compass), Cauchy;
+- its heading prior (compass), Cauchy; its position prior (the photo's GPS, sigma the prior's, Huber loss) only
+  when it has no answer of its own or its answer is set aside as an outlier's (an answer already weighed it);
 - relative poses between frames 1 to 3 apart, both ways: PnP of one frame's keypoints on the other frame's
   map anchors cast from that frame's own answer (:mod:`geoloc.localize.sequence.relative`). Consecutive frames
   3-8 m apart overlap heavily; the anchors give the motion its metric scale (an essential matrix would need
@@ -298,14 +299,18 @@ def place_track(
     """
     graph = _start_unanswered(graph, alone, edges)
     yaws = start_headings(alone, [g.heading_prior for g in graph], motions) if options.motion_starts else None
+    # The GPS enters once: a frame's own answer already weighed its prior (the query stage's), so a frame with an
+    # answer gets no GPS factor, until its answer is set aside as an outlier's. Counted twice, fixes stated to
+    # 4-11 m pulled the frames off their answers (docs/measurements.md, "The GPS's stated accuracy").
+    answered = [g if a is None else replace(g, gps_sigma_m=LOOSE_SIGMA) for g, a in zip(graph, alone, strict=True)]
     try:
-        poses = place_sequence(graph, options.placement, edges, motions, yaws)
+        poses = place_sequence(answered, options.placement, edges, motions, yaws)
         outliers = _outliers(alone, poses, options)
         if any(flag and pose.n_edges > 0 for flag, pose in zip(outliers, poses, strict=True)):
             weak = options.weak_label[0] ** 2 * np.eye(2)
             loosened = [
-                replace(g, position_covariance=weak, label_yaw_sigma_deg=options.weak_label[1]) if flag else g
-                for g, flag in zip(graph, outliers, strict=True)
+                replace(g, position_covariance=weak, label_yaw_sigma_deg=options.weak_label[1]) if flag else kept
+                for g, kept, flag in zip(graph, answered, outliers, strict=True)
             ]
             poses = place_sequence(loosened, options.placement, edges, motions, yaws)
     except RuntimeError:  # gtsam's IndeterminateLinearSystemException

@@ -100,6 +100,20 @@ def test_localize_uses_position_prior_and_refinement_reaches_the_true_pose() -> 
     assert refined.vp_bins > 20 and refined.likelihood > 0.9
 
 
+def test_a_prior_whose_region_lies_inside_a_building_grows_to_the_street() -> None:
+    city = street_canyon()
+    true_xy, true_yaw = (0.0, -2.5), 90.0
+    model, _ = _clean_model(city, true_xy, true_yaw, with_distance=True)
+    geometry = MapLikelihood(city, model, LikelihoodOptions(use_identity=False))
+    inside = PositionPrior.from_radius(25.0, 0.0, 10.0)  # a fix 15 m into the east block, stated to 5 m
+    assert inside.region(3.0).within(city.buildings[3].polygon.buffer(0.1))  # no open ground within 3 sigma
+    found = localize(geometry, position_prior=inside)
+    assert found.search["positions"] > 0 and found.search["region"] == "position_prior"
+    best = found.poses[0]
+    assert -10.0 <= best.x_m <= 10.0  # in the street, the nearest open ground
+    assert np.hypot(best.x_m - 25.0, best.y_m) < 25.0 + 5.0  # where the region grew to, near the fix
+
+
 def test_vanishing_point_yaw_is_exact_given_the_facade_seen() -> None:
     city = street_canyon()
     true_yaw = 77.3  # looking at the east wall 12.7 deg from head-on

@@ -30,13 +30,13 @@ def _answer(x: float, y: float, yaw: float, radius_m: float = 2.0, source: str =
     return AnswerPose(1, x, y, yaw, 0.5, radius_m, source)
 
 
-def _nodes(answers: list[AnswerPose | None]) -> list[SequenceFrame]:
+def _nodes(answers: list[AnswerPose | None], gps_radius_m: float = 50.0) -> list[SequenceFrame]:
     anchors = MapAnchors(np.zeros((0, 3)), np.zeros(0, int), np.zeros(0, int), np.zeros(0))
     intrinsics = Intrinsics(640, 480, 550.0, 320.0, 240.0)
     return [
         label_frame(
             a,
-            PositionPrior.from_radius(t[0] + 4.0, t[1] - 3.0, 50.0),  # a GPS 5 m off, as the walk's is
+            PositionPrior.from_radius(t[0] + 4.0, t[1] - 3.0, gps_radius_m),  # a GPS 5 m off, as the walk's is
             HeadingPrior(t[2] + 5.0, 20.0, 0.2),
             Features.empty((480, 640)),
             anchors,
@@ -112,6 +112,17 @@ def test_a_frame_with_no_answer_is_placed_by_its_neighbours() -> None:
         step = (TRUTH[3][0] - TRUTH[k][0], TRUTH[3][1] - TRUTH[k][1])
         assert math.hypot(pose.x_m - near.x_m - step[0], pose.y_m - near.y_m - step[1]) < 0.4
     assert abs((pose.yaw_deg - TRUTH[3][2] + 180.0) % 360.0 - 180.0) < 2.0
+
+
+def test_the_gps_counts_once_a_frame_with_its_own_answer_is_not_pulled_to_it_again() -> None:
+    """A frame's answer already weighed its GPS prior: only a frame with no answer gets a GPS factor."""
+    answers: list[AnswerPose | None] = [_answer(x, y, yaw, radius_m=4.3) for x, y, yaw in TRUTH]
+    answers[3] = None
+    nodes = _nodes(answers, gps_radius_m=12.0)  # a phone stating 6 m
+    smoothed = place_track(nodes, answers, [])  # no edge: each frame where its answer or its GPS puts it
+    errors = _errors(smoothed.poses)
+    assert max(errors[:3] + errors[4:]) < 0.05, errors  # on their answers, not drawn 5 m towards the GPS
+    assert math.hypot(smoothed.poses[3].x_m - TRUTH[3][0] - 4.0, smoothed.poses[3].y_m - TRUTH[3][1] + 3.0) < 0.5
 
 
 def test_without_edges_every_frame_keeps_its_own_answer() -> None:

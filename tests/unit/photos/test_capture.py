@@ -54,12 +54,15 @@ def test_lund_photos_read_as_one_walk() -> None:
     assert all(b > a for a, b in zip(times, times[1:], strict=False))  # type: ignore[operator]
     assert times[0] == datetime(2014, 6, 7, 10, 24, 5, 656000, tzinfo=UTC)
     for path, capture in zip(LUND, captures, strict=True):
-        stated = json.loads(piexif.load(str(path))["0th"][piexif.ImageIFD.ImageDescription])["MAPCompassHeading"]
+        meta = json.loads(piexif.load(str(path))["0th"][piexif.ImageIFD.ImageDescription])
+        stated = meta["MAPCompassHeading"]
         compass = capture.compass
         assert compass is not None and (compass.source, compass.reference) == ("mapillary", "true")
         assert 0.0 <= compass.heading_deg < 360.0
         assert compass.heading_deg == pytest.approx(stated["TrueHeading"])
         assert compass.accuracy_deg == stated["AccuracyDegrees"]
+        assert capture.gps_accuracy_m == float(meta["MAPGPSAccuracyMeters"])  # no GPSHPositioningError here
+    assert {c.gps_accuracy_m for c in captures} == {5.0, 10.0}
     assert load_photo(LUND[0]).capture == captures[0]  # the loader carries it
 
 
@@ -166,6 +169,24 @@ def test_malformed_values_are_ignored(
 def test_zero_accuracy_keeps_the_heading_without_accuracy(tmp_path: Path) -> None:
     capture = read_capture(_jpeg(tmp_path / "a.jpg", zeroth={270: _mapillary(TrueHeading=360.0, AccuracyDegrees=0)}))
     assert capture.compass == CompassReading(0.0, None, "mapillary", "true")
+
+
+def test_gps_accuracy_exif_first_then_mapillary(tmp_path: Path) -> None:
+    meta = json.dumps({"MAPGPSAccuracyMeters": "5.000000"}).encode()
+    zeroth = {piexif.ImageIFD.ImageDescription: meta}
+    both = _jpeg(tmp_path / "both.jpg", zeroth=zeroth, gps={piexif.GPSIFD.GPSHPositioningError: (65, 10)})
+    assert read_capture(both).gps_accuracy_m == 6.5
+    assert read_capture(_jpeg(tmp_path / "map.jpg", zeroth=zeroth)).gps_accuracy_m == 5.0
+    assert read_capture(_jpeg(tmp_path / "none.jpg")).gps_accuracy_m is None
+    for i, bad in enumerate([(0, 1), (5, 0), (20_000, 1)]):  # no accuracy, a zero denominator, not a fix's error
+        path = _jpeg(tmp_path / f"bad{i}.jpg", zeroth=zeroth, gps={piexif.GPSIFD.GPSHPositioningError: bad})
+        assert read_capture(path).gps_accuracy_m == 5.0  # the Mapillary reading instead
+    for i, text in enumerate(["-1", "nan", "ten", "0"]):
+        path = _jpeg(
+            tmp_path / f"m{i}.jpg",
+            zeroth={piexif.ImageIFD.ImageDescription: f'{{"MAPGPSAccuracyMeters": "{text}"}}'.encode()},
+        )
+        assert read_capture(path).gps_accuracy_m is None
 
 
 @pytest.mark.parametrize(
