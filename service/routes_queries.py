@@ -233,8 +233,9 @@ async def create_query(
         float | None,
         bounded_form(
             "radius_m",
-            "Prior position radius (m, about 2 sigma); default 50, or with EXIF GPS twice the accuracy the photo "
-            "states (GPSHPositioningError or Mapillary's MAPGPSAccuracyMeters, at least 10)",
+            "Prior position radius (m, about 2 sigma). Default: 50 with lat/lon; the place's with a place; with "
+            "EXIF GPS twice the accuracy the photo states (GPSHPositioningError, else Mapillary's "
+            "MAPGPSAccuracyMeters; at least 10), 50 when it states none",
         ),
     ] = None,
     heading_deg: Annotated[float | None, bounded_form("heading_deg", "Prior heading, deg clockwise from north")] = None,
