@@ -57,6 +57,9 @@ class PriorPosition(BaseModel):
     """With source ``place``: the place's name as the map holds it (e.g. "Mannerheimintie 5")."""
     place_kind: str | None = None
     """With source ``place``: address, building, street or landmark."""
+    gps_accuracy_m: float | None = None
+    """With source ``exif``: the accuracy (m) the photo states for its fix, when it states one and the request
+    gave no radius (``radius_m`` is then :func:`gps_prior_radius_m` of it)."""
 
 
 class QueryParams(BaseModel):

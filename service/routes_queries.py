@@ -139,7 +139,10 @@ class QueryIntake(PhotoIntake):
             )
         elif form.use_exif_gps and info.gps_lat is not None and info.gps_lon is not None:
             radius_m = form.radius_m or gps_prior_radius_m(info.gps_accuracy_m)  # the fix's stated accuracy
-            prior = PriorPosition(lat=info.gps_lat, lon=info.gps_lon, radius_m=radius_m, source="exif")
+            fields: dict[str, Any] = {"lat": info.gps_lat, "lon": info.gps_lon, "radius_m": radius_m, "source": "exif"}
+            if not form.radius_m and info.gps_accuracy_m is not None:  # set only when it gave the radius
+                fields["gps_accuracy_m"] = info.gps_accuracy_m
+            prior = PriorPosition.model_validate(fields)
         if prior is not None:
             distance = distance_outside_bbox_m(prior.lat, prior.lon, map_row["bbox_wgs84"])
             margin_m = self.settings.position_margin_m

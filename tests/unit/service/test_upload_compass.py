@@ -69,6 +69,9 @@ def test_the_exif_prior_radius_comes_from_the_stated_gps_accuracy(tmp_path: Path
         return intake.prior
 
     assert prior(with_accuracy).radius_m == gps_prior_radius_m(6.0) == 12.0  # twice the stated accuracy
+    assert prior(with_accuracy).gps_accuracy_m == 6.0  # the answer's params say where the radius came from
     assert prior(with_accuracy, 30.0).radius_m == 30.0  # the request's radius wins
+    assert "gps_accuracy_m" not in prior(with_accuracy, 30.0).model_dump(exclude_unset=True)
     assert prior(plain).radius_m == DEFAULT_PRIOR_RADIUS_M == 50.0
+    assert "gps_accuracy_m" not in prior(plain).model_dump(exclude_unset=True)  # stored as before
     assert gps_prior_radius_m(2.0) == MIN_GPS_PRIOR_RADIUS_M  # no device is believed to the metre
