@@ -45,7 +45,7 @@ from typing import Any, Literal
 
 import piexif
 
-from geoloc.photos.exif import ExifBlock, load_exif
+from geoloc.photos.exif import ExifBlock, load_exif, rational
 
 CompassSource = Literal["exif", "mapillary"]
 CompassReference = Literal["true", "magnetic-converted"]
@@ -106,13 +106,6 @@ def _number(value: Any) -> float | None:
     else:
         return None
     return out if math.isfinite(out) else None
-
-
-def _rational(value: Any) -> Any:
-    """An EXIF rational ``(numerator, denominator)`` as a float (None over 0); any other value as it is."""
-    if isinstance(value, tuple) and len(value) == 2 and all(isinstance(v, int) for v in value):
-        return None if value[1] == 0 else value[0] / value[1]
-    return value
 
 
 def _heading(value: Any) -> float | None:
@@ -224,7 +217,7 @@ def _mapillary_compass(meta: dict[str, Any], declination_deg: float | None) -> t
 
 def _exif_compass(gps: dict[int, Any], declination_deg: float | None) -> tuple[CompassReading | None, ...]:
     """(true reading, magnetic reading) from ``GPSImgDirection`` and its ref, one of them set at most."""
-    heading = _heading(_rational(gps.get(piexif.GPSIFD.GPSImgDirection)))
+    heading = _heading(rational(gps.get(piexif.GPSIFD.GPSImgDirection)))
     if heading is None:
         return None, None
     if (_ascii(gps.get(piexif.GPSIFD.GPSImgDirectionRef)) or "").upper() == "T":
@@ -234,7 +227,7 @@ def _exif_compass(gps: dict[int, Any], declination_deg: float | None) -> tuple[C
 
 def _gps_accuracy(gps: dict[int, Any], meta: dict[str, Any]) -> float | None:
     """The stated accuracy of the GPS fix (m): EXIF ``GPSHPositioningError``, else ``MAPGPSAccuracyMeters``."""
-    exif = _number(_rational(gps.get(piexif.GPSIFD.GPSHPositioningError)))
+    exif = rational(gps.get(piexif.GPSIFD.GPSHPositioningError))
     for stated in (exif, _number(meta.get("MAPGPSAccuracyMeters"))):
         if stated is not None and 0.0 < stated <= MAX_GPS_ACCURACY_M:
             return stated

@@ -61,7 +61,7 @@ class ExifInfo:
         return asdict(self)
 
 
-def _rational(value: Any) -> float | None:
+def rational(value: Any) -> float | None:
     """An EXIF rational ((num, den) or int) as a float, None when malformed or den == 0."""
     try:
         if isinstance(value, tuple) and len(value) == 2 and all(isinstance(v, int) for v in value):
@@ -77,7 +77,7 @@ def _rational(value: Any) -> float | None:
 def _dms(value: Any, ref: Any, negative: bytes) -> float | None:
     """GPS (deg, min, sec) rationals + reference letter -> signed degrees."""
     try:
-        parts = [_rational(v) for v in value]
+        parts = [rational(v) for v in value]
     except TypeError:
         return None
     if len(parts) != 3:
@@ -166,17 +166,17 @@ def exif_info(block: ExifBlock) -> ExifInfo:
     info.datetime = safe(_text, ex.get(piexif.ExifIFD.DateTimeOriginal) or zeroth.get(piexif.ImageIFD.DateTime))
     f35 = ex.get(piexif.ExifIFD.FocalLengthIn35mmFilm)
     info.focal_35mm = float(f35) if isinstance(f35, int) and f35 > 0 else None
-    fmm = safe(_rational, ex.get(piexif.ExifIFD.FocalLength))
+    fmm = safe(rational, ex.get(piexif.ExifIFD.FocalLength))
     info.focal_mm = fmm if fmm and fmm > 0 else None
     if piexif.GPSIFD.GPSLatitude in gps and piexif.GPSIFD.GPSLongitude in gps:
         lat = safe(_dms, gps[piexif.GPSIFD.GPSLatitude], gps.get(piexif.GPSIFD.GPSLatitudeRef), b"S")
         lon = safe(_dms, gps[piexif.GPSIFD.GPSLongitude], gps.get(piexif.GPSIFD.GPSLongitudeRef), b"W")
         if lat is not None and lon is not None and -90 <= lat <= 90 and -180 <= lon <= 180 and (lat, lon) != (0, 0):
             info.lat, info.lon = lat, lon
-    alt = safe(_rational, gps.get(piexif.GPSIFD.GPSAltitude))
+    alt = safe(rational, gps.get(piexif.GPSIFD.GPSAltitude))
     if alt is not None and math.isfinite(alt):
         info.altitude = -alt if gps.get(piexif.GPSIFD.GPSAltitudeRef) == 1 else alt
-    heading = safe(_rational, gps.get(piexif.GPSIFD.GPSImgDirection))
+    heading = safe(rational, gps.get(piexif.GPSIFD.GPSImgDirection))
     if heading is not None and math.isfinite(heading):
         info.heading_deg = heading % 360.0
         info.heading_ref = safe(_text, gps.get(piexif.GPSIFD.GPSImgDirectionRef))
