@@ -4,8 +4,9 @@
 map's row as ``queued`` and queues a ``load_map`` job. The job reads the file with :func:`geoloc.maps.load_map`,
 writing the parse's progress (elements read, buildings so far) on the map's row at most once every
 :data:`PROGRESS_INTERVAL_S`, then stores the buildings and facades and marks the map ``done`` in one
-transaction with replace semantics (a job run again after a worker crash leaves the same rows), and writes
-the loaded map's binary copy for the other jobs (:mod:`geoloc.maps.store`).
+transaction with replace semantics (a job run again after a worker crash leaves the same rows), writing the
+loaded map's binary copy for the other jobs (:mod:`geoloc.maps.store`) on a thread beside the rows, finished
+before that transaction commits.
 
 A file that is not usable map data fails the map (``failed``, with the reader's reason: the user's file name
 in it, never a server path) and the job at once, without retries: the same file fails the same way. A map
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from contracts.jobs import LOAD_MAP, LoadMapPayload, LoadMapResult
@@ -82,9 +84,12 @@ def load_map_job(db: Database, payload: LoadMapPayload) -> LoadMapResult:
             map_store.fail_map(db, row["id"], reason, code, details)
         raise PermanentJobError(reason) from None  # the same file fails the same way: no retries
     cache = map_cache_path(map_cache_dir(data_dir()), row["sha256"], options)
-    _save_copy(city_map, cache, row["id"])
-    with transaction(db):
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="map-copy") as copier, transaction(db):
+        # The copy is written while the rows go in (its GEOS, numpy and file work release the GIL); it is
+        # finished before the commit marks the map done, so a job that sees the map done finds its copy.
+        copied = copier.submit(_save_copy, city_map, cache, row["id"])
         stored = map_store.store_map_content(db, row["id"], content)
+        copied.result()
     if not stored:  # deleted while it was parsed: nothing stored, no copy left behind
         if map_store.find_map_by_sha256(db, row["sha256"], row["read_options"]) is None:
             remove_cached_map(map_cache_dir(data_dir()), row["sha256"], options)

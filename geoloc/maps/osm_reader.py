@@ -49,6 +49,12 @@ def _is_building(tags: Any) -> bool:
     return value is not None and value != "no"
 
 
+def _is_landmark(tags: Any) -> bool:
+    """A station, or tagged with one of :data:`LANDMARK_KEYS` (asked of named nodes only: most nodes have no name)."""
+    station = "station" in (tags.get("railway"), tags.get("public_transport"))
+    return station or any(key in tags for key in LANDMARK_KEYS)
+
+
 _Relation = tuple[int, dict[str, str], list[tuple[int, str]]]
 """A building multipolygon relation: (id, tags, [(member way id, role)])."""
 
@@ -97,16 +103,14 @@ def _read(path: Path, kind: str, progress: MapProgress | None) -> RawMap:
     processor = osmium.FileProcessor(osm_file, osmium.osm.NODE | osmium.osm.WAY).with_locations()
     obj: Any
     for obj in _counted(processor.with_filter(natural_nodes), progress, len(relations), building_ways):
-        if obj.is_node():
-            node_tags = obj.tags
-            if not obj.location.valid():
+        if isinstance(obj, osmium.osm.Node):
+            node_tags, location = obj.tags, obj.location
+            if not location.valid():
                 continue
             if node_tags.get("natural") == "tree":
-                trees.append((obj.location.lon, obj.location.lat))
-            name = node_tags.get("name")
-            station = "station" in (node_tags.get("railway"), node_tags.get("public_transport"))
-            if name and (station or any(key in node_tags for key in LANDMARK_KEYS)):
-                landmarks.append((obj.location.lon, obj.location.lat))
+                trees.append((location.lon, location.lat))
+            if (name := node_tags.get("name")) and _is_landmark(node_tags):
+                landmarks.append((location.lon, location.lat))
                 landmark_names.append(name)
             continue
         way_tags = obj.tags

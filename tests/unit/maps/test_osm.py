@@ -172,3 +172,55 @@ def test_not_map_data_raises_clear_error(tmp_path: Path, content: bytes, message
     path.write_bytes(content)
     with pytest.raises(MapLoadError, match=message):
         load_map(path)
+
+
+def test_relations_of_closed_rings_built_together_as_one_by_one() -> None:
+    """Relations whose ways are all closed rings are built in one vectorised pass (issue 23's map upload).
+
+    Holes cut, outers joined, a bow-tie repaired, a relation left without area skipped, each counted as before.
+    """
+    from geoloc.core.geo import LocalFrame
+    from geoloc.maps.build import RawMap, RawRelation, build_city_map
+    from geoloc.maps.model import LoadReport
+
+    frame = LocalFrame(*ORIGIN)
+
+    def ring(corners_m: list[tuple[float, float]], east_m: float, closed: bool = True) -> np.ndarray:
+        """(lon, lat) degrees of (east, north) metre corners shifted by east_m; closed: the first repeated last."""
+        east, north = np.array([*corners_m, *corners_m[:1]] if closed else corners_m, dtype=float).T
+        lat, lon = frame.to_wgs84(east + east_m, north)
+        return np.column_stack([lon, lat])
+
+    square = [(0, 0), (20, 0), (20, 20), (0, 20)]
+    hole = [(5, 5), (10, 5), (10, 10), (5, 10)]
+    relations = {
+        "holed": ([square], [hole]),
+        "two holes": ([square], [hole, [(12, 12), (15, 12), (15, 15), (12, 15)]]),
+        "two outers": ([square, [(40, 0), (50, 0), (50, 10), (40, 10)]], []),
+        "overlapping outers": ([square, [(10, 10), (30, 10), (30, 30), (10, 30)]], []),
+        "bow-tie": ([[(0, 0), (20, 20), (20, 0), (0, 20)]], []),
+        "filled hole": ([hole], [square]),
+        "split outer": ([[(0, 0), (20, 0), (20, 20)], [(20, 20), (0, 20), (0, 0)]], []),
+    }
+    raw = RawMap("osm", LoadReport(format="osm"))
+    for index, (name, (outers, inners)) in enumerate(relations.items()):
+        east_m, closed = 100.0 * index, name != "split outer"  # each relation on its own ground
+        raw.relations.append(
+            RawRelation(
+                f"relation/{index}",
+                {"building": "yes", "name": name},
+                [ring(corners, east_m, closed) for corners in outers],
+                [ring(corners, east_m) for corners in inners],
+            )
+        )
+    city = build_city_map(raw, "relations", frame=frame)
+    areas = {b.name: b.polygon.area for b in city.buildings}
+    parts = {b.name: len(getattr(b.polygon, "geoms", [b.polygon])) for b in city.buildings}
+    assert "filled hole" not in areas  # its hole covers it: nothing left
+    assert areas["holed"] == pytest.approx(400 - 25, rel=1e-3)
+    assert areas["two holes"] == pytest.approx(400 - 25 - 9, rel=1e-3)
+    assert areas["two outers"] == pytest.approx(500, rel=1e-3) and parts["two outers"] == 2
+    assert areas["overlapping outers"] == pytest.approx(400 + 400 - 100, rel=1e-3) and parts["overlapping outers"] == 1
+    assert areas["bow-tie"] == pytest.approx(200, rel=1e-3) and parts["bow-tie"] == 2
+    assert areas["split outer"] == pytest.approx(400, rel=1e-3)  # joined from its two ways, one by one
+    assert city.report.repaired_invalid == 1 and city.report.skipped_degenerate == 1
