@@ -3,7 +3,9 @@
 - every test starts and ends with freshly read settings (:func:`contracts.settings.reset_settings`), so a
   test or fixture that changes ``GEOLOC_*`` variables never leaks a cached value into the next one;
 - ``built_models``: the models ``geoloc models build`` makes, built once into pytest's cache folder and
-  reused while current (service data folders link to it with :func:`tests.model_fixtures.link_models`);
+  reused while current (service data folders link to it with :func:`tests.model_fixtures.link_models`); the
+  suite runs on two pytest-xdist workers (the README's ``-n 2``), so the build holds a file lock: one worker
+  builds, the other waits and reuses;
 - ``profile``: the two deployment profiles, ``embedded`` (SQLite, built-in workers) and ``distributed``
   (PostgreSQL and Celery on Redis, real servers started once per session on loopback, see
   :mod:`benchmarks.servers`). A test or module fixture that takes it runs once per profile; each deployment it
@@ -12,6 +14,7 @@
 
 from __future__ import annotations
 
+import fcntl
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -109,12 +112,14 @@ def built_models(request: pytest.FixtureRequest) -> Path:
     Built into pytest's cache folder (``.pytest_cache/d/geoloc-models``, minutes on 2 cores) and reused by
     later sessions while :func:`workers.context.model_problems` finds it complete and current.
     """
-    with data_dir_environment(Path(request.config.cache.mkdir("geoloc-models"))) as data_dir:
+    cache = Path(request.config.cache.mkdir("geoloc-models"))
+    with data_dir_environment(cache) as data_dir, (cache / "build.lock").open("w") as lock:
         from geoloc.export.models import build_segmentation_model
         from geoloc.export.vocabulary import build_default_vocabulary
         from geoloc.localize.retrieval import default_vocabulary
         from workers.context import method_context, model_problems
 
+        fcntl.flock(lock, fcntl.LOCK_EX)  # xdist workers: the first builds, the others find it built
         if model_problems():
             build_segmentation_model()
             default_vocabulary.cache_clear()
