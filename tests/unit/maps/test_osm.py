@@ -180,7 +180,7 @@ def test_relations_of_closed_rings_built_together_as_one_by_one() -> None:
     Holes cut, outers joined, a bow-tie repaired, a relation left without area skipped, each counted as before.
     """
     from geoloc.core.geo import LocalFrame
-    from geoloc.maps.build import RawMap, RawRelation, build_city_map
+    from geoloc.maps.build import RawMap, RawRelation, _relation_footprint, _relation_footprints, build_city_map
     from geoloc.maps.model import LoadReport
 
     frame = LocalFrame(*ORIGIN)
@@ -224,3 +224,12 @@ def test_relations_of_closed_rings_built_together_as_one_by_one() -> None:
     assert areas["bow-tie"] == pytest.approx(200, rel=1e-3) and parts["bow-tie"] == 2
     assert areas["split outer"] == pytest.approx(400, rel=1e-3)  # joined from its two ways, one by one
     assert city.report.repaired_invalid == 1 and city.report.skipped_degenerate == 1
+    # Each footprint is the one-by-one path's, to the byte.
+    together = _relation_footprints(raw.relations, frame, LoadReport(format="osm"))
+    for relation, footprint in zip(raw.relations, together, strict=True):
+        local = [
+            [np.column_stack(frame.to_local(r[:, 1], r[:, 0])) for r in rings]
+            for rings in (relation.outers, relation.inners)
+        ]
+        alone = _relation_footprint(*local, LoadReport(format="osm"))
+        assert (footprint is None) == (alone is None) and (alone is None or footprint.wkb == alone.wkb), relation.tags
