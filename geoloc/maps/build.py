@@ -232,15 +232,17 @@ def _relation_footprints(
     xy = _local(frame, np.concatenate(rings))
     local = iter([xy[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)])
     out: list[Polygon | MultiPolygon | None] = [None] * len(relations)
-    closed: list[tuple[int, list[np.ndarray], list[np.ndarray]]] = []
+    closed_index: list[int] = []
+    closed: list[tuple[list[np.ndarray], list[np.ndarray]]] = []
     for index, relation in enumerate(relations):
         outers = [ring for _ in relation.outers if len(ring := next(local))]
         inners = [ring for _ in relation.inners if len(ring := next(local))]
         if outers and all(_is_closed(ring) for ring in (*outers, *inners)):
-            closed.append((index, outers, inners))
+            closed_index.append(index)
+            closed.append((outers, inners))
         else:
             out[index] = _relation_footprint(outers, inners, report)
-    for index, footprint in zip([c[0] for c in closed], _closed_ring_footprints(closed, report), strict=True):
+    for index, footprint in zip(closed_index, _closed_ring_footprints(closed, report), strict=True):
         out[index] = footprint
     return out
 
@@ -251,17 +253,17 @@ def _is_closed(ring: np.ndarray) -> bool:
 
 
 def _closed_ring_footprints(
-    relations: list[tuple[int, list[np.ndarray], list[np.ndarray]]], report: LoadReport
+    relations: list[tuple[list[np.ndarray], list[np.ndarray]]], report: LoadReport
 ) -> list[Polygon | MultiPolygon | None]:
-    """:func:`_relation_footprint` of relations whose rings are all closed, vectorised over them.
+    """:func:`_relation_footprint` of relations (outer rings, inner rings) whose rings are all closed, vectorised.
 
     The same GEOS operations in the same order (each ring a polygon, invalid ones made valid; per relation the
     union of its outers minus the union of its inners), so the footprints are those of the one-by-one path.
     """
     if not relations:
         return []
-    counts = np.array([(len(outers), len(inners)) for _, outers, inners in relations])
-    all_rings = [ring for _, outers, inners in relations for ring in (*outers, *inners)]
+    counts = np.array([(len(outers), len(inners)) for outers, inners in relations])
+    all_rings = [ring for outers, inners in relations for ring in (*outers, *inners)]
     sizes = np.array([len(ring) for ring in all_rings])
     polygons: np.ndarray = np.asarray(
         shapely.polygons(
