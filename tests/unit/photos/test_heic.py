@@ -73,10 +73,15 @@ def test_the_decompression_bomb_guard_applies_to_heic(
     assert refused.value.status == 413 and "decompression bomb" in refused.value.message
 
 
-@pytest.mark.parametrize("cut", [40, 2000, -3000])
-def test_a_corrupt_heic_gets_a_4xx_with_a_reason(tmp_path: Path, twins: tuple[bytes, bytes], cut: int) -> None:
+@pytest.mark.parametrize("kept", [40, 2000, 0.5], ids=["in-ftyp", "in-meta", "in-coded-image"])
+def test_a_corrupt_heic_gets_a_4xx_with_a_reason(tmp_path: Path, twins: tuple[bytes, bytes], kept: float) -> None:
+    """The file cut short: in its header, its item boxes, or halfway through (the coded image).
+
+    Not near its end: pillow-heif 1.9 writes the XMP after the coded image, and a HEIC cut there is whole.
+    """
+    heic = twins[1]
     path = tmp_path / "corrupt.heic"
-    path.write_bytes(twins[1][:cut])
+    path.write_bytes(heic[: int(kept * len(heic)) if kept < 1 else int(kept)])
     with pytest.raises(ApiError) as refused:
         validate_image(path, max_pixels=50_000_000, min_side=64)
     assert 400 <= refused.value.status < 500 and refused.value.message
