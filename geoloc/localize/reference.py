@@ -146,6 +146,30 @@ def label_reference_photo(
     return _labelled(city_map, photo.intrinsics, LabelCues.of(evidence), label, strategy, timings, evidence)
 
 
+def label_from_cues(
+    city_map: CityMap,
+    intrinsics: Intrinsics,
+    cues: LabelCues,
+    timings_ms: dict[str, float],
+    gps_xy: tuple[float, float],
+    heading_prior: HeadingPrior,
+    *,
+    analysis: PhotoEvidence | None = None,
+    strategy: str = "marginalized",
+) -> LabelledReference:
+    """A photo (its camera and :class:`LabelCues`) labelled again around its GPS tag (local m) with another prior.
+
+    As :func:`label_reference_photo` with default options, from the cues a walk's placement reads back instead of
+    the photo. timings_ms: its label's own (copied, ``relabeling`` added); analysis: kept on the result.
+    """
+    t0 = time.perf_counter()
+    label = label_reference(
+        city_map, cues.image_model, cues.building_mask, intrinsics, gps_xy, heading_prior=heading_prior
+    )
+    timings = dict(timings_ms, relabeling=1e3 * (time.perf_counter() - t0))
+    return _labelled(city_map, intrinsics, cues, label, strategy, timings, analysis)
+
+
 def label_at_pose(
     city_map: CityMap,
     intrinsics: Intrinsics,

@@ -31,7 +31,7 @@ angle from east counter-clockwise: theta = 90 deg - bearing.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from functools import partial
 
@@ -71,7 +71,9 @@ class PlacementOptions:
     max_iterations: Levenberg-Marquardt's. gps_correlation_m (None: each fix independent, as tracks have it),
     gps_white_sigma_m: the GPS model (module docstring). step_sigma_m, step_sigma_fraction: a step's sigma is
     the larger of step_sigma_m and the pace's spread, plus this fraction of the step. min_speed_samples: the
-    consecutive edges a pace needs (:func:`walk_pace`).
+    consecutive edges a pace needs (:func:`walk_pace`). compass_walk_agreement: the share of a walk's compass
+    frames whose labels must agree with their compass before the labels facing away from it are done again
+    with the compass trusted (None: never; :func:`geoloc.localize.sequence.stage.compass_relabelled`).
     """
 
     steps: tuple[int, ...] = (1, 2, 3)
@@ -92,6 +94,7 @@ class PlacementOptions:
     step_sigma_m: float = 0.5
     step_sigma_fraction: float = 0.0
     min_speed_samples: int = 3
+    compass_walk_agreement: float | None = 0.5
 
 
 @dataclass(frozen=True)
@@ -163,8 +166,12 @@ def _robust(loss: str, k: float, base: gtsam.noiseModel.Base) -> gtsam.noiseMode
     return gtsam.noiseModel.Robust.Create(estimator, base)
 
 
-def relative_poses(frames: Sequence[SequenceFrame], options: PlacementOptions) -> list[RelativePose]:
+def relative_poses(
+    frames: Sequence[SequenceFrame], options: PlacementOptions, touching: Collection[int] | None = None
+) -> list[RelativePose]:
     """Every edge of the graph: frame i to i + s for s in ``options.steps``, both ways, where PnP finds one.
+
+    touching: only the pairs with one of these frames (indices; None: every pair).
 
     An edge needs ``options.min_inliers`` PnP inliers, and when both ways were found, the two must agree
     (within ``options.max_disagreement_m``, the source's centre as seen through the two): two PnPs on two
@@ -174,7 +181,7 @@ def relative_poses(frames: Sequence[SequenceFrame], options: PlacementOptions) -
     for i in range(len(frames)):
         for step in options.steps:
             j = i + step
-            if j >= len(frames):
+            if j >= len(frames) or (touching is not None and i not in touching and j not in touching):
                 continue
             pair = [_edge(frames, source, target, options) for source, target in ((i, j), (j, i))]
             found = [edge for edge in pair if edge is not None and edge.n_inliers >= options.min_inliers]

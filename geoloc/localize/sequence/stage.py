@@ -6,17 +6,22 @@ in one pose graph (:func:`geoloc.localize.sequence.placement.place_sequence`) an
 placed pose (:func:`geoloc.localize.reference.label_at_pose`: identities and anchors from there). A frame that no
 relative pose joins to the others keeps its own label unchanged (its label already weighed its GPS and compass),
 so a "sequence" of photos that do not see each other (consecutive captures of scattered places) changes nothing.
+
+Before the graph is built, a walk whose compass agrees with most of its labels has each label that faces away
+from its compass done again with the compass trusted (:func:`compass_relabelled`): the map alone turns a frame
+with little facade in view to the mirror view across the street now and then, and the graph cannot overrule a
+label whose neighbours were pulled the same way.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 
 from geoloc.localize.labeling import KnownPose
-from geoloc.localize.reference import LabelledReference, label_at_pose
+from geoloc.localize.reference import LabelledReference, label_at_pose, label_from_cues
 from geoloc.localize.sequence.frames import FrameLabel, map_position_covariance
 from geoloc.localize.sequence.grouping import SequenceMember, group_sequences
 from geoloc.localize.sequence.placement import (
@@ -27,6 +32,7 @@ from geoloc.localize.sequence.placement import (
     place_sequence,
     relative_poses,
 )
+from geoloc.localize.sequence.relative import RelativePose
 from geoloc.maps import CityMap
 from geoloc.photos.capture import photo_device
 from geoloc.photos.heading_prior import HeadingPrior, heading_prior_from_compass
@@ -55,7 +61,8 @@ class PlacedSequence:
     """A sequence placed jointly.
 
     references: the frames re-labelled at their placed poses (in order; None: a frame no relative pose joined,
-    which keeps its own label); poses: those poses; n_edges: how many
+    which keeps its own label; a frame no relative pose joined whose label :func:`compass_relabelled` replaced
+    comes back with that new label); poses: those poses; n_edges: how many
     relative poses joined them (0: each frame kept what its own label, GPS and compass say).
     """
 
@@ -88,17 +95,29 @@ def place_labelled_sequence(
     """Place a walk's frames jointly and re-label each at its placed pose (module docstring).
 
     Each re-labelled reference's ``timings_ms`` gains ``sequence``: its share of the placement (ms); a frame no
-    relative pose joins comes back as None (its own label stands).
+    relative pose joins comes back as None (its own label stands) unless the compass relabelled it
+    (``options.compass_walk_agreement``; :func:`compass_relabelled`).
     """
     t0 = time.perf_counter()
     graph_frames = [_frame(city_map, frame) for frame in frames]
     edges = relative_poses(graph_frames, options)
+    relabelled = compass_relabelled(city_map, frames, edges, options.compass_walk_agreement)
+    if relabelled:
+        frames = [
+            replace(frame, alone=FrameLabel.of(relabelled[k], frame.alone.intrinsics)) if k in relabelled else frame
+            for k, frame in enumerate(frames)
+        ]
+        graph_frames = [
+            _frame(city_map, frame) if k in relabelled else graph_frames[k] for k, frame in enumerate(frames)
+        ]
+        edges = [edge for edge in edges if edge.source not in relabelled and edge.target not in relabelled]
+        edges += relative_poses(graph_frames, options, touching=set(relabelled))
     poses = place_sequence(graph_frames, options, edges)
     share_ms = 1e3 * (time.perf_counter() - t0) / max(len(frames), 1)
     references: list[LabelledReference | None] = []
-    for frame, pose in zip(frames, poses, strict=True):
-        if pose.n_edges == 0:  # nothing joins it to the walk: its own label already weighs its GPS and compass
-            references.append(None)
+    for k, (frame, pose) in enumerate(zip(frames, poses, strict=True)):
+        if pose.n_edges == 0:  # nothing joins it to the walk: its own label (or its compass's) stands
+            references.append(relabelled.get(k))
             continue
         known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, pose.position_covariance)
         alone = frame.alone
@@ -106,6 +125,69 @@ def place_labelled_sequence(
         placed.timings_ms["sequence"] = share_ms
         references.append(placed)
     return PlacedSequence(references, poses, len(edges))
+
+
+COMPASS_AGREES_DEG = 45.0
+"""A heading agrees with a compass (or with another heading) when they are within this (deg)."""
+COMPASS_DISAGREES_DEG = 90.0
+"""A label faces away from its compass when their headings are more than this apart (deg)."""
+MIN_COMPASS_FRAMES = 3
+"""The fewest frames with a compass from which a walk's agreement with its compass is judged."""
+
+
+def compass_relabelled(
+    city_map: CityMap, frames: Sequence[LabelledFrame], edges: Sequence[RelativePose], min_agreement: float | None
+) -> dict[int, LabelledReference]:
+    """The frames of a walk whose compass the walk trusts but whose label faces away from it, labelled again.
+
+    A walk trusts its compass when at least ``min_agreement`` of its frames with one (and at least
+    :data:`MIN_COMPASS_FRAMES`) were labelled within :data:`COMPASS_AGREES_DEG` of it: a magnetometer that is
+    wrong is often wrong for a whole walk (the Lund walk's first 20 readings), while the map alone now and then
+    turns a frame with little facade in view to the mirror view across the street. Each label more than
+    :data:`COMPASS_DISAGREES_DEG` from its compass is done again with the compass as a plain Gaussian (no
+    outlier floor). The new label replaces the old when it agrees with the compass and the walk's neighbours do
+    not side with the old one: the headings that the edges into the frame predict from their sources' labels
+    (``edges``: the walk's relative poses; sources whose own label faces away from their compass left out)
+    agree with the new label at least as often as with the old (a compass that is the one wrong reading of a
+    good walk is outvoted this way: Helsinki walk world 1's one wrong compass, six neighbours against it).
+    Returns the new labels by frame index (none when ``min_agreement`` is None).
+    """
+    if min_agreement is None:
+        return {}
+    offsets = {
+        k: _angle_deg(frame.alone.yaw_deg, frame.heading_prior.mean_bearing_deg)
+        for k, frame in enumerate(frames)
+        if frame.heading_prior is not None
+    }
+    if len(offsets) < MIN_COMPASS_FRAMES:
+        return {}
+    if sum(offset <= COMPASS_AGREES_DEG for offset in offsets.values()) < min_agreement * len(offsets):
+        return {}
+    relabelled = {}
+    for k, offset in offsets.items():
+        frame, compass = frames[k], frames[k].heading_prior
+        if offset <= COMPASS_DISAGREES_DEG or compass is None:
+            continue
+        alone = frame.alone
+        strict = HeadingPrior(compass.mean_bearing_deg, compass.sigma_deg, 0.0)
+        again = label_from_cues(
+            city_map, alone.intrinsics, alone.cues, alone.timings_ms, frame.gps_xy, strict, analysis=alone.analysis
+        )
+        if _angle_deg(again.label.yaw_deg, compass.mean_bearing_deg) > COMPASS_AGREES_DEG:
+            continue
+        # A neighbour is a witness when its own label agrees with its compass (or it has none).
+        witnesses = [e for e in edges if e.target == k and offsets.get(e.source, 0.0) <= COMPASS_AGREES_DEG]
+        predicted = [frames[e.source].alone.yaw_deg + e.turn_deg for e in witnesses]
+        for_new = sum(_angle_deg(yaw, again.label.yaw_deg) <= COMPASS_AGREES_DEG for yaw in predicted)
+        for_old = sum(_angle_deg(yaw, alone.yaw_deg) <= COMPASS_AGREES_DEG for yaw in predicted)
+        if for_new >= for_old:
+            relabelled[k] = again
+    return relabelled
+
+
+def _angle_deg(a_deg: float, b_deg: float) -> float:
+    """The absolute angle between two headings (deg, in [0, 180])."""
+    return abs((a_deg - b_deg + 180.0) % 360.0 - 180.0)
 
 
 def compass_prior_at(photo: Photo, city_map: CityMap, xy: tuple[float, float]) -> HeadingPrior | None:

@@ -11,7 +11,15 @@ from contracts.settings import shared_path
 from db.blobs import pack_arrays, unpack_arrays
 from geoloc.localize.reference import LabelledReference, label_reference_photo
 from geoloc.localize.sequence.frames import FrameLabel, frame_arrays, frame_from_arrays
-from geoloc.localize.sequence.stage import LabelledFrame, capture_seconds, compass_prior_at, place_labelled_sequence
+from geoloc.localize.sequence.relative import RelativePose
+from geoloc.localize.sequence.stage import (
+    COMPASS_AGREES_DEG,
+    LabelledFrame,
+    capture_seconds,
+    compass_prior_at,
+    compass_relabelled,
+    place_labelled_sequence,
+)
 from geoloc.maps import CityMap
 from geoloc.photos.photo import load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
@@ -83,3 +91,75 @@ def test_a_walk_placed_from_stored_frames_is_bit_identical(walk: tuple[CityMap, 
         assert arrays_a.keys() == arrays_b.keys()
         for name, value in arrays_a.items():
             np.testing.assert_array_equal(value, arrays_b[name], err_msg=name)
+
+
+def _angle(a_deg: float, b_deg: float) -> float:
+    return abs((a_deg - b_deg + 180.0) % 360.0 - 180.0)
+
+
+def _flipped(frames: list[LabelledFrame]) -> tuple[int, list[LabelledFrame]]:
+    """The walk with one frame's label turned to face away from its compass (the mirror view's 180 deg)."""
+    agreeing = [
+        k
+        for k, frame in enumerate(frames)
+        if frame.heading_prior is not None and _angle(frame.alone.yaw_deg, frame.heading_prior.mean_bearing_deg) < 10
+    ]
+    assert len(agreeing) >= 3, "the walk world's compasses should mostly agree with the labels"
+    k = agreeing[len(agreeing) // 2]
+    turned = replace(frames[k], alone=replace(frames[k].alone, yaw_deg=(frames[k].alone.yaw_deg + 180.0) % 360.0))
+    return k, [turned if i == k else frame for i, frame in enumerate(frames)]
+
+
+def _facing_away(frames: list[LabelledFrame]) -> set[int]:
+    """The frames whose label is more than 90 deg from their compass."""
+    return {
+        k
+        for k, frame in enumerate(frames)
+        if frame.heading_prior is not None and _angle(frame.alone.yaw_deg, frame.heading_prior.mean_bearing_deg) > 90
+    }
+
+
+def _witnesses(frames: list[LabelledFrame], k: int, target_yaw_deg: float) -> list[RelativePose]:
+    """Edges into frame k from every other frame that predict ``target_yaw_deg`` for it."""
+    return [
+        RelativePose(j, k, 5.0, 0.0, (target_yaw_deg - frame.alone.yaw_deg + 180.0) % 360.0 - 180.0, 40)
+        for j, frame in enumerate(frames)
+        if j != k
+    ]
+
+
+def test_a_label_facing_away_from_a_trusted_compass_is_done_again(walk: tuple[CityMap, list[LabelledFrame]]) -> None:
+    city, frames = walk
+    k, turned = _flipped(frames)
+    compass = turned[k].heading_prior
+    assert compass is not None
+    again = compass_relabelled(city, turned, [], 0.5)
+    assert set(again) == {k} | _facing_away(frames)  # the turned frame and those the map alone turned
+    assert _angle(again[k].label.yaw_deg, compass.mean_bearing_deg) <= COMPASS_AGREES_DEG
+    assert _angle(again[k].label.yaw_deg, frames[k].alone.yaw_deg) < 10  # back to the label before the turn
+    assert "relabeling" in again[k].timings_ms
+    assert compass_relabelled(city, turned, [], None) == {}  # switched off
+
+
+def test_a_walk_whose_compass_disagrees_keeps_its_labels(walk: tuple[CityMap, list[LabelledFrame]]) -> None:
+    city, frames = walk
+    _, turned = _flipped(frames)
+    wrong = [
+        replace(
+            f, heading_prior=replace(f.heading_prior, mean_bearing_deg=(f.heading_prior.mean_bearing_deg + 180) % 360)
+        )
+        if f.heading_prior is not None
+        else f
+        for f in turned
+    ]
+    # Every label but one now faces away from its compass: the walk's magnetometer is the one that is wrong.
+    assert compass_relabelled(city, wrong, [], 0.5) == {}
+
+
+def test_neighbours_that_side_with_the_old_label_keep_it(walk: tuple[CityMap, list[LabelledFrame]]) -> None:
+    city, frames = walk
+    k, turned = _flipped(frames)
+    siding_with_new = _witnesses(turned, k, frames[k].alone.yaw_deg)
+    assert k in compass_relabelled(city, turned, siding_with_new, 0.5)
+    siding_with_old = _witnesses(turned, k, turned[k].alone.yaw_deg)
+    assert k not in compass_relabelled(city, turned, siding_with_old, 0.5)
