@@ -20,7 +20,10 @@ One planar pose per frame (position east/north in m, heading), with these factor
 - its compass, when it has one (:class:`geoloc.photos.heading_prior.HeadingPrior`'s mean and sigma), Cauchy;
 - relative poses to the frames 1 to ``max(steps)`` further along the walk, both ways
   (:mod:`geoloc.localize.sequence.relative`), sigma ``edge_sigma_m + edge_sigma_per_m * distance`` and
-  ``edge_yaw_sigma_deg``, Cauchy: a wrong source label gives a wrong edge.
+  ``edge_yaw_sigma_deg``, Cauchy: a wrong source label gives a wrong edge. An edge whose length the walk's pace
+  rules out keeps only its turn (:attr:`PlacementOptions.edge_pace_gate`): a facade's repeated windows match
+  a frame to its neighbour one window or one step along the wall, which turns the camera right and puts it in
+  the wrong place.
 
 gtsam was measured against the alternatives the issue names (pycolmap's bundle adjustment needs 3D tracks
 this problem does not have; pyceres would need every residual written by hand): its Pose2 factors, robust
@@ -74,6 +77,9 @@ class PlacementOptions:
     consecutive edges a pace needs (:func:`walk_pace`). compass_walk_agreement: the share of a walk's compass
     frames whose labels must agree with their compass before the labels facing away from it are done again
     with the compass trusted (None: never; :func:`geoloc.localize.sequence.stage.compass_relabelled`).
+    edge_pace_gate: an edge whose length is more than this many step sigmas (the pace's, times the square root
+    of the steps it spans) from the walk's speed times the time between its frames keeps its turn and loses its
+    translation (math.inf: never; :func:`walk_pace`).
     """
 
     steps: tuple[int, ...] = (1, 2, 3)
@@ -95,6 +101,7 @@ class PlacementOptions:
     step_sigma_fraction: float = 0.0
     min_speed_samples: int = 3
     compass_walk_agreement: float | None = 0.5
+    edge_pace_gate: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -288,8 +295,11 @@ def place_sequence(
             compass_noise = _robust("cauchy", options.cauchy_k, noise.Diagonal.Sigmas(compass_sigmas))
             graph.add(gtsam.PriorFactorPose2(k, _pose2(frame.x_m, frame.y_m, prior.mean_bearing_deg), compass_noise))
     n_edges = np.zeros(len(frames), dtype=int)
+    pace = walk_pace(frames, edges, options)
     for edge in edges:
         sigma = options.edge_sigma_m + options.edge_sigma_per_m * edge.distance_m
+        if _off_pace(frames, edge, pace, options):
+            sigma = LOOSE_SIGMA
         sigmas = np.array([sigma, sigma, math.radians(options.edge_yaw_sigma_deg)])
         measured = _measured(edge)
         graph.add(
@@ -305,7 +315,7 @@ def place_sequence(
         n_edges[[motion.source, motion.target]] += 1
     if options.gps_correlation_m is not None:
         _add_correlated_gps(graph, initial, frames, options, options.gps_correlation_m)
-    _add_steps(graph, frames, edges, options)
+    _add_steps(graph, frames, pace, options)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(options.max_iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
@@ -414,14 +424,27 @@ def _seconds_apart(frames: Sequence[SequenceFrame], i: int, j: int) -> float | N
     return None if t_i is None or t_j is None else abs(t_j - t_i)
 
 
+def _off_pace(
+    frames: Sequence[SequenceFrame], edge: RelativePose, pace: WalkPace | None, options: PlacementOptions
+) -> bool:
+    """Whether the walk's pace rules out an edge's length (``options.edge_pace_gate``; no pace: never)."""
+    if math.isinf(options.edge_pace_gate) or pace is None:
+        return False
+    apart_s = _seconds_apart(frames, edge.source, edge.target)
+    if apart_s is None:
+        return False
+    steps = abs(edge.target - edge.source)
+    sigma = max(options.step_sigma_m, pace.spread_m) * math.sqrt(steps)
+    return abs(edge.distance_m - pace.speed_m_s * apart_s) > options.edge_pace_gate * sigma
+
+
 def _add_steps(
     graph: gtsam.NonlinearFactorGraph,
     frames: Sequence[SequenceFrame],
-    edges: Sequence[RelativePose],
+    pace: WalkPace | None,
     options: PlacementOptions,
 ) -> None:
     """Consecutive frames' distance from their capture times and the walk's pace (the module docstring)."""
-    pace = walk_pace(frames, edges, options)
     if pace is None:
         return
     for k in range(len(frames) - 1):

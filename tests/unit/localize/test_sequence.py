@@ -232,6 +232,20 @@ def test_walk_pace_is_the_median_speed_and_the_robust_spread_of_the_steps_about_
     assert walk_pace(untimed, edges, PlacementOptions()) is None
 
 
+def test_an_edge_the_pace_rules_out_keeps_only_its_turn() -> None:
+    """A frame whose every edge puts it one step back (a facade's repeated windows) is placed by the rest."""
+    truth = _walk(8)  # 7 m every 5 s
+    frames = [replace(_frame(x, y, yaw, (x, y), yaw), capture_time_s=5.0 * i) for i, (x, y, yaw) in enumerate(truth)]
+    aliased = [*truth[:7], (truth[6][0], 0.0, truth[7][2])]  # frame 7 seen where frame 6 stands
+    edges = [e for e in _edges(truth) if 7 not in (e.source, e.target)]
+    edges += [e for e in _edges(aliased) if 7 in (e.source, e.target)]
+    gated = place_sequence(frames, PlacementOptions(), edges)[7]
+    trusted = place_sequence(frames, PlacementOptions(edge_pace_gate=math.inf), edges)[7]
+    assert abs(trusted.x_m - truth[7][0]) > 3.0, trusted  # the four wrong edges outweigh its label and step
+    assert abs(gated.x_m - truth[7][0]) < 1.0 and _angle(gated.yaw_deg, truth[7][2]) < 1.0, gated
+    assert gated.n_edges == trusted.n_edges == 4  # still joined: the edges' turns stand
+
+
 def test_the_maps_spread_is_wide_along_a_uniform_wall_and_narrow_where_it_ends() -> None:
     wall = city_map_from_footprints([box(-100, 10, 100, 30)], heights_m=[15.0])  # 200 m long, 10 m north
     offsets = bin_offsets_deg(Intrinsics.from_hfov(640, 480, 60.0))
