@@ -5,6 +5,7 @@
 - :mod:`.relative`: the relative pose of two frames of a walk from their verified matches (PnP on one frame's
   map-anchored keypoints);
 - :mod:`.placement`: every frame's pose, jointly, in one robust pose graph (gtsam);
+- :mod:`.pace`: the walk's pace from its capture times, the steps' distances and the edges it rules out;
 - :mod:`.frames`: what the placement needs of a frame labelled alone, and that as stored arrays (the workers);
 - :mod:`.stage`: the stage's entry, :func:`place_labelled_sequence`: labelled frames in, re-labelled frames out.
 """

@@ -14,9 +14,9 @@ One planar pose per frame (position east/north in m, heading), with these factor
   buildings). A phone's error drifts with the satellites it sees and the walls around it, so fixes a few metres
   apart are off the same way: taken as independent, fifteen of them would pin the walk to their common error;
 - the step between consecutive captures, when both have a capture time and the walk's pace can be measured
-  (:func:`walk_pace`): its distance is the speed times the time between them, with the pace's measured
-  spread as sigma, Cauchy (a pause). Such a step joins the parts of a walk that see no common facade, so a
-  part whose position the map fixes (a corner, a gap) places the rest;
+  (:mod:`geoloc.localize.sequence.pace`): its distance is the speed times the time between them, with the
+  pace's measured spread as sigma, Cauchy (a pause). Such a step joins the parts of a walk that see no common
+  facade, so a part whose position the map fixes (a corner, a gap) places the rest;
 - its compass, when it has one (:class:`geoloc.photos.heading_prior.HeadingPrior`'s mean and sigma), Cauchy;
 - relative poses to the frames 1 to ``max(steps)`` further along the walk, both ways
   (:mod:`geoloc.localize.sequence.relative`), sigma ``edge_sigma_m + edge_sigma_per_m * distance`` and
@@ -43,6 +43,7 @@ import numpy as np
 
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.anchors import MapAnchors
+from geoloc.localize.sequence.pace import WalkPace, rules_out, seconds_apart, walk_pace
 from geoloc.localize.sequence.relative import DEFAULT_MIN_ANCHORED, DEFAULT_RATIO, RelativePose, relative_pose
 from geoloc.localize.sequence.twoview import MotionFactor
 from geoloc.photos.heading_prior import HeadingPrior
@@ -74,12 +75,12 @@ class PlacementOptions:
     max_iterations: Levenberg-Marquardt's. gps_correlation_m (None: each fix independent, as tracks have it),
     gps_white_sigma_m: the GPS model (module docstring). step_sigma_m, step_sigma_fraction: a step's sigma is
     the larger of step_sigma_m and the pace's spread, plus this fraction of the step. min_speed_samples: the
-    consecutive edges a pace needs (:func:`walk_pace`). compass_walk_agreement: the share of a walk's compass
-    frames whose labels must agree with their compass before the labels facing away from it are done again
-    with the compass trusted (None: never; :func:`geoloc.localize.sequence.stage.compass_relabelled`).
+    consecutive edges a pace needs (:mod:`geoloc.localize.sequence.pace`). compass_walk_agreement: the share
+    of a walk's compass frames whose labels must agree with their compass before the labels facing away from it
+    are done again with the compass trusted (None: never; :func:`geoloc.localize.sequence.stage.compass_relabelled`).
     edge_pace_gate: an edge whose length is more than this many step sigmas (the pace's, times the square root
     of the steps it spans) from the walk's speed times the time between its frames keeps its turn and loses its
-    translation (math.inf: never; :func:`walk_pace`).
+    translation (math.inf: never; :func:`geoloc.localize.sequence.pace.rules_out`).
     """
 
     steps: tuple[int, ...] = (1, 2, 3)
@@ -295,11 +296,12 @@ def place_sequence(
             compass_noise = _robust("cauchy", options.cauchy_k, noise.Diagonal.Sigmas(compass_sigmas))
             graph.add(gtsam.PriorFactorPose2(k, _pose2(frame.x_m, frame.y_m, prior.mean_bearing_deg), compass_noise))
     n_edges = np.zeros(len(frames), dtype=int)
-    pace = walk_pace(frames, edges, options)
+    times = [frame.capture_time_s for frame in frames]
+    pace = walk_pace(times, edges, options.min_speed_samples)
     for edge in edges:
         sigma = options.edge_sigma_m + options.edge_sigma_per_m * edge.distance_m
-        if _off_pace(frames, edge, pace, options):
-            sigma = LOOSE_SIGMA
+        if rules_out(pace, times, edge, options.step_sigma_m, options.edge_pace_gate):
+            sigma = LOOSE_SIGMA  # its turn stands, its translation does not (module docstring)
         sigmas = np.array([sigma, sigma, math.radians(options.edge_yaw_sigma_deg)])
         measured = _measured(edge)
         graph.add(
@@ -381,63 +383,6 @@ def _add_correlated_gps(
         )
 
 
-@dataclass(frozen=True)
-class WalkPace:
-    """How a walk's captures are spaced.
-
-    speed_m_s: the walker's speed (m/s); spread_m: the spread (m) of a step's distance about the speed times
-    the time between its two captures (1.4826 x the median absolute residual, a standard deviation's estimate).
-    """
-
-    speed_m_s: float
-    spread_m: float
-
-
-def walk_pace(
-    frames: Sequence[SequenceFrame], edges: Sequence[RelativePose], options: PlacementOptions
-) -> WalkPace | None:
-    """The walk's pace, measured on its consecutive frames' relative poses (both ways count).
-
-    The speed is the median of their distances over their time apart, the spread the robust spread of their
-    distances about it: a walker's pauses to take each photo, and the edges' own errors, are in it. Both
-    medians set the wrong edges aside while fewer than half are wrong. None with fewer than
-    ``options.min_speed_samples`` such edges (or frames without capture times).
-    """
-    distances, seconds = [], []
-    for edge in edges:
-        if abs(edge.target - edge.source) != 1:
-            continue
-        apart_s = _seconds_apart(frames, edge.source, edge.target)
-        if apart_s is not None and apart_s > 0.0:
-            distances.append(edge.distance_m)
-            seconds.append(apart_s)
-    if len(distances) < options.min_speed_samples:
-        return None
-    distance_m, apart = np.asarray(distances), np.asarray(seconds)
-    speed = float(np.median(distance_m / apart))
-    spread = 1.4826 * float(np.median(np.abs(distance_m - speed * apart)))
-    return WalkPace(speed, spread)
-
-
-def _seconds_apart(frames: Sequence[SequenceFrame], i: int, j: int) -> float | None:
-    t_i, t_j = frames[i].capture_time_s, frames[j].capture_time_s
-    return None if t_i is None or t_j is None else abs(t_j - t_i)
-
-
-def _off_pace(
-    frames: Sequence[SequenceFrame], edge: RelativePose, pace: WalkPace | None, options: PlacementOptions
-) -> bool:
-    """Whether the walk's pace rules out an edge's length (``options.edge_pace_gate``; no pace: never)."""
-    if math.isinf(options.edge_pace_gate) or pace is None:
-        return False
-    apart_s = _seconds_apart(frames, edge.source, edge.target)
-    if apart_s is None:
-        return False
-    steps = abs(edge.target - edge.source)
-    sigma = max(options.step_sigma_m, pace.spread_m) * math.sqrt(steps)
-    return abs(edge.distance_m - pace.speed_m_s * apart_s) > options.edge_pace_gate * sigma
-
-
 def _add_steps(
     graph: gtsam.NonlinearFactorGraph,
     frames: Sequence[SequenceFrame],
@@ -447,11 +392,12 @@ def _add_steps(
     """Consecutive frames' distance from their capture times and the walk's pace (the module docstring)."""
     if pace is None:
         return
+    times = [frame.capture_time_s for frame in frames]
     for k in range(len(frames) - 1):
-        apart_s = _seconds_apart(frames, k, k + 1)
+        apart_s = seconds_apart(times, k, k + 1)
         if apart_s is None:
             continue
         step_m = pace.speed_m_s * apart_s
-        sigma = max(options.step_sigma_m, pace.spread_m) + options.step_sigma_fraction * step_m
+        sigma = pace.step_sigma_m(options.step_sigma_m) + options.step_sigma_fraction * step_m
         step_noise = _robust("cauchy", options.cauchy_k, gtsam.noiseModel.Isotropic.Sigma(1, sigma))
         graph.add(gtsam.RangeFactorPose2(k, k + 1, step_m, step_noise))

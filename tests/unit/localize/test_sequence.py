@@ -15,7 +15,8 @@ from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.likelihood import image_model_from_map
 from geoloc.localize.sequence import PlacementOptions, SequenceFrame, SequenceMember, group_sequences, place_sequence
 from geoloc.localize.sequence.frames import map_position_covariance
-from geoloc.localize.sequence.placement import PlacedPose, walk_pace
+from geoloc.localize.sequence.pace import walk_pace
+from geoloc.localize.sequence.placement import PlacedPose
 from geoloc.localize.sequence.relative import RelativePose, pose_in_frame
 from geoloc.maps import city_map_from_footprints
 from geoloc.maps.raycast import cast_panoramas
@@ -214,22 +215,20 @@ def test_capture_times_join_the_parts_of_a_walk_that_see_nothing_in_common() -> 
 
 
 def test_walk_pace_is_the_median_speed_and_the_robust_spread_of_the_steps_about_it() -> None:
-    frames = _offset_walk(0.0, (), times=True)  # 7 m every 5 s
+    times = [f.capture_time_s for f in _offset_walk(0.0, (), times=True)]  # 7 m every 5 s
     edges = _edges(_walk(10), steps=(1, 2))
-    exact = walk_pace(frames, edges, PlacementOptions())
+    exact = walk_pace(times, edges, 3)
     assert exact is not None and exact.speed_m_s == pytest.approx(1.4) and exact.spread_m == pytest.approx(0.0)
     # Steps 1 m longer and shorter than 7 m in turn, and one edge a facade's repeated windows put 6 m short:
     # the spread is the steps' (1.48 x their median absolute residual of 1 m), the wrong edge set aside.
     step_m = [7.0 + (1.0 if i % 2 else -1.0) for i in range(9)]
     uneven = [RelativePose(a, b, step_m[i], 0.0, 0.0, 50) for i in range(9) for a, b in ((i, i + 1), (i + 1, i))]
     uneven[8] = replace(uneven[8], forward_m=1.0)  # frame 4 to 5
-    pace = walk_pace(frames, uneven, PlacementOptions())
+    pace = walk_pace(times, uneven, 3)
     assert pace is not None and pace.speed_m_s == pytest.approx(1.4, abs=0.25)
     assert pace.spread_m == pytest.approx(1.4826, abs=0.3), pace
-    too_few = PlacementOptions(min_speed_samples=3)
-    assert walk_pace(frames, edges[:4], too_few) is None  # frames 0-1 both ways, 0-2 both ways: 2 samples
-    untimed = [replace(f, capture_time_s=None) for f in frames]
-    assert walk_pace(untimed, edges, PlacementOptions()) is None
+    assert walk_pace(times, edges[:4], 3) is None  # frames 0-1 both ways, 0-2 both ways: 2 samples
+    assert walk_pace([None] * len(times), edges, 3) is None  # no capture times
 
 
 def test_an_edge_the_pace_rules_out_keeps_only_its_turn() -> None:
