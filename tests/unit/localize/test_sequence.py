@@ -15,7 +15,7 @@ from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.likelihood import image_model_from_map
 from geoloc.localize.sequence import PlacementOptions, SequenceFrame, SequenceMember, group_sequences, place_sequence
 from geoloc.localize.sequence.frames import map_position_covariance
-from geoloc.localize.sequence.pace import walk_pace
+from geoloc.localize.sequence.pace import WalkPace, rules_out, walk_pace
 from geoloc.localize.sequence.placement import PlacedPose
 from geoloc.localize.sequence.relative import RelativePose, pose_in_frame
 from geoloc.maps import city_map_from_footprints
@@ -229,6 +229,23 @@ def test_walk_pace_is_the_median_speed_and_the_robust_spread_of_the_steps_about_
     assert pace.spread_m == pytest.approx(1.4826, abs=0.3), pace
     assert walk_pace(times, edges[:4], 3) is None  # frames 0-1 both ways, 0-2 both ways: 2 samples
     assert walk_pace([None] * len(times), edges, 3) is None  # no capture times
+
+
+def test_the_pace_rules_out_an_edge_three_step_sigmas_off_speed_times_time() -> None:
+    pace, times = WalkPace(speed_m_s=1.4, spread_m=1.0), [0.0, 5.0, 10.0, None]  # 7 m a step, sigma 1 m
+
+    def edge(source: int, target: int, distance_m: float) -> RelativePose:
+        return RelativePose(source, target, distance_m, 0.0, 0.0, 50)
+
+    assert not rules_out(pace, times, edge(0, 1, 7.0 + 2.9), 0.5, 3.0)
+    assert rules_out(pace, times, edge(1, 0, 7.0 - 3.1), 0.5, 3.0)
+    assert rules_out(pace, times, edge(0, 1, 0.2), 0.5, 3.0)  # a facade's repeated windows: on the source
+    assert not rules_out(pace, times, edge(0, 2, 14.0 - 4.0), 0.5, 3.0)  # two steps: sigma x sqrt(2)
+    assert rules_out(pace, times, edge(0, 2, 14.0 - 4.5), 0.5, 3.0)
+    assert not rules_out(WalkPace(1.4, 0.1), times, edge(0, 1, 6.0), 0.5, 3.0)  # the floor: 0.5 m, not 0.1
+    assert not rules_out(pace, times, edge(0, 1, 0.2), 0.5, math.inf)  # no gate
+    assert not rules_out(None, times, edge(0, 1, 0.2), 0.5, 3.0)  # no pace measured
+    assert not rules_out(pace, times, edge(2, 3, 0.2), 0.5, 3.0)  # no capture time
 
 
 def test_an_edge_the_pace_rules_out_keeps_only_its_turn() -> None:
