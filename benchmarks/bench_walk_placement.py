@@ -26,8 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.config_args import comparison_arguments, parse_config
+from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.references import label_alone
-from geoloc.evaluation.summaries import angle_error_deg, reference_heading_summary, reference_position_summary
+from geoloc.evaluation.summaries import reference_heading_summary, reference_position_summary
 from geoloc.localize.sequence import PlacementOptions
 from geoloc.localize.sequence.stage import place_photo_walks
 from geoloc.sim.world import load_world
@@ -58,7 +59,7 @@ def place_world(world_dir: Path, configs: dict[str, PlacementOptions], say: Any)
         for image in world.references:
             label, pose = labelled[image.name].label, image.pose
             error_m = math.hypot(label.x_m - pose.x_m, label.y_m - pose.y_m)
-            rows.append((image.name, error_m, angle_error_deg(label.yaw_deg, pose.yaw_deg)))
+            rows.append((image.name, error_m, angle_difference_deg(label.yaw_deg, pose.yaw_deg)))
         out[name] = {
             "position": reference_position_summary([r[1] for r in rows]),
             "heading": reference_heading_summary([r[2] for r in rows]),

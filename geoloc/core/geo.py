@@ -104,3 +104,8 @@ def bearing_vector(bearing_deg_: np.ndarray | float) -> np.ndarray:
     """Unit (east, north) vector(s) for bearing(s) in degrees; shape (..., 2)."""
     b = np.radians(np.asarray(bearing_deg_, dtype=float))
     return np.stack([np.sin(b), np.cos(b)], axis=-1)
+
+
+def angle_difference_deg(a_deg: float, b_deg: float) -> float:
+    """Absolute difference of two headings or bearings (deg), in [0, 180]."""
+    return abs((a_deg - b_deg + 180.0) % 360.0 - 180.0)

@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 
 from geoloc.core.context import MethodContext
-from geoloc.evaluation.summaries import angle_error_deg, mean_or_none
+from geoloc.core.geo import angle_difference_deg
+from geoloc.evaluation.summaries import mean_or_none
 from geoloc.localize.reference import LabelledReference, label_reference_photo
 from geoloc.localize.sequence.stage import compass_prior_at, place_photo_walks
 from geoloc.maps import load_map
@@ -79,7 +80,7 @@ def evaluate_photos(
         if name in truth:
             compass = float(truth[name]["true_heading_deg"])
             row["compass_heading_deg"] = compass
-            row["heading_error_deg"] = round(angle_error_deg(heading, compass), 2)
+            row["heading_error_deg"] = round(angle_difference_deg(heading, compass), 2)
         rows.append(row)
     errors = [r["heading_error_deg"] for r in rows if "heading_error_deg" in r]
     return {

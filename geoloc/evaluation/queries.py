@@ -13,9 +13,10 @@ import numpy as np
 
 from contracts.queries import gps_prior_radius_m
 from geoloc.core.context import MethodContext
+from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.ground_truth import gt_identity_map
 from geoloc.evaluation.references import LabelledWorld
-from geoloc.evaluation.summaries import TOP_N, angle_error_deg, mean_or_none, run_summary
+from geoloc.evaluation.summaries import TOP_N, mean_or_none, run_summary
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.identity import identity_accuracy
 from geoloc.localize.query import QueryConfig, geolocate, retrieve, transfer
@@ -152,7 +153,7 @@ def answer_run(
             "shown": bool(shown[image.name]["building"]),
             "shown_facade_share": round(shown[image.name]["facade_share"], 3),
             "error_m": round(errors[0], 2),
-            "heading_error_deg": round(angle_error_deg(best.yaw_deg, pose.yaw_deg), 2),
+            "heading_error_deg": round(angle_difference_deg(best.yaw_deg, pose.yaw_deg), 2),
             "source": best.source,
             "inliers": answer.search["anchors"]["inliers"],
             "anchors_trusted": answer.search["anchors"]["trusted"],

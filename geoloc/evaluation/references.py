@@ -13,11 +13,11 @@ import numpy as np
 
 from geoloc.core.camera import Intrinsics
 from geoloc.core.context import MethodContext
+from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.facades import orientation_errors
 from geoloc.evaluation.ground_truth import gt_keypoint_identity
 from geoloc.evaluation.store import InMemoryReferenceStore
 from geoloc.evaluation.summaries import (
-    angle_error_deg,
     mean_or_none,
     per_walk_summary,
     reference_heading_summary,
@@ -106,7 +106,7 @@ def label_references(
         accuracy["greedy"].append(identity_accuracy(ref.label.greedy.pixel_ids(), truth))
         accuracy["marginalized"].append(identity_accuracy(ref.label.marginalized.pixel_ids(), truth))
         pose = image.pose
-        heading_errors.append(angle_error_deg(ref.label.yaw_deg, pose.yaw_deg))
+        heading_errors.append(angle_difference_deg(ref.label.yaw_deg, pose.yaw_deg))
         error = math.hypot(ref.label.x_m - pose.x_m, ref.label.y_m - pose.y_m)
         position_errors.append(error)
         sigma = math.sqrt(float(np.linalg.eigvalsh(ref.label.position_covariance).max()))

@@ -43,11 +43,6 @@ def run_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def angle_error_deg(a: float, b: float) -> float:
-    """Absolute difference of two angles (deg), in [0, 180]."""
-    return abs((a - b + 180.0) % 360.0 - 180.0)
-
-
 def mean_or_none(values: list[float]) -> float | None:
     """The mean of the values that are not None or NaN, to 4 decimals (None when there are none)."""
     vals = [v for v in values if v is not None and not math.isnan(v)]

@@ -27,9 +27,10 @@ from typing import Any
 import numpy as np
 
 from geoloc.core.context import MethodContext
+from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.queries import photo_priors
 from geoloc.evaluation.references import LabelledWorld
-from geoloc.evaluation.summaries import angle_error_deg, mean_or_none
+from geoloc.evaluation.summaries import mean_or_none
 from geoloc.localize.query import QueryConfig
 from geoloc.localize.query.answer import AnswerPose
 from geoloc.localize.retrieval import Vocabulary
@@ -54,7 +55,7 @@ def _errors(pose: AnswerPose | None, truth: WorldImage) -> tuple[float, float]:
     if pose is None:
         return math.inf, 180.0
     p = truth.pose
-    return math.hypot(pose.x_m - p.x_m, pose.y_m - p.y_m), angle_error_deg(pose.yaw_deg, p.yaw_deg)
+    return math.hypot(pose.x_m - p.x_m, pose.y_m - p.y_m), angle_difference_deg(pose.yaw_deg, p.yaw_deg)
 
 
 def _block(rows: list[dict[str, Any]], prefix: str) -> dict[str, Any]:

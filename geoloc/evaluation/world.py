@@ -48,7 +48,7 @@ from geoloc.evaluation.ground_truth import SHOWN_MIN_SHARE, gps_baseline, shown_
 from geoloc.evaluation.photos import evaluate_photos
 from geoloc.evaluation.queries import KS, EvalRun, answer_run, transfer_tables
 from geoloc.evaluation.references import LabelledWorld, analyze, label_references, references_at_truth
-from geoloc.evaluation.summaries import QUERY_KINDS, TOP_N, angle_error_deg
+from geoloc.evaluation.summaries import QUERY_KINDS, TOP_N
 from geoloc.evaluation.tracks import evaluate_tracks
 from geoloc.localize.query import QueryConfig
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
@@ -60,7 +60,6 @@ __all__ = [
     "SHOWN_MIN_SHARE",
     "TOP_N",
     "EvalRun",
-    "angle_error_deg",
     "capture_kind",
     "default_runs",
     "evaluate_photos",

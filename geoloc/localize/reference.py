@@ -129,21 +129,19 @@ def label_reference_photo(
     """
     if strategy not in ("marginalized", "greedy"):
         raise ValueError(f"strategy must be 'marginalized' or 'greedy', got {strategy!r}")
-    options = options or LabelOptions()
     evidence = evidence or analyze_photo(photo, context=context)
-    t0 = time.perf_counter()
-    label = label_reference(
+    return label_from_cues(
         city_map,
-        evidence.image_model,
-        evidence.building_mask,
         photo.intrinsics,
+        LabelCues.of(evidence),
+        evidence.timings_ms,
         gps_xy,
         prior_yaw_deg=prior_yaw_deg,
         heading_prior=heading_prior,
         options=options,
+        strategy=strategy,
+        analysis=evidence,
     )
-    timings = dict(evidence.timings_ms, labeling=1e3 * (time.perf_counter() - t0))
-    return _labelled(city_map, photo.intrinsics, LabelCues.of(evidence), label, strategy, timings, evidence)
 
 
 def label_from_cues(
@@ -152,21 +150,33 @@ def label_from_cues(
     cues: LabelCues,
     timings_ms: dict[str, float],
     gps_xy: tuple[float, float],
-    heading_prior: HeadingPrior,
     *,
-    analysis: PhotoEvidence | None = None,
+    prior_yaw_deg: float | None = None,
+    heading_prior: HeadingPrior | None = None,
+    options: LabelOptions | None = None,
     strategy: str = "marginalized",
+    analysis: PhotoEvidence | None = None,
+    timing_key: str = "labeling",
 ) -> LabelledReference:
-    """A photo (its camera and :class:`LabelCues`) labelled again around its GPS tag (local m) with another prior.
+    """A photo labelled from its camera and :class:`LabelCues` around its GPS tag (local m).
 
-    As :func:`label_reference_photo` with default options, from the cues a walk's placement reads back instead of
-    the photo. timings_ms: its label's own (copied, ``relabeling`` added); analysis: kept on the result.
+    :func:`label_reference_photo`'s labelling, also used on the cues a walk's placement reads back instead of the
+    photo (a label done again with another prior). timings_ms: the analysis's or the earlier label's (copied,
+    ``timing_key`` added: the labelling's ms); analysis: kept on the result; the rest as
+    :func:`label_reference_photo`.
     """
     t0 = time.perf_counter()
     label = label_reference(
-        city_map, cues.image_model, cues.building_mask, intrinsics, gps_xy, heading_prior=heading_prior
+        city_map,
+        cues.image_model,
+        cues.building_mask,
+        intrinsics,
+        gps_xy,
+        prior_yaw_deg=prior_yaw_deg,
+        heading_prior=heading_prior,
+        options=options or LabelOptions(),
     )
-    timings = dict(timings_ms, relabeling=1e3 * (time.perf_counter() - t0))
+    timings = dict(timings_ms, **{timing_key: 1e3 * (time.perf_counter() - t0)})
     return _labelled(city_map, intrinsics, cues, label, strategy, timings, analysis)
 
 

@@ -317,7 +317,7 @@ def place_sequence(
         n_edges[[motion.source, motion.target]] += 1
     if options.gps_correlation_m is not None:
         _add_correlated_gps(graph, initial, frames, options, options.gps_correlation_m)
-    _add_steps(graph, frames, pace, options)
+    _add_steps(graph, times, pace, options)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(options.max_iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
@@ -385,16 +385,15 @@ def _add_correlated_gps(
 
 def _add_steps(
     graph: gtsam.NonlinearFactorGraph,
-    frames: Sequence[SequenceFrame],
+    capture_times_s: Sequence[float | None],
     pace: WalkPace | None,
     options: PlacementOptions,
 ) -> None:
     """Consecutive frames' distance from their capture times and the walk's pace (the module docstring)."""
     if pace is None:
         return
-    times = [frame.capture_time_s for frame in frames]
-    for k in range(len(frames) - 1):
-        apart_s = seconds_apart(times, k, k + 1)
+    for k in range(len(capture_times_s) - 1):
+        apart_s = seconds_apart(capture_times_s, k, k + 1)
         if apart_s is None:
             continue
         step_m = pace.speed_m_s * apart_s

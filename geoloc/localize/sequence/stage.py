@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 
+from geoloc.core.geo import angle_difference_deg
 from geoloc.localize.labeling import KnownPose
 from geoloc.localize.reference import LabelledReference, label_at_pose, label_from_cues
 from geoloc.localize.sequence.frames import FrameLabel, map_position_covariance
@@ -155,7 +156,7 @@ def compass_relabelled(
     if min_agreement is None:
         return {}
     offsets = {
-        k: _angle_deg(frame.alone.yaw_deg, frame.heading_prior.mean_bearing_deg)
+        k: angle_difference_deg(frame.alone.yaw_deg, frame.heading_prior.mean_bearing_deg)
         for k, frame in enumerate(frames)
         if frame.heading_prior is not None
     }
@@ -171,23 +172,25 @@ def compass_relabelled(
         alone = frame.alone
         strict = HeadingPrior(compass.mean_bearing_deg, compass.sigma_deg, 0.0)
         again = label_from_cues(
-            city_map, alone.intrinsics, alone.cues, alone.timings_ms, frame.gps_xy, strict, analysis=alone.analysis
+            city_map,
+            alone.intrinsics,
+            alone.cues,
+            alone.timings_ms,
+            frame.gps_xy,
+            heading_prior=strict,
+            analysis=alone.analysis,
+            timing_key="relabeling",
         )
-        if _angle_deg(again.label.yaw_deg, compass.mean_bearing_deg) > COMPASS_AGREES_DEG:
+        if angle_difference_deg(again.label.yaw_deg, compass.mean_bearing_deg) > COMPASS_AGREES_DEG:
             continue
         # A neighbour is a witness when its own label agrees with its compass (or it has none).
         witnesses = [e for e in edges if e.target == k and offsets.get(e.source, 0.0) <= COMPASS_AGREES_DEG]
         predicted = [frames[e.source].alone.yaw_deg + e.turn_deg for e in witnesses]
-        for_new = sum(_angle_deg(yaw, again.label.yaw_deg) <= COMPASS_AGREES_DEG for yaw in predicted)
-        for_old = sum(_angle_deg(yaw, alone.yaw_deg) <= COMPASS_AGREES_DEG for yaw in predicted)
+        for_new = sum(angle_difference_deg(yaw, again.label.yaw_deg) <= COMPASS_AGREES_DEG for yaw in predicted)
+        for_old = sum(angle_difference_deg(yaw, alone.yaw_deg) <= COMPASS_AGREES_DEG for yaw in predicted)
         if for_new >= for_old:
             relabelled[k] = again
     return relabelled
-
-
-def _angle_deg(a_deg: float, b_deg: float) -> float:
-    """The absolute angle between two headings (deg, in [0, 180])."""
-    return abs((a_deg - b_deg + 180.0) % 360.0 - 180.0)
 
 
 def compass_prior_at(photo: Photo, city_map: CityMap, xy: tuple[float, float]) -> HeadingPrior | None:

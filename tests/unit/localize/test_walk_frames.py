@@ -9,6 +9,7 @@ import pytest
 
 from contracts.settings import shared_path
 from db.blobs import pack_arrays, unpack_arrays
+from geoloc.core.geo import angle_difference_deg
 from geoloc.localize.reference import LabelledReference, label_reference_photo
 from geoloc.localize.sequence.frames import FrameLabel, frame_arrays, frame_from_arrays
 from geoloc.localize.sequence.relative import RelativePose
@@ -93,16 +94,13 @@ def test_a_walk_placed_from_stored_frames_is_bit_identical(walk: tuple[CityMap, 
             np.testing.assert_array_equal(value, arrays_b[name], err_msg=name)
 
 
-def _angle(a_deg: float, b_deg: float) -> float:
-    return abs((a_deg - b_deg + 180.0) % 360.0 - 180.0)
-
-
 def _flipped(frames: list[LabelledFrame]) -> tuple[int, list[LabelledFrame]]:
     """The walk with one frame's label turned to face away from its compass (the mirror view's 180 deg)."""
     agreeing = [
         k
         for k, frame in enumerate(frames)
-        if frame.heading_prior is not None and _angle(frame.alone.yaw_deg, frame.heading_prior.mean_bearing_deg) < 10
+        if frame.heading_prior is not None
+        and angle_difference_deg(frame.alone.yaw_deg, frame.heading_prior.mean_bearing_deg) < 10
     ]
     assert len(agreeing) >= 3, "the walk world's compasses should mostly agree with the labels"
     k = agreeing[len(agreeing) // 2]
@@ -115,7 +113,8 @@ def _facing_away(frames: list[LabelledFrame]) -> set[int]:
     return {
         k
         for k, frame in enumerate(frames)
-        if frame.heading_prior is not None and _angle(frame.alone.yaw_deg, frame.heading_prior.mean_bearing_deg) > 90
+        if frame.heading_prior is not None
+        and angle_difference_deg(frame.alone.yaw_deg, frame.heading_prior.mean_bearing_deg) > 90
     }
 
 
@@ -135,8 +134,9 @@ def test_a_label_facing_away_from_a_trusted_compass_is_done_again(walk: tuple[Ci
     assert compass is not None
     again = compass_relabelled(city, turned, [], 0.5)
     assert set(again) == {k} | _facing_away(frames)  # the turned frame and those the map alone turned
-    assert _angle(again[k].label.yaw_deg, compass.mean_bearing_deg) <= COMPASS_AGREES_DEG
-    assert _angle(again[k].label.yaw_deg, frames[k].alone.yaw_deg) < 10  # back to the label before the turn
+    assert angle_difference_deg(again[k].label.yaw_deg, compass.mean_bearing_deg) <= COMPASS_AGREES_DEG
+    # Back to the label before the turn:
+    assert angle_difference_deg(again[k].label.yaw_deg, frames[k].alone.yaw_deg) < 10
     assert "relabeling" in again[k].timings_ms
     assert compass_relabelled(city, turned, [], None) == {}  # switched off
 
