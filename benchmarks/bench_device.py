@@ -10,14 +10,19 @@ and the query stage (:func:`geoloc.localize.query.geolocate`, the preset's confi
 GPS and compass as priors like the service) once per device and round, the devices' order alternating by
 round; one warm-up query per device first (sessions, CUDA kernels). Per device: the wall time's p50 and p95
 (analysis and query stage, the photo already loaded) and the median of each stage of the answers'
-``timings_ms``, with each stage's ratio to segmentation. Without onnxruntime's CUDA provider or a GPU it says
-why and measures the CPU alone (exit 0). Prints a markdown table, writes JSON.
+``timings_ms``, with each stage's ratio to segmentation; how far each GPU answer's best pose lies from the CPU's
+for the same photo and round (metres, degrees). With ``--aliked`` (the model built by
+``geoloc models build --features aliked-n16``) the same photos also go through ALIKED
+(:func:`geoloc.vision.aliked.aliked_keypoints`, its network and head, 1024 keypoints) on each device: the
+``aliked`` row. Without onnxruntime's CUDA provider or a GPU it says why and measures the CPU alone (exit 0).
+Prints a markdown table, writes JSON.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import statistics
@@ -30,6 +35,7 @@ import numpy as np
 
 from contracts.queries import QueryPreset
 from geoloc.core.context import Device, MethodContext
+from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.queries import photo_priors
 from geoloc.evaluation.references import LabelledWorld, label_references
 from geoloc.localize.query import geolocate, preset_config
@@ -37,6 +43,7 @@ from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.sim.world import load_world
+from geoloc.vision.aliked import aliked_keypoints, load_runtime
 from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.onnx_session import DeviceUnavailableError, device_problems
 from geoloc.vision.segmentation import load_session
@@ -52,6 +59,14 @@ def cuda_problem(context: MethodContext) -> str | None:
     except DeviceUnavailableError as exc:
         return str(exc)
     return None
+
+
+def ask_aliked(photo: Photo, context: MethodContext) -> float:
+    """Milliseconds of ALIKED (network and head, 1024 keypoints, the whole image) on ``context``'s device."""
+    runtime = load_runtime(context)
+    t0 = time.perf_counter()
+    aliked_keypoints(photo.image_rgb, 1024, runtime=runtime)
+    return 1e3 * (time.perf_counter() - t0)
 
 
 def ask(
@@ -77,13 +92,29 @@ def ask(
         heading_prior=heading_prior,
         context=context,
     )
-    return {**answer.timings_ms, "wall": 1e3 * (time.perf_counter() - t0)}
+    best = answer.poses[0]
+    pose = {"x_m": best.x_m, "y_m": best.y_m, "yaw_deg": best.yaw_deg}
+    return {**answer.timings_ms, "wall": 1e3 * (time.perf_counter() - t0), **pose}
+
+
+POSE_KEYS = ("x_m", "y_m", "yaw_deg", "wall")
+
+
+def disagreement(cpu_runs: list[dict[str, float]], gpu_runs: list[dict[str, float]]) -> dict[str, float]:
+    """Largest distance (m) and heading difference (deg) between the two devices' best poses, photo by photo."""
+    distance_m = [math.hypot(c["x_m"] - g["x_m"], c["y_m"] - g["y_m"]) for c, g in zip(cpu_runs, gpu_runs, strict=True)]
+    heading_deg = [angle_difference_deg(c["yaw_deg"], g["yaw_deg"]) for c, g in zip(cpu_runs, gpu_runs, strict=True)]
+    return {
+        "max_distance_m": round(max(distance_m), 3),
+        "max_heading_deg": round(max(heading_deg), 3),
+        "answers_over_1_m": sum(d > 1.0 for d in distance_m),
+    }
 
 
 def summary(runs: list[dict[str, float]]) -> dict[str, Any]:
     """p50/p95 of the wall time, each stage's median and its ratio to segmentation's."""
     walls = np.array([r["wall"] for r in runs])
-    stages = {k: round(statistics.median(r.get(k, 0.0) for r in runs), 1) for k in runs[0] if k != "wall"}
+    stages = {k: round(statistics.median(r.get(k, 0.0) for r in runs), 1) for k in runs[0] if k not in POSE_KEYS}
     seg = stages.get("segmentation") or float("nan")
     return {
         "queries": len(runs),
@@ -120,6 +151,7 @@ def main() -> None:
     parser.add_argument("--queries", type=int, default=10, help="the world's first N query photos")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"])
+    parser.add_argument("--aliked", action="store_true", help="also time ALIKED (aliked-n16) on each device")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     world = load_world(args.world)
@@ -139,13 +171,22 @@ def main() -> None:
     print(f"{len(labelled.labelled)} references labelled; {len(photos)} queries x {args.rounds} rounds")
     for context in devices.values():  # warm-up
         ask(city, photos[0], labelled, vocabulary, args.preset, context)
+        if args.aliked:
+            ask_aliked(photos[0], context)
     runs: dict[str, list[dict[str, float]]] = {d: [] for d in devices}
     for round_index in range(args.rounds):
         order = list(devices) if round_index % 2 == 0 else list(reversed(devices))
         for photo in photos:
             for device in order:
-                runs[device].append(ask(city, photo, labelled, vocabulary, args.preset, devices[device]))
+                run = ask(city, photo, labelled, vocabulary, args.preset, devices[device])
+                if args.aliked:
+                    run["aliked"] = ask_aliked(photo, devices[device])
+                runs[device].append(run)
     results = {d: summary(r) for d, r in runs.items()}
+    if "cuda" in runs:
+        agreement = disagreement(runs["cpu"], runs["cuda"])
+        results["cuda"]["cpu_disagreement"] = agreement
+        print(f"GPU answers against the CPU's, same photo and round: {agreement}")
     print(f"{platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, preset {args.preset}")
     print(table(results))
     if args.json:
