@@ -77,7 +77,10 @@ def ask(
     preset: QueryPreset,
     context: MethodContext,
 ) -> dict[str, float]:
-    """One query on ``context``'s device: its stage timings (ms) and the wall time of analysis + query stage."""
+    """One query on ``context``'s device: stage timings, wall time (ms) and best pose (``x_m``, ``y_m``, ``yaw_deg``).
+
+    The wall time is the analysis and the query stage; the pose is local metres and a bearing.
+    """
     position_prior, heading_prior = photo_priors(photo, city, "gps")
     t0 = time.perf_counter()
     evidence = analyze_photo(photo, context=context)
@@ -97,7 +100,8 @@ def ask(
     return {**answer.timings_ms, "wall": 1e3 * (time.perf_counter() - t0), **pose}
 
 
-POSE_KEYS = ("x_m", "y_m", "yaw_deg", "wall")
+NOT_STAGES = ("wall", "x_m", "y_m", "yaw_deg")
+"""Keys of a run that are not stage timings: the wall time (ms) and the best pose (local m, bearing deg)."""
 
 
 def disagreement(cpu_runs: list[dict[str, float]], gpu_runs: list[dict[str, float]]) -> dict[str, float]:
@@ -114,7 +118,7 @@ def disagreement(cpu_runs: list[dict[str, float]], gpu_runs: list[dict[str, floa
 def summary(runs: list[dict[str, float]]) -> dict[str, Any]:
     """p50/p95 of the wall time, each stage's median and its ratio to segmentation's."""
     walls = np.array([r["wall"] for r in runs])
-    stages = {k: round(statistics.median(r.get(k, 0.0) for r in runs), 1) for k in runs[0] if k not in POSE_KEYS}
+    stages = {k: round(statistics.median(r.get(k, 0.0) for r in runs), 1) for k in runs[0] if k not in NOT_STAGES}
     seg = stages.get("segmentation") or float("nan")
     return {
         "queries": len(runs),

@@ -26,8 +26,10 @@ import numpy as np
 from geoloc.evaluation.references import label_alone
 from geoloc.localize.labeling import LabelOptions
 from geoloc.localize.map_likelihood import MapLikelihood
+from geoloc.localize.reference import LabelledReference
 from geoloc.localize.sequence.stage import place_photo_walks
 from geoloc.maps import CityMap
+from geoloc.sim.pose import Pose
 from geoloc.sim.world import load_world
 from workers.context import method_context
 
@@ -43,8 +45,12 @@ def sharpened_log(likelihood: np.ndarray, inside: np.ndarray, sharpness: float) 
     return score
 
 
-def walk_evidence(city: CityMap, frames: list[tuple[str, Any, Any]], options: LabelOptions) -> dict[str, Any]:
-    """One walk's figures: ``frames`` are (name, placed label, true pose) with the placed label's image model."""
+Frame = tuple[str, LabelledReference, Pose]
+"""A walk frame: its name, its placed label (with the photo's image model) and its true pose."""
+
+
+def walk_evidence(city: CityMap, frames: list[Frame], options: LabelOptions) -> dict[str, Any]:
+    """One walk's figures (the module docstring's) from its frames in walk order."""
     axis = np.arange(-SHIFT_HALF_M, SHIFT_HALF_M + 0.5, 1.0)
     shifts = np.stack(np.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
     summed = np.zeros(len(shifts))
@@ -86,7 +92,7 @@ def world_evidence(world_dir: Path, gain_limit: float) -> dict[str, Any]:
     photos, labelled = label_alone(world, city, "model", lambda _: None, method_context())
     place_photo_walks(city, photos, labelled)
     options = LabelOptions()
-    walks: dict[str, list[tuple[str, Any, Any]]] = {}
+    walks: dict[str, list[Frame]] = {}
     for image in world.references:
         walks.setdefault(str(image.record["walk"]["walk_id"]), []).append(
             (image.name, labelled[image.name], image.pose)
