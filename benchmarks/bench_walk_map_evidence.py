@@ -65,6 +65,11 @@ Frame = tuple[WorldImage, LabelledReference]
 """A walk frame: its image in the world (name, true pose, rendered truth) and its placed label."""
 
 
+def party_walls(column_ids: np.ndarray) -> np.ndarray:
+    """Columns c where one building ends and another begins at c | c + 1 ((W,) building id per column, -1 none)."""
+    return np.flatnonzero((column_ids[:-1] != column_ids[1:]) & (column_ids[:-1] >= 0) & (column_ids[1:] >= 0))
+
+
 def image_boundaries(world: World, image: WorldImage) -> tuple[np.ndarray, np.ndarray]:
     """The rendered truth's building boundaries: their bearings from the optical axis (deg) and their columns."""
     ids = world.gt(image.name)["column_building_id"]
@@ -108,8 +113,7 @@ def boundary_contrasts(world: World, image: WorldImage, image_rgb: np.ndarray) -
         right = median_colour(column + 1, min(width, column + 1 + CONTRAST_COLUMNS))
         return None if left is None or right is None else float(np.abs(left - right).sum())
 
-    _, columns = image_boundaries(world, image)
-    across = [contrast(c) for c in columns if ids[c] >= 0 and ids[c + 1] >= 0]
+    across = [contrast(c) for c in party_walls(ids)]
     inside_columns = range(2 * CONTRAST_COLUMNS, width - 2 * CONTRAST_COLUMNS, 37)
     inside = [
         contrast(c)
@@ -150,8 +154,7 @@ def column_colour_boundaries(image_rgb: np.ndarray, building_mask: np.ndarray) -
 
 def detector_counts(world: World, image: WorldImage, image_rgb: np.ndarray, building_mask: np.ndarray) -> list[int]:
     """[true, false, missed] boundaries between two buildings of :func:`column_colour_boundaries` on one photo."""
-    ids = world.gt(image.name)["column_building_id"]
-    truth = np.flatnonzero((ids[:-1] != ids[1:]) & (ids[:-1] >= 0) & (ids[1:] >= 0))
+    truth = party_walls(world.gt(image.name)["column_building_id"])
     found = column_colour_boundaries(image_rgb, building_mask)
     hits = [bool(len(truth)) and bool(np.abs(truth - f).min() <= DETECTOR_MATCH_PX) for f in found]
     missed = [not len(found) or bool(np.abs(found - t).min() > DETECTOR_MATCH_PX) for t in truth]
