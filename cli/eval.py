@@ -253,6 +253,11 @@ def print_world_summary(result: dict[str, Any], seconds: float) -> None:
         typer.echo(
             f"transfer identity accuracy k=1/4/8 ({source}): {acc['1']} / {acc['4']} / {acc['8']} (paper {paper})"
         )
+    if losses := result.get("query_identity_losses"):
+        typer.echo(
+            "where the shown queries' building pixels go (k=4): "
+            + ", ".join(f"{part.replace('_', ' ')} {share}" for part, share in losses.items())
+        )
     gps = result["gps_baseline"]
     typer.echo(
         f"raw EXIF GPS of the queries: median {gps.get('median_m')} m, "

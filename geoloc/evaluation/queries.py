@@ -28,6 +28,10 @@ from geoloc.photos.photo import Photo
 from geoloc.sim.world import World
 
 KS = (1, 4, 8)
+IDENTITY_LOSS_PARTS = ("outside_mask", "no_identity", "building_shown", "building_not_shown", "right")
+"""Where a query's ground-truth building pixels end up after the transfer (:func:`identity_losses`)."""
+LOSSES_K = 4
+"""The transfer's k at which :func:`transfer_tables` breaks the identity accuracy down (issue 19's must-hold's)."""
 
 
 @dataclass(frozen=True)
@@ -56,9 +60,14 @@ def transfer_tables(
     queries: list[Any],
     shown: dict[str, dict[str, Any]],
 ) -> dict[str, Any]:
-    """Table II (transfer accuracy for k = 1, 4, 8, our and ground-truth reference labels) and retrieval."""
+    """Table II (transfer accuracy for k = 1, 4, 8, our and ground-truth reference labels), retrieval, and more.
+
+    ``query_identity_losses``: where the shown queries' building pixels go at k = :data:`LOSSES_K` (the means of
+    :func:`identity_losses`).
+    """
     accuracy: dict[str, dict[int, list[float]]] = {"ours": defaultdict(list), "gt_reference_labels": defaultdict(list)}
     shown_accuracy: dict[int, list[float]] = defaultdict(list)
+    shown_losses: list[dict[str, float]] = []
     hits: dict[int, list[bool]] = defaultdict(list)
     for image in queries:
         photo, evidence = labelled.queries[image.name]
@@ -69,8 +78,11 @@ def transfer_tables(
         for k in KS:
             if best:
                 hits[k].append(bool(best & {str(m.reference_id) for m in matches[:k]}))
-            ours = identity_accuracy(transfer(evidence, stored, matches, k).pixel_ids(), truth)
+            predicted = transfer(evidence, stored, matches, k).pixel_ids()
+            ours = identity_accuracy(predicted, truth)
             accuracy["ours"][k].append(ours)
+            if k == LOSSES_K and shown[image.name]["building"]:
+                shown_losses.append(identity_losses(predicted, truth, evidence.building_mask))
             accuracy["gt_reference_labels"][k].append(
                 identity_accuracy(transfer(evidence, gt_stored, matches, k).pixel_ids(), truth)
             )
@@ -81,8 +93,39 @@ def transfer_tables(
             source: {str(k): mean_or_none(values[k]) for k in KS} for source, values in accuracy.items()
         }
         | {"ours_shown_queries": {str(k): mean_or_none(shown_accuracy[k]) for k in KS}},
+        "query_identity_losses": {
+            part: mean_or_none([losses[part] for losses in shown_losses]) for part in IDENTITY_LOSS_PARTS
+        },
         "retrieval": {f"best_overlap_in_top_{k}": mean_or_none([float(h) for h in hits[k]]) for k in KS},
     }
+
+
+def identity_losses(predicted: np.ndarray, truth: np.ndarray, building_mask: np.ndarray) -> dict[str, float]:
+    """Shares of a query's ground-truth building pixels, by what the transfer made of them (they sum to 1).
+
+    predicted, truth: (H, W) building ids (-1 none); building_mask: (H, W) bool, the segmentation's building
+    pixels. ``right``: the truth (:func:`geoloc.localize.identity.identity_accuracy`); of the others,
+    ``outside_mask``: the segmentation did not call the pixel a building (the transfer does not reach it);
+    ``no_identity``: a building pixel the transfer left without an identity; ``building_shown``: another building
+    the query shows (neighbours confused); ``building_not_shown``: a building the query does not
+    show at all (a wrong reference's). Empty truth: every share NaN.
+    """
+    on = truth >= 0
+    n = int(on.sum())
+    if n == 0:
+        return dict.fromkeys(IDENTITY_LOSS_PARTS, math.nan)
+    right = on & (predicted == truth)
+    inside = on & ~right & building_mask
+    wrong = inside & (predicted >= 0)
+    shown = np.isin(predicted, np.unique(truth[on]))
+    counts = {
+        "outside_mask": on & ~right & ~building_mask,
+        "no_identity": inside & (predicted < 0),
+        "building_shown": wrong & shown,
+        "building_not_shown": wrong & ~shown,
+        "right": right,
+    }
+    return {part: float(mask.sum()) / n for part, mask in counts.items()}
 
 
 def photo_priors(photo: Photo, city: CityMap, prior: str) -> tuple[PositionPrior | None, HeadingPrior | None]:

@@ -65,3 +65,22 @@ def test_json_from_before_the_new_keys_still_prints(capsys: pytest.CaptureFixtur
     assert "capture scattered" in out
     assert "within 1 / 2 m None / None" in out
     assert "  walk " not in out
+
+
+def test_identity_losses_print_when_measured(capsys: pytest.CaptureFixture[str]) -> None:
+    block = {
+        "identity_accuracy": {"greedy": 0.7, "marginalized": 0.72},
+        "heading_error_deg": {"n": 60, "median": 0.3, "within_2deg": 0.9, "within_5deg": 0.95},
+        "position_error_m": {"n": 60, "median_m": 3.6, "within_1m": 0.1, "within_2m": 0.25, "within_5m": 0.6},
+    }
+    result = _result(block, None)
+    result["query_identity_losses"] = {
+        "outside_mask": 0.12,
+        "no_identity": 0.02,
+        "building_shown": 0.04,
+        "building_not_shown": 0.01,
+        "right": 0.81,
+    }
+    print_world_summary(result, 12.0)
+    out = capsys.readouterr().out
+    assert "(k=4): outside mask 0.12, no identity 0.02, building shown 0.04, building not shown 0.01, right 0.81" in out

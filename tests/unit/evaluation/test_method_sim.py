@@ -11,6 +11,7 @@ from PIL import Image
 
 from contracts.settings import models_dir, shared_path
 from geoloc.evaluation.figures import HEIGHT, WIDTH, write_world_figures
+from geoloc.evaluation.queries import IDENTITY_LOSS_PARTS
 from geoloc.evaluation.references import label_references, references_at_truth
 from geoloc.evaluation.world import KS, EvalRun, default_runs, evaluate_world
 from geoloc.localize.query import QueryConfig
@@ -108,6 +109,11 @@ def test_evaluation_writes_every_key(world_dir: Path, tmp_path: Path) -> None:
     assert labelling["heading_error_deg"]["n"] == 20 and labelling["timing_ms"]["labeling"] > 0
     for source in ("ours", "gt_reference_labels", "ours_shown_queries"):
         assert set(result["query_identity_accuracy"][source]) == {str(k) for k in KS}
+    losses = result["query_identity_losses"]
+    assert set(losses) == set(IDENTITY_LOSS_PARTS)
+    if losses["right"] is not None:  # some query shows a building a reference shows
+        assert abs(sum(losses.values()) - 1.0) < 1e-3
+        assert abs(losses["right"] - result["query_identity_accuracy"]["ours_shown_queries"]["4"]) < 1e-3
     assert result["gps_baseline"]["n"] == 3
     assert set(result["runs"]) == {"gt_segmentation/gps", "paper_geometry/gps"}
     for run in result["runs"].values():
