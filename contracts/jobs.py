@@ -89,8 +89,9 @@ class PlaceSequencePayload(JobPayload):
 class PlaceSequenceResult(JobResult):
     """What placing a map's walks reports on its job.
 
-    walks: the walks placed; references: their references; placed: those re-labelled at a jointly placed pose;
-    edges: relative poses found; waiting: walks left for later (a reference still being labelled).
+    walks: the walks placed; references: their references; placed: those stored with a new label (at their jointly
+    placed pose, or along a compass their walk trusts); edges: relative poses found; waiting: walks left for later (a
+    reference still being labelled).
     """
 
     reference_id: int

@@ -7,10 +7,10 @@ and not yet placed as it stands, reads back each reference's stored label alone 
 deterministic label, when it was stored without one), places the walk
 (:func:`geoloc.localize.sequence.place_labelled_sequence`) and stores every frame the placement joined to the others
 with its new pose, identities and anchors, in one transaction per walk: queries see the old walk or the new one,
-never a mix. Every reference of a placed walk gets ``placement`` = ``sequence`` (a frame no relative pose joined
-keeps its own label's pose). A reference added later is labelled ``alone`` and queues the job again, which re-places
-its whole walk (the part that changed is the walk: walks are short). A walk with a reference still being labelled
-waits for the job that reference's label job queues.
+never a mix. Every reference of a placed walk gets ``placement`` = ``sequence`` (a frame that keeps its own label,
+:func:`geoloc.localize.sequence.stage.keeps_own_label`, keeps its pose). A reference added later is labelled
+``alone`` and queues the job again, which re-places its whole walk (the part that changed is the walk: walks are
+short). A walk with a reference still being labelled waits for the job that reference's label job queues.
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> Placed
     arrays, frames = zip(*(_walk_frame(db, city, row) for row in walk), strict=True)
     placed = place_labelled_sequence(city, frames)
     total_ms = 1e3 * (time.perf_counter() - t0) / len(walk)
-    # A frame no relative pose joined comes back as None: its stored label stands (and is marked placed).
+    # A frame that keeps its own label comes back as None: its stored label stands (and is marked placed).
     moved = {
         row["id"]: (ref, reference_labels(city, _scale(stored, frame), ref, total_ms), stored)
         for row, stored, frame, ref in zip(walk, arrays, frames, placed.references, strict=True)
@@ -123,7 +123,7 @@ def place_sequences(db: Database, payload: PlaceSequencePayload) -> PlaceSequenc
             continue
         result = _place_walk(db, city, walk)
         walks, references = walks + 1, references + len(walk)
-        placed += sum(pose.n_edges > 0 for pose in result.poses)
+        placed += sum(ref is not None for ref in result.references)
         edges += result.n_edges
     return PlaceSequenceResult(
         reference_id=payload.reference_id,

@@ -137,7 +137,8 @@ class PlacedPose:
     """A frame's jointly placed pose.
 
     x_m, y_m, yaw_deg: the pose; position_covariance: (2, 2) m^2 (gtsam's marginal); n_edges: relative poses
-    that joined it to other frames (0: placed by its own label, GPS and compass alone).
+    that joined it to other frames; n_steps: steps between capture times that joined it to the frames taken
+    just before and after it (0 to 2). With neither it was placed by its own label, GPS and compass alone.
     """
 
     x_m: float
@@ -145,6 +146,12 @@ class PlacedPose:
     yaw_deg: float
     position_covariance: np.ndarray
     n_edges: int
+    n_steps: int = 0
+
+    @property
+    def joined(self) -> bool:
+        """Whether a relative pose or a step joined it to the rest of its walk."""
+        return self.n_edges > 0 or self.n_steps > 0
 
 
 def _pose2(x_m: float, y_m: float, yaw_deg: float) -> gtsam.Pose2:
@@ -317,7 +324,7 @@ def place_sequence(
         n_edges[[motion.source, motion.target]] += 1
     if options.gps_correlation_m is not None:
         _add_correlated_gps(graph, initial, frames, options, options.gps_correlation_m)
-    _add_steps(graph, times, pace, options)
+    n_steps = _add_steps(graph, times, pace, options)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(options.max_iterations)
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
@@ -329,7 +336,7 @@ def place_sequence(
         theta = pose.theta()
         rotation = np.array([[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]])
         covariance = rotation @ np.asarray(marginals.marginalCovariance(k))[:2, :2] @ rotation.T
-        placed.append(PlacedPose(pose.x(), pose.y(), _bearing_deg(pose), covariance, int(n_edges[k])))
+        placed.append(PlacedPose(pose.x(), pose.y(), _bearing_deg(pose), covariance, int(n_edges[k]), int(n_steps[k])))
     return placed
 
 
@@ -388,10 +395,14 @@ def _add_steps(
     capture_times_s: Sequence[float | None],
     pace: WalkPace | None,
     options: PlacementOptions,
-) -> None:
-    """Consecutive frames' distance from their capture times and the walk's pace (the module docstring)."""
+) -> np.ndarray:
+    """Consecutive frames' distance from their capture times and the walk's pace (the module docstring).
+
+    Returns the number of steps added at each frame ((N,) int, 0 to 2).
+    """
+    n_steps = np.zeros(len(capture_times_s), dtype=int)
     if pace is None:
-        return
+        return n_steps
     for k in range(len(capture_times_s) - 1):
         apart_s = seconds_apart(capture_times_s, k, k + 1)
         if apart_s is None:
@@ -400,3 +411,5 @@ def _add_steps(
         sigma = pace.step_sigma_m(options.step_sigma_m) + options.step_sigma_fraction * step_m
         step_noise = _robust("cauchy", options.cauchy_k, gtsam.noiseModel.Isotropic.Sigma(1, sigma))
         graph.add(gtsam.RangeFactorPose2(k, k + 1, step_m, step_noise))
+        n_steps[[k, k + 1]] += 1
+    return n_steps

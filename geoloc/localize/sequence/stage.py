@@ -3,9 +3,11 @@
 Used by the workers' sequence job and by ``geoloc eval world``: each frame was labelled alone first
 (:func:`geoloc.localize.reference.label_reference_photo`, as every reference is); the walk's frames are then placed
 in one pose graph (:func:`geoloc.localize.sequence.placement.place_sequence`) and each is re-labelled at its
-placed pose (:func:`geoloc.localize.reference.label_at_pose`: identities and anchors from there). A frame that no
-relative pose joins to the others keeps its own label unchanged (its label already weighed its GPS and compass),
-so a "sequence" of photos that do not see each other (consecutive captures of scattered places) changes nothing.
+placed pose (:func:`geoloc.localize.reference.label_at_pose`: identities and anchors from there). A frame that
+no relative pose joins to the others keeps its own label unchanged (its label already weighed its GPS and
+compass) unless its steps between capture times place it more than a few metres away (:func:`keeps_own_label`),
+so a "sequence" of photos that do not see each other (consecutive captures of scattered places: no relative
+pose, so no pace to step by) changes nothing.
 
 Before the graph is built, a walk whose compass agrees with most of its labels has each label that faces away
 from its compass done again with the compass trusted (:func:`compass_relabelled`): the map alone turns a frame
@@ -15,6 +17,7 @@ label whose neighbours were pulled the same way.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -61,10 +64,9 @@ class LabelledFrame:
 class PlacedSequence:
     """A sequence placed jointly.
 
-    references: the frames re-labelled at their placed poses (in order; None: a frame no relative pose joined,
-    which keeps its own label; a frame no relative pose joined whose label :func:`compass_relabelled` replaced
-    comes back with that new label); poses: those poses; n_edges: how many
-    relative poses joined them (0: each frame kept what its own label, GPS and compass say).
+    references: the frames re-labelled at their placed poses (in order; None: a frame that keeps its own label,
+    :func:`keeps_own_label`; such a frame whose label :func:`compass_relabelled` replaced comes back with that new
+    label); poses: those poses; n_edges: how many relative poses joined them.
     """
 
     references: list[LabelledReference | None]
@@ -95,8 +97,8 @@ def place_labelled_sequence(
 ) -> PlacedSequence:
     """Place a walk's frames jointly and re-label each at its placed pose (module docstring).
 
-    Each re-labelled reference's ``timings_ms`` gains ``sequence``: its share of the placement (ms); a frame no
-    relative pose joins comes back as None (its own label stands) unless the compass relabelled it
+    Each re-labelled reference's ``timings_ms`` gains ``sequence``: its share of the placement (ms); a frame that
+    keeps its own label (:func:`keeps_own_label`) comes back as None unless the compass relabelled it
     (``options.compass_walk_agreement``; :func:`compass_relabelled`).
     """
     t0 = time.perf_counter()
@@ -117,15 +119,33 @@ def place_labelled_sequence(
     share_ms = 1e3 * (time.perf_counter() - t0) / max(len(frames), 1)
     references: list[LabelledReference | None] = []
     for k, (frame, pose) in enumerate(zip(frames, poses, strict=True)):
-        if pose.n_edges == 0:  # nothing joins it to the walk: its own label (or its compass's) stands
+        alone = frame.alone
+        if keeps_own_label(pose, alone.x_m, alone.y_m):  # its own label (or its compass's) stands
             references.append(relabelled.get(k))
             continue
         known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, pose.position_covariance)
-        alone = frame.alone
         placed = label_at_pose(city_map, alone.intrinsics, alone.cues, alone.timings_ms, known, analysis=alone.analysis)
         placed.timings_ms["sequence"] = share_ms
         references.append(placed)
     return PlacedSequence(references, poses, len(edges))
+
+
+STEPS_OVERRULE_M = 3.0
+"""A frame its steps alone join to its walk takes the walk's pose only when that lies farther than this (m) from its
+own label: three sigmas of a walker's step (docs/measurements.md, "The walk's pace": steps scatter about 1 m)."""
+
+
+def keeps_own_label(pose: PlacedPose, label_x_m: float, label_y_m: float) -> bool:
+    """Whether a placed frame keeps its label alone (at local ``label_x_m``, ``label_y_m``) instead of the walk's pose.
+
+    It does when nothing joined it to the walk (:attr:`PlacedPose.joined`), or when only its steps between capture
+    times did and the walk places it within :data:`STEPS_OVERRULE_M` of its label: steps say how far a walker went,
+    not where a label with the map's anchors was wrong by a metre or two, while a label the steps put farther off
+    is most often one on the wrong stretch of the street (docs/measurements.md, "Frames joined by their steps alone").
+    """
+    if not pose.joined:
+        return True
+    return pose.n_edges == 0 and math.hypot(pose.x_m - label_x_m, pose.y_m - label_y_m) <= STEPS_OVERRULE_M
 
 
 COMPASS_AGREES_DEG = 45.0

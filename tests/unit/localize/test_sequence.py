@@ -18,6 +18,7 @@ from geoloc.localize.sequence.frames import map_position_covariance
 from geoloc.localize.sequence.pace import WalkPace, rules_out, walk_pace
 from geoloc.localize.sequence.placement import PlacedPose
 from geoloc.localize.sequence.relative import RelativePose, pose_in_frame
+from geoloc.localize.sequence.stage import STEPS_OVERRULE_M, keeps_own_label
 from geoloc.maps import city_map_from_footprints
 from geoloc.maps.raycast import cast_panoramas
 from geoloc.photos.capture import photo_device
@@ -212,6 +213,27 @@ def test_capture_times_join_the_parts_of_a_walk_that_see_nothing_in_common() -> 
     # The first part sees no corner: its steps to the second part, which does, bring it nearer.
     assert np.abs(with_times[:5]).max() < np.abs(without[:5]).min() - 0.5, (with_times, without)
     assert np.abs(with_times[5:]).max() < 1.0
+
+
+def test_a_frame_its_steps_alone_join_is_joined_to_its_walk() -> None:
+    edges = [e for e in _split_edges(False) if 2 not in (e.source, e.target)]
+    stepped = place_sequence(_offset_walk(5.0, (8, 9), True), PlacementOptions(), edges)
+    unstepped = place_sequence(_offset_walk(5.0, (8, 9), False), PlacementOptions(), edges)
+    assert (stepped[2].n_edges, stepped[2].n_steps, stepped[2].joined) == (0, 2, True)
+    assert (unstepped[2].n_edges, unstepped[2].n_steps, unstepped[2].joined) == (0, 0, False)
+    assert [p.n_steps for p in stepped] == [1] + [2] * 8 + [1]
+    # Its steps bring it along with its neighbours, nearer the truth than its label at the drifted fix.
+    assert abs(_east_errors(stepped)[2]) < abs(_east_errors(unstepped)[2]) - 0.5
+
+
+def test_steps_alone_overrule_a_label_only_from_farther_than_a_few_metres() -> None:
+    def pose(x_m: float, n_edges: int, n_steps: int) -> PlacedPose:
+        return PlacedPose(x_m, 0.0, 90.0, np.eye(2), n_edges, n_steps)
+
+    assert keeps_own_label(pose(9.0, 0, 0), 0.0, 0.0)  # nothing joins it
+    assert keeps_own_label(pose(STEPS_OVERRULE_M - 0.5, 0, 2), 0.0, 0.0)  # its steps agree with its label
+    assert not keeps_own_label(pose(STEPS_OVERRULE_M + 0.5, 0, 1), 0.0, 0.0)  # its steps put it elsewhere
+    assert not keeps_own_label(pose(0.5, 1, 0), 0.0, 0.0)  # a relative pose joins it: the walk's pose, however near
 
 
 def test_walk_pace_is_the_median_speed_and_the_robust_spread_of_the_steps_about_it() -> None:
