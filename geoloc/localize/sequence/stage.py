@@ -141,7 +141,8 @@ def keeps_own_label(pose: PlacedPose, label_x_m: float, label_y_m: float) -> boo
     It does when nothing joined it to the walk (:attr:`PlacedPose.joined`), or when only its steps between capture
     times did and the walk places it within :data:`STEPS_OVERRULE_M` of its label: steps say how far a walker went,
     not where a label with the map's anchors was wrong by a metre or two, while a label the steps put farther off
-    is most often one on the wrong stretch of the street (docs/measurements.md, "Frames joined by their steps alone").
+    is more often on the wrong stretch of the street than the walk is (docs/measurements.md, "Frames joined by
+    their steps alone").
     """
     if not pose.joined:
         return True
