@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_walk_placement.py --world /tmp/worlds/hw1 --world /tmp/worlds/bw1 \
         --config independent=gps_correlation_m:none --config loose=step_sigma_fraction:0.3 --json walks.json
+    .venv/bin/python benchmarks/bench_walk_placement.py --world /tmp/worlds/hw2 --labels-at-truth
 
 Each world's references are labelled alone once, as the workers' label job labels them (the evaluation's
 :func:`geoloc.evaluation.references.label_alone`, network segmentation, the compass as heading prior); then
@@ -13,6 +14,10 @@ configuration: the references' position error (within 1 / 2 m, median) and headi
 against the manifest's truth, as ``reference_labelling`` reports them, how many references moved by more than
 0.5 m against the default, and the placement's process CPU as a ratio to the default's. Only the references
 are measured: the queries' figures need ``geoloc eval world``.
+
+With ``--labels-at-truth`` one more row, ``at_truth``: the default placement given perfect labels, every
+reference labelled at its manifest pose instead of alone (:func:`labels_at_truth`), so what the walks' graph
+itself loses (its GPS, steps and edges against right labels) shows apart from what the labels get wrong.
 """
 
 from __future__ import annotations
@@ -29,29 +34,59 @@ from benchmarks.config_args import comparison_arguments, parse_config
 from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.references import label_alone
 from geoloc.evaluation.summaries import reference_heading_summary, reference_position_summary
+from geoloc.localize.labeling import KnownPose
+from geoloc.localize.reference import LabelledReference, label_at_pose
 from geoloc.localize.sequence import PlacementOptions
 from geoloc.localize.sequence.stage import place_photo_walks
-from geoloc.sim.world import load_world
+from geoloc.maps import CityMap
+from geoloc.photos.photo import Photo
+from geoloc.sim.world import World, load_world
 from workers.context import method_context
 
 MOVED_M = 0.5
+AT_TRUTH = "at_truth"
+"""The row of the default placement given every reference's label at its true pose (``--labels-at-truth``)."""
 
 
-def place_world(world_dir: Path, configs: dict[str, PlacementOptions], say: Any) -> dict[str, Any]:
+def labels_at_truth(
+    world: World, city: CityMap, photos: dict[str, Photo], alone: dict[str, LabelledReference]
+) -> dict[str, LabelledReference]:
+    """Every reference of ``world`` labelled at its true pose (the manifest's) instead of alone, by name.
+
+    Each keeps its label alone's cues and position covariance; its identities and anchors come from the true pose
+    (:func:`geoloc.localize.reference.label_at_pose`, as a walk's placed frames are re-labelled).
+    """
+    out = {}
+    for image in world.references:
+        labelled, pose = alone[image.name], image.pose
+        known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, labelled.label.position_covariance)
+        intrinsics = photos[image.name].intrinsics
+        out[image.name] = label_at_pose(
+            city, intrinsics, labelled.cues, labelled.timings_ms, known, analysis=labelled.analysis
+        )
+    return out
+
+
+def place_world(
+    world_dir: Path, configs: dict[str, PlacementOptions], say: Any, *, at_truth: bool = False
+) -> dict[str, Any]:
     """Every walk of the world placed under every configuration, from one labelling alone (module docstring).
 
     Returns per configuration the per-reference ``errors`` (name, position error m, heading error deg), their
     ``position`` and ``heading`` summaries (the evaluation's reference summaries), and ``cpu_s``: this process's CPU
-    time around the placement.
+    time around the placement. at_truth: also :data:`AT_TRUTH`, the default options from labels at the truth.
     """
     world = load_world(world_dir)
     city = world.load_map()
     started = time.perf_counter()
     photos, alone = label_alone(world, city, "model", lambda _msg: None, method_context())
     say(f"{world_dir}: {len(alone)} references labelled alone in {time.perf_counter() - started:.0f} s")
+    runs = [(name, options, alone) for name, options in configs.items()]
+    if at_truth:
+        runs.append((AT_TRUTH, PlacementOptions(), labels_at_truth(world, city, photos, alone)))
     out: dict[str, Any] = {}
-    for name, options in configs.items():
-        labelled = dict(alone)
+    for name, options, labels in runs:
+        labelled = dict(labels)
         cpu0 = time.process_time()
         place_photo_walks(city, photos, labelled, options)
         cpu_s = time.process_time() - cpu0
@@ -71,15 +106,16 @@ def place_world(world_dir: Path, configs: dict[str, PlacementOptions], say: Any)
 
 def main() -> int:
     """Place the worlds' walks under each configuration; print the comparison and write the JSON."""
-    args = comparison_arguments(__doc__.split("\n")[0], "walk_placement.json")
+    switches = {"--labels-at-truth": "also place the default from every reference labelled at its true pose"}
+    args = comparison_arguments(__doc__.split("\n")[0], "walk_placement.json", switches)
     default = PlacementOptions()
     configs = {"default": default, **dict(parse_config(text, default) for text in args.config)}
     results: dict[str, Any] = {"configs": {n: asdict(c) for n, c in configs.items()}, "worlds": {}}
     for world_dir in args.world:
-        placed = place_world(world_dir, configs, lambda msg: print(msg, flush=True))
+        placed = place_world(world_dir, configs, lambda msg: print(msg, flush=True), at_truth=args.labels_at_truth)
         results["worlds"][str(world_dir)] = placed
         base = {name: error for name, error, _ in placed["default"]["errors"]}
-        for name in configs:
+        for name in placed:
             s = placed[name]
             p, h = s["position"], s["heading"]
             moved = sum(abs(error - base[ref]) > MOVED_M for ref, error, _ in s["errors"])

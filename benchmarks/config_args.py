@@ -9,6 +9,7 @@ type is refused with the reason.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, TypeVar, cast
@@ -42,10 +43,17 @@ def parse_config(text: str, default: Options) -> tuple[str, Options]:
     return name, cast(Options, replace(cast(Any, default), **changes))
 
 
-def comparison_arguments(description: str, json_default: str) -> argparse.Namespace:
-    """The comparison benchmarks' command line: ``--world`` (repeatable), ``--config`` (repeatable), ``--json``."""
+def comparison_arguments(
+    description: str, json_default: str, switches: Mapping[str, str] | None = None
+) -> argparse.Namespace:
+    """The comparison benchmarks' command line: ``--world`` (repeatable), ``--config`` (repeatable), ``--json``.
+
+    switches: a benchmark's own on/off flags (``--name``: help), false unless given.
+    """
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--world", type=Path, action="append", required=True, help="a world folder (repeatable)")
     parser.add_argument("--config", action="append", default=[], help="NAME=FIELD:VALUE,... (repeatable)")
     parser.add_argument("--json", type=Path, default=Path(json_default))
+    for flag, text in (switches or {}).items():
+        parser.add_argument(flag, action="store_true", help=text)
     return parser.parse_args()
