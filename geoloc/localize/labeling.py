@@ -25,7 +25,7 @@ from geoloc.core.camera import Intrinsics
 from geoloc.localize.identity import IdentityMap
 from geoloc.localize.likelihood import DEFAULT_SIGMA_M, LikelihoodOptions, default_yaws_deg
 from geoloc.localize.map_likelihood import MapLikelihood
-from geoloc.localize.posterior import DEFAULT_SHARPNESS, grid_around
+from geoloc.localize.posterior import DEFAULT_SHARPNESS, grid_around, sharpened_likelihood
 from geoloc.localize.refinement import RefinedPose, refine_pose
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import Panoramas, panorama_window
@@ -286,7 +286,9 @@ def label_reference(
     likelihood = MapLikelihood(city_map, image_model.without_identity(), options.likelihood)
     panoramas = likelihood.panoramas(positions)
     table = likelihood.of_panoramas(panoramas, yaws)
-    weights = np.power(table.astype(float), sharpness)
+    # Where the map says nothing (every pose's weight zero), the GPS and the compass place the photo.
+    sharpened = sharpened_likelihood(table, sharpness)
+    weights = sharpened if sharpened is not None else np.ones(table.shape)
     if prior is not None:
         weights = weights * prior.weights(yaws)[None, :]
     if gps_sigma_m:

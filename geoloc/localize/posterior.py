@@ -88,6 +88,17 @@ def grid_around(
     )
 
 
+def sharpened_likelihood(likelihood: np.ndarray, sharpness: float = DEFAULT_SHARPNESS) -> np.ndarray | None:
+    """``likelihood ** sharpness`` (float64, negatives clipped to 0), or None where that is zero for every pose.
+
+    None means the map says nothing of the photo (no facade evidence: a wall filling the frame, open ground, or
+    every value below the power's float range): the caller's priors alone must decide, not the first pose of a
+    table of zeros.
+    """
+    weights = np.power(np.clip(likelihood, 0.0, None).astype(float), sharpness)
+    return weights if weights.any() else None
+
+
 def pose_posterior(
     likelihood: np.ndarray, prior: np.ndarray | None = None, sharpness: float = DEFAULT_SHARPNESS
 ) -> np.ndarray:

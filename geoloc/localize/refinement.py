@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoloc.localize.map_likelihood import MapLikelihood
-from geoloc.localize.posterior import DEFAULT_SHARPNESS
+from geoloc.localize.posterior import DEFAULT_SHARPNESS, sharpened_likelihood
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import cast_panoramas
 from geoloc.vision.image_model import ImageModel
@@ -152,13 +152,16 @@ def refine_pose(
         positions = np.array([[x_m, y_m]])
     yaws = yaw + np.asarray(yaw_offsets_deg, dtype=float)
     table = likelihood.of_poses(positions, yaws).astype(float)
-    weight = np.power(table, sharpness)
+    sharpened = sharpened_likelihood(table, sharpness)
+    weight = sharpened if sharpened is not None else np.ones(table.shape)
     if prior_xy is not None and prior_sigma_m:
         d2 = np.sum((positions - np.asarray(prior_xy, dtype=float)) ** 2, axis=1)
         weight = weight * np.exp(-0.5 * d2 / prior_sigma_m**2)[:, None]
     if prior_weights is not None:
         weight = weight * prior_weights(positions)[:, None]
-    best_p, best_y = np.unravel_index(int(np.argmax(weight)), weight.shape)
+    best_p, best_y = (int(i) for i in np.unravel_index(int(np.argmax(weight)), weight.shape))
+    if sharpened is None:  # the map says nothing: the prior's position, the heading as given
+        best_y = int(np.argmin(np.abs(np.asarray(yaw_offsets_deg, dtype=float))))
     best_yaw = float(yaws[best_y])
     if use_vanishing_points:
         # The facades seen from the refined position fix the yaw to a fraction of a degree.

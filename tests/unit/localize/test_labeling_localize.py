@@ -9,9 +9,11 @@ from geoloc.localize.grid import GridOptions, PositionPrior, localize
 from geoloc.localize.labeling import LabelOptions, column_building_ids, label_reference
 from geoloc.localize.likelihood import LikelihoodOptions, image_model_from_map
 from geoloc.localize.map_likelihood import MapLikelihood
+from geoloc.localize.posterior import sharpened_likelihood
 from geoloc.localize.reference import LabelOptions as ReferenceLabelOptions
 from geoloc.localize.refinement import refine_pose, vanishing_point_yaw
 from geoloc.maps.raycast import cast_panoramas
+from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.vision.image_model import ImageModel, bin_offsets_deg
 from tests.scenes import street_canyon, twin_buildings
 
@@ -124,6 +126,25 @@ def test_vanishing_point_yaw_is_exact_given_the_facade_seen() -> None:
     # Nothing in view that agrees: the yaw is left alone and no support is reported.
     empty = ImageModel(OFFSETS, np.zeros(len(OFFSETS)), np.zeros(len(OFFSETS)))
     assert vanishing_point_yaw(city, empty, 0.0, -2.5, 70.0) == (70.0, 0)
+
+
+def test_a_photo_the_map_says_nothing_of_is_placed_by_its_gps_and_compass() -> None:
+    """No facade evidence (a wall filling the frame, open ground): every pose's weight is zero, so the priors decide.
+
+    Before, the first pose of the table of zeros won: the grid's corner, heading north, refined to another corner.
+    """
+    city = street_canyon()
+    empty = ImageModel(OFFSETS, np.zeros(len(OFFSETS)), np.zeros(len(OFFSETS)))
+    table = MapLikelihood(city, empty).of_poses(np.array([[0.0, -2.5], [0.0, 3.0]]), np.array([0.0, 123.0]))
+    assert sharpened_likelihood(table) is None  # what the map says of this photo: nothing
+    gps = (0.0, -2.5)
+    mask = np.zeros((480, 640), dtype=bool)
+    label = label_reference(city, empty, mask, INTRINSICS, gps, heading_prior=HeadingPrior(123.0, 15.0))
+    assert abs((label.yaw_deg - 123.0 + 180) % 360 - 180) <= 3.0  # the grid's nearest yaw to the compass
+    assert np.hypot(label.x_m - gps[0], label.y_m - gps[1]) <= LabelOptions().cell_m
+    refined = refine_pose(MapLikelihood(city, empty), 1.0, -2.0, 123.0, prior_xy=gps, prior_sigma_m=8.0)
+    assert refined.yaw_deg == 123.0 and np.hypot(refined.x_m - gps[0], refined.y_m - gps[1]) <= 1.0
+    assert refined.vp_bins == 0
 
 
 def test_position_prior_radius_is_two_sigma() -> None:
