@@ -32,10 +32,9 @@ from typing import Any
 
 from benchmarks.config_args import comparison_arguments, parse_config
 from geoloc.core.geo import angle_difference_deg
-from geoloc.evaluation.references import label_alone
+from geoloc.evaluation.references import label_alone, relabelled_at_truth
 from geoloc.evaluation.summaries import reference_heading_summary, reference_position_summary
-from geoloc.localize.labeling import KnownPose
-from geoloc.localize.reference import LabelledReference, label_at_pose
+from geoloc.localize.reference import LabelledReference
 from geoloc.localize.sequence import PlacementOptions
 from geoloc.localize.sequence.stage import place_photo_walks
 from geoloc.maps import CityMap
@@ -54,17 +53,9 @@ def labels_at_truth(
     """Every reference of ``world`` labelled at its true pose (the manifest's) instead of alone, by name.
 
     Each keeps its label alone's cues and position covariance; its identities and anchors come from the true pose
-    (:func:`geoloc.localize.reference.label_at_pose`, as a walk's placed frames are re-labelled).
+    (:func:`geoloc.evaluation.references.relabelled_at_truth`, as a walk's placed frames are re-labelled).
     """
-    out = {}
-    for image in world.references:
-        labelled, pose = alone[image.name], image.pose
-        known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, labelled.label.position_covariance)
-        intrinsics = photos[image.name].intrinsics
-        out[image.name] = label_at_pose(
-            city, intrinsics, labelled.cues, labelled.timings_ms, known, analysis=labelled.analysis
-        )
-    return out
+    return relabelled_at_truth(world, city, alone, {name: photo.intrinsics for name, photo in photos.items()})
 
 
 def place_world(

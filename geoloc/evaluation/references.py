@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -146,21 +146,43 @@ TRUTH_POSITION_SIGMA_M = 0.1
 """Position sigma (m) a reference re-labelled at its true pose reports (:func:`references_at_truth`)."""
 
 
+def relabelled_at_truth(
+    world: World,
+    city: CityMap,
+    labelled: Mapping[str, LabelledReference],
+    intrinsics: Mapping[str, Intrinsics],
+    position_covariance: np.ndarray | None = None,
+) -> dict[str, LabelledReference]:
+    """Each reference of ``world`` re-labelled at its manifest pose, by name in the world's order.
+
+    labelled, intrinsics: each reference's label and camera by name. Each keeps its own photo's analysis
+    (segmentation, features, vanishing points); only its planar pose (position, heading) is the truth, from which
+    its identities are marginalised and its anchors cast, as the sequence stage does at a placed pose
+    (:func:`geoloc.localize.reference.label_at_pose`). position_covariance: the known pose's (m^2; None: each
+    label's own).
+    """
+    out = {}
+    for image in world.references:
+        ref, pose = labelled[image.name], image.pose
+        covariance = ref.label.position_covariance if position_covariance is None else position_covariance
+        known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, covariance)
+        out[image.name] = label_at_pose(
+            city, intrinsics[image.name], ref.cues, ref.timings_ms, known, analysis=ref.analysis
+        )
+    return out
+
+
 def references_at_truth(
     world: World, city: CityMap, labelled: LabelledWorld, vocabulary: Vocabulary
 ) -> InMemoryReferenceStore:
     """A store of the world's references, each re-labelled at its manifest pose (the ``gt_poses`` run).
 
-    Each keeps its own photo's analysis (segmentation, features, vanishing points) from ``labelled``; only its
-    planar pose (position, heading) is the truth, from which its identities are marginalised and its anchors cast,
-    as the sequence stage does at a placed pose (:func:`geoloc.localize.reference.label_at_pose`). Its answers
-    are the ceiling of what right anchors give the rest of the method.
+    :func:`relabelled_at_truth` with a known pose of :data:`TRUTH_POSITION_SIGMA_M`. Its answers are the ceiling of
+    what right anchors give the rest of the method.
     """
     store = InMemoryReferenceStore(vocabulary)
-    for image in world.references:
-        ref, pose = labelled.labelled[image.name], image.pose
-        known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, TRUTH_POSITION_SIGMA_M**2 * np.eye(2))
-        intrinsics = labelled.intrinsics[image.name]
-        at_truth = label_at_pose(city, intrinsics, ref.cues, ref.timings_ms, known, analysis=ref.analysis)
-        store.add(stored_reference(image.name, at_truth))
+    truth_covariance = TRUTH_POSITION_SIGMA_M**2 * np.eye(2)
+    at_truth = relabelled_at_truth(world, city, labelled.labelled, labelled.intrinsics, truth_covariance)
+    for name, ref in at_truth.items():
+        store.add(stored_reference(name, ref))
     return store

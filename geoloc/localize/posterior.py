@@ -106,7 +106,8 @@ def pose_posterior(
 
     An all-zero likelihood gives the (normalised) prior, or a uniform distribution.
     """
-    post = np.power(np.clip(likelihood, 0.0, None).astype(float), sharpness)
+    sharpened = sharpened_likelihood(likelihood, sharpness)
+    post = sharpened if sharpened is not None else np.ones(np.shape(likelihood))
     if prior is not None:
         post = post * np.broadcast_to(prior, post.shape)
     total = post.sum()

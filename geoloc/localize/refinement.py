@@ -161,7 +161,7 @@ def refine_pose(
         weight = weight * prior_weights(positions)[:, None]
     best_p, best_y = (int(i) for i in np.unravel_index(int(np.argmax(weight)), weight.shape))
     if sharpened is None:  # the map says nothing: the prior's position, the heading as given
-        best_y = int(np.argmin(np.abs(np.asarray(yaw_offsets_deg, dtype=float))))
+        best_y = int(np.argmin(np.abs(yaws - yaw)))
     best_yaw = float(yaws[best_y])
     if use_vanishing_points:
         # The facades seen from the refined position fix the yaw to a fraction of a degree.
