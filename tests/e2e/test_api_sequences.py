@@ -78,7 +78,12 @@ def test_a_walk_is_labelled_then_placed_jointly(
         assert sum(h <= 5.0 for h in headings) >= 8, headings
 
         # The sequence jobs: one waits per map at a time, and the one that found the walk wholly labelled placed it.
-        jobs = read_rows(service.database, "SELECT status, result FROM jobs WHERE kind = 'place_sequence'")
+        # Its placements commit before its job row is marked done, so wait for the rows to settle.
+        def settled() -> list[dict[str, Any]] | None:
+            jobs = read_rows(service.database, "SELECT status, result FROM jobs WHERE kind = 'place_sequence'")
+            return None if any(job["status"] in ("queued", "running") for job in jobs) else jobs
+
+        jobs = wait_for(settled, timeout=60.0, interval=0.5, what="the sequence jobs to finish")
         assert 1 <= len(jobs) < len(ids) and all(job["status"] == "done" for job in jobs), jobs
         results = [json.loads(job["result"]) for job in jobs]
         worked = [r for r in results if r["walks"] == 1]
