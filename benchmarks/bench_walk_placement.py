@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_walk_placement.py --world /tmp/worlds/hw1 --world /tmp/worlds/bw1 \
         --config independent=gps_correlation_m:none --config loose=step_sigma_fraction:0.3 --json walks.json
     .venv/bin/python benchmarks/bench_walk_placement.py --world /tmp/worlds/hw2 --labels-at-truth
+    .venv/bin/python benchmarks/bench_walk_placement.py --world /tmp/worlds/hw2 --truth-share 0.25 --truth-share 0.5
 
 Each world's references are labelled alone once, as the workers' label job labels them (the evaluation's
 :func:`geoloc.evaluation.references.label_alone`, network segmentation, the compass as heading prior); then
@@ -18,12 +19,17 @@ are measured: the queries' figures need ``geoloc eval world``.
 With ``--labels-at-truth`` one more row, ``at_truth``: the default placement given perfect labels, every
 reference labelled at its manifest pose instead of alone (:func:`labels_at_truth`), so what the walks' graph
 itself loses (its GPS, steps and edges against right labels) shows apart from what the labels get wrong.
+
+With ``--truth-share S`` (repeatable) rows ``truth_S#D``, D = 0..2: the default placement when a random share S of
+the wrong labels (alone more than :data:`WRONG_M` off) is moved to the truth and the others are kept
+(:func:`labels_partly_at_truth`, draw D), so how many labels a new cue would have to mend to reach a given share.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import random
 import sys
 import time
 from dataclasses import asdict
@@ -45,6 +51,10 @@ from workers.context import method_context
 MOVED_M = 0.5
 AT_TRUTH = "at_truth"
 """The row of the default placement given every reference's label at its true pose (``--labels-at-truth``)."""
+WRONG_M = 2.0
+"""A label alone this far (m) from its true position is wrong (issue 19's references: within 2 m)."""
+TRUTH_DRAWS = 3
+"""Random draws per ``--truth-share``: which wrong labels are mended changes the figure by several references."""
 
 
 def labels_at_truth(
@@ -58,14 +68,43 @@ def labels_at_truth(
     return relabelled_at_truth(world, city, alone, {name: photo.intrinsics for name, photo in photos.items()})
 
 
+def labels_partly_at_truth(
+    world: World,
+    alone: dict[str, LabelledReference],
+    at_truth: dict[str, LabelledReference],
+    share: float,
+    seed: int,
+) -> dict[str, LabelledReference]:
+    """``alone`` with ``round(share * n)`` of its n wrong labels (over :data:`WRONG_M` off) taken from ``at_truth``.
+
+    Which wrong labels: a uniform draw seeded by ``seed``. Right labels are always ``alone``'s, in the world's order.
+    """
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"a share of the wrong labels lies in [0, 1], not {share}")
+    poses = {image.name: image.pose for image in world.references}
+    wrong = [
+        name
+        for name, ref in alone.items()
+        if math.hypot(ref.label.x_m - poses[name].x_m, ref.label.y_m - poses[name].y_m) > WRONG_M
+    ]
+    mended = set(random.Random(seed).sample(wrong, round(share * len(wrong))))
+    return {name: at_truth[name] if name in mended else ref for name, ref in alone.items()}
+
+
 def place_world(
-    world_dir: Path, configs: dict[str, PlacementOptions], say: Any, *, at_truth: bool = False
+    world_dir: Path,
+    configs: dict[str, PlacementOptions],
+    say: Any,
+    *,
+    at_truth: bool = False,
+    truth_shares: tuple[float, ...] = (),
 ) -> dict[str, Any]:
     """Every walk of the world placed under every configuration, from one labelling alone (module docstring).
 
     Returns per configuration the per-reference ``errors`` (name, position error m, heading error deg), their
     ``position`` and ``heading`` summaries (the evaluation's reference summaries), and ``cpu_s``: this process's CPU
     time around the placement. at_truth: also :data:`AT_TRUTH`, the default options from labels at the truth.
+    truth_shares: also ``truth_S#D``, the default options with a share S of the wrong labels at the truth, draw D.
     """
     world = load_world(world_dir)
     city = world.load_map()
@@ -73,8 +112,13 @@ def place_world(
     photos, alone = label_alone(world, city, "model", lambda _msg: None, method_context())
     say(f"{world_dir}: {len(alone)} references labelled alone in {time.perf_counter() - started:.0f} s")
     runs = [(name, options, alone) for name, options in configs.items()]
+    truth = labels_at_truth(world, city, photos, alone) if at_truth or truth_shares else {}
     if at_truth:
-        runs.append((AT_TRUTH, PlacementOptions(), labels_at_truth(world, city, photos, alone)))
+        runs.append((AT_TRUTH, PlacementOptions(), truth))
+    for share in truth_shares:
+        for draw in range(TRUTH_DRAWS):
+            labels = labels_partly_at_truth(world, alone, truth, share, draw)
+            runs.append((f"truth_{share:g}#{draw}", PlacementOptions(), labels))
     out: dict[str, Any] = {}
     for name, options, labels in runs:
         labelled = dict(labels)
@@ -98,12 +142,19 @@ def place_world(
 def main() -> int:
     """Place the worlds' walks under each configuration; print the comparison and write the JSON."""
     switches = {"--labels-at-truth": "also place the default from every reference labelled at its true pose"}
-    args = comparison_arguments(__doc__.split("\n")[0], "walk_placement.json", switches)
+    shares = {"--truth-share": "also place the default with this share of the wrong labels at the truth (repeatable)"}
+    args = comparison_arguments(__doc__.split("\n")[0], "walk_placement.json", switches, shares)
     default = PlacementOptions()
     configs = {"default": default, **dict(parse_config(text, default) for text in args.config)}
     results: dict[str, Any] = {"configs": {n: asdict(c) for n, c in configs.items()}, "worlds": {}}
     for world_dir in args.world:
-        placed = place_world(world_dir, configs, lambda msg: print(msg, flush=True), at_truth=args.labels_at_truth)
+        placed = place_world(
+            world_dir,
+            configs,
+            lambda msg: print(msg, flush=True),
+            at_truth=args.labels_at_truth,
+            truth_shares=tuple(args.truth_share),
+        )
         results["worlds"][str(world_dir)] = placed
         base = {name: error for name, error, _ in placed["default"]["errors"]}
         for name in placed:

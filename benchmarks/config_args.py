@@ -44,11 +44,15 @@ def parse_config(text: str, default: Options) -> tuple[str, Options]:
 
 
 def comparison_arguments(
-    description: str, json_default: str, switches: Mapping[str, str] | None = None
+    description: str,
+    json_default: str,
+    switches: Mapping[str, str] | None = None,
+    repeated_floats: Mapping[str, str] | None = None,
 ) -> argparse.Namespace:
     """The comparison benchmarks' command line: ``--world`` (repeatable), ``--config`` (repeatable), ``--json``.
 
-    switches: a benchmark's own on/off flags (``--name``: help), false unless given.
+    switches: a benchmark's own on/off flags (``--name``: help), false unless given. repeated_floats: its own
+    repeatable numbers (``--name``: help), a list, empty unless given.
     """
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--world", type=Path, action="append", required=True, help="a world folder (repeatable)")
@@ -56,4 +60,6 @@ def comparison_arguments(
     parser.add_argument("--json", type=Path, default=Path(json_default))
     for flag, text in (switches or {}).items():
         parser.add_argument(flag, action="store_true", help=text)
+    for flag, text in (repeated_floats or {}).items():
+        parser.add_argument(flag, type=float, action="append", default=[], help=text)
     return parser.parse_args()
