@@ -1,6 +1,7 @@
 """A benchmark's figures beside a baseline commit's, in one run: the export, the side-by-side table, the checks.
 
-:func:`export_commit` writes ``git archive REF`` of this repository into a folder (the baseline's source; run
+:func:`export_commit` (from :mod:`geoloc.evaluation.suite.trees`, shared with the accuracy suite) writes
+``git archive REF`` of this repository into a folder (the baseline's source; run
 with the same Python environment). A service benchmark starts the baseline's service from that folder beside
 this checkout's (``bench_service.py``, ``bench_ingest.py``). An in-process benchmark runs the baseline's own copy
 of itself, its measuring code and its method, from that folder in a subprocess with ``PYTHONPATH`` set to it
@@ -18,10 +19,8 @@ import argparse
 import json
 import os
 import re
-import shutil
 import subprocess
 import sys
-import tarfile
 import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -29,23 +28,9 @@ from pathlib import Path
 from typing import Any
 
 from contracts.settings import get_settings
+from geoloc.evaluation.suite.trees import export_commit
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-
-
-def export_commit(ref: str, target: Path, repo: Path = REPO_ROOT) -> str:
-    """``git archive REF`` of ``repo`` into ``target`` (emptied first); returns the commit's short id."""
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", ref], cwd=repo, capture_output=True, text=True, check=True
-    ).stdout.strip()
-    shutil.rmtree(target, ignore_errors=True)
-    target.mkdir(parents=True)
-    archive = target.parent / f"{target.name}.tar"
-    subprocess.run(["git", "archive", "-o", str(archive), commit], cwd=repo, check=True)
-    with tarfile.open(archive) as tar:
-        tar.extractall(target, filter="data")
-    archive.unlink()
-    return commit
 
 
 def without_options(argv: list[str], *names: str) -> list[str]:

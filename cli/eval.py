@@ -10,6 +10,8 @@ from typing import Any
 
 import typer
 
+from cli.eval_suite import suite
+
 app = typer.Typer(
     no_args_is_help=True, help="Measure the method: segmentation on CamVid, the whole method on a simulated world."
 )
@@ -151,6 +153,9 @@ def camvid(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(result, indent=2) + "\n")
         typer.echo(f"wrote {json_out}")
+
+
+app.command("suite")(suite)
 
 
 @app.command("world")

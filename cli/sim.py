@@ -9,6 +9,17 @@ import typer
 app = typer.Typer(no_args_is_help=True, help="Simulated street-view worlds with ground truth.")
 
 
+def parse_centre(text: str) -> tuple[float, float]:
+    """``"LAT,LON"`` (WGS84 degrees) to a tuple; BadParameter when it is not two numbers in range."""
+    try:
+        lat, lon = (float(v) for v in text.split(","))
+    except ValueError as exc:
+        raise typer.BadParameter(f"centre must look like 60.1700,24.9400 (lat,lon), got {text!r}") from exc
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        raise typer.BadParameter(f"centre out of range (lat -90..90, lon -180..180): {text!r}")
+    return lat, lon
+
+
 def _parse_size(size: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in size.lower().split("x"))
@@ -41,6 +52,9 @@ def world(
         help="Horizontal field of view (deg), rounded to an integer 35 mm-equivalent focal length.",
     ),
     radius_m: float = typer.Option(220.0, "--radius-m", min=0.0, help="World disk radius (m); 0: whole map."),
+    centre: str | None = typer.Option(
+        None, "--centre", help="World disk centre LAT,LON (WGS84 degrees); default: the buildings' median."
+    ),
     pitch_std_deg: float = typer.Option(1.0, "--pitch-std-deg", min=0.0, help="Camera pitch std (deg)."),
     roll_std_deg: float = typer.Option(0.3, "--roll-std-deg", min=0.0, help="Camera roll std (deg)."),
     query_tracks: int = typer.Option(
@@ -67,8 +81,9 @@ def world(
     width, height = _parse_size(size)
     if capture not in ("scattered", "walk"):
         raise typer.BadParameter(f"--capture must be 'scattered' or 'walk', got {capture!r}")
+    centre_wgs84 = parse_centre(centre) if centre else None
     opts = WorldOptions(
-        n_references=references, n_queries=queries, seed=seed, radius_m=radius_m,  # what, and where
+        n_references=references, n_queries=queries, seed=seed, radius_m=radius_m, centre_wgs84=centre_wgs84,
         gps_noise_m=gps_noise_m, query_gps_noise_m=query_gps_noise_m,  # the GPS the photos carry
         width=width, height=height, hfov_deg=hfov, pitch_std_deg=pitch_std_deg, roll_std_deg=roll_std_deg,  # camera
         capture="walk" if capture == "walk" else "scattered",  # how people took the references

@@ -127,12 +127,16 @@ def evaluate_tracks(
     context: MethodContext,
     *,
     inject_outliers: bool = False,
+    priors: tuple[str, ...] = PRIORS,
 ) -> dict[str, Any]:
-    """The module docstring's figures for every track of ``world`` (its frames analysed in ``labelled.queries``)."""
+    """The module docstring's figures for every track of ``world`` (its frames analysed in ``labelled.queries``).
+
+    priors: which of :data:`PRIORS` to answer the tracks with (each a key of the result).
+    """
     tracks = world_tracks(world.queries)
     result: dict[str, Any] = {"n_tracks": len(tracks), "frames": sum(len(f) for f in tracks.values())}
     numbers = list(tracks)
-    for prior in PRIORS:
+    for prior in priors:
         rows, seconds = [], []
         for t, frames in tracks.items():
             track_rows, s = _answer_track(frames, frames, city, labelled, vocabulary, config, prior, context)

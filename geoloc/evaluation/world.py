@@ -49,6 +49,7 @@ from geoloc.evaluation.photos import evaluate_photos
 from geoloc.evaluation.queries import KS, EvalRun, answer_run, transfer_tables
 from geoloc.evaluation.references import LabelledWorld, analyze, label_references, references_at_truth
 from geoloc.evaluation.summaries import QUERY_KINDS, TOP_N
+from geoloc.evaluation.tracks import PRIORS as TRACK_PRIORS
 from geoloc.evaluation.tracks import evaluate_tracks
 from geoloc.localize.query import QueryConfig
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
@@ -102,12 +103,14 @@ def evaluate_world(
     progress: Callable[[str], None] | None = None,
     context: MethodContext,
     track_outliers: bool = False,
+    track_priors: tuple[str, ...] = TRACK_PRIORS,
 ) -> dict[str, Any]:
     """Run the method on a world folder and compare with its ground truth; returns a JSON-ready dict.
 
     context: the models and threads the method runs with (the figures do not depend on the thread counts).
     A world with query tracks also gets ``tracks`` (:func:`geoloc.evaluation.tracks.evaluate_tracks`, with
-    ``track_outliers``: the outlier injection); its track frames are not among the single queries.
+    ``track_outliers``: the outlier injection, and ``track_priors``: which priors to answer the tracks with); its
+    track frames are not among the single queries.
     """
     say = progress or (lambda _msg: None)
     started = time.perf_counter()
@@ -161,7 +164,15 @@ def evaluate_world(
     if track_frames:
         say("tracks")
         result["tracks"] = evaluate_tracks(
-            world, city, worlds[table_segmentation], vocabulary, config, say, context, inject_outliers=track_outliers
+            world,
+            city,
+            worlds[table_segmentation],
+            vocabulary,
+            config,
+            say,
+            context,
+            inject_outliers=track_outliers,
+            priors=track_priors,
         )
     result["total_s"] = round(time.perf_counter() - started, 1)
     return result

@@ -37,6 +37,9 @@ class WorldOptions:
     # only when there are tracks (the same reason as ``capture``).
     query_tracks: int = 0
     track_length: int = 10
+    # The world disk's centre (WGS84 latitude, longitude in degrees); None: the buildings' median
+    # (geoloc.sim.sampling.world_centre). Recorded in the manifest's options only when set (the same reason).
+    centre_wgs84: tuple[float, float] | None = None
 
 
 def camera_for(width: int, height: int, hfov_deg: float) -> tuple[Intrinsics, int, float]:

@@ -21,6 +21,8 @@ A world with query tracks (``WorldOptions.query_tracks``, :mod:`geoloc.sim.track
 ``queries/track_TT_II.jpg`` of kind ``track``, each with its ``track`` (number) and ``index`` (place in the
 track), its walk-style GPS record, ``compass``, ``capture_time`` and ``heading_mode``, and records
 ``options.query_tracks`` and ``options.track_length``.
+A world drawn around a chosen centre (``WorldOptions.centre_wgs84``, ``geoloc sim world --centre LAT,LON``)
+records it in ``options.centre_wgs84``; its ``region`` says the centre either way.
 A scattered world has none of these keys, so it is byte-identical to one written before they existed; the
 manifest version is unchanged (the loader needs nothing new).
 
@@ -176,7 +178,7 @@ def generate_world(
         f"{len(scene.cars.xy)} cars ({time.perf_counter() - t0:.1f} s)"
     )
     rng = np.random.default_rng([opts.seed, 100])
-    centre = world_centre(city_map)
+    centre = _centre(city_map, opts)
     intr, f35, fmm = camera_for(opts.width, opts.height, opts.hfov_deg)
     walking = opts.capture == "walk"
     refs, shots, walks = _reference_poses(scene, opts, rng, centre)
@@ -248,10 +250,20 @@ def generate_world(
     return manifest
 
 
+def _centre(city_map: CityMap, opts: WorldOptions) -> np.ndarray:
+    """(2,) local xy (m) of the world disk's centre: ``opts.centre_wgs84`` when set, else the buildings' median."""
+    if opts.centre_wgs84 is None:
+        return world_centre(city_map)
+    lat, lon = opts.centre_wgs84
+    return np.array(city_map.frame.to_local(lat, lon), dtype=float)
+
+
 def _recorded(opts: WorldOptions, key: str) -> bool:
-    """Whether an option goes into the manifest: the walk and track ones only when used (module docstring)."""
+    """Whether an option goes into the manifest: the walk, track and centre ones only when used (module docstring)."""
     if key == "capture":
         return opts.capture == "walk"
+    if key == "centre_wgs84":
+        return opts.centre_wgs84 is not None
     return key not in ("query_tracks", "track_length") or opts.query_tracks > 0
 
 
@@ -266,7 +278,7 @@ def _render_tracks(
     t0: float,
 ) -> list[dict[str, Any]]:
     """Render and write the query tracks' frames (``track_TT_II``, kind ``track``); their manifest records."""
-    shots, walks = sample_tracks(scene, opts, world_centre(scene.map))
+    shots, walks = sample_tracks(scene, opts, _centre(scene.map, opts))
     records = []
     for j, shot in enumerate(shots):
         name = f"track_{shot.walk_id:02d}_{shot.index:02d}"
