@@ -1,7 +1,8 @@
 """``geoloc ingest`` against a real ``geoloc serve`` on loopback (API only, ``--workers 0``).
 
 The 29 real Lund photos rejected as outside the Helsinki map, a mixed folder (photos, non-images, a
-duplicate) and a second run that creates nothing; an unknown map, bad keys and an unreachable service.
+duplicate) and a second run that creates nothing; an unknown map, bad keys and an unreachable service; a
+panorama refused as a reference and as a query.
 Retries against a mock transport are in ``tests/unit/cli/test_ingest_retries.py``.
 """
 
@@ -29,8 +30,10 @@ from tests.service_fixtures import (
     RunningProcess,
     free_port,
     geoloc_command,
+    panorama_jpeg_bytes,
     read_rows,
     running_service,
+    stored_files,
     table_counts,
 )
 from tests.unit.cli.test_ingest_retries import INSIDE_HELSINKI, photo
@@ -177,3 +180,31 @@ def test_cannot_start_exits_2_with_the_reason(service: RunningProcess, helsinki_
         check=False,
     )
     assert nobody.returncode == 2 and "cannot reach the service" in nobody.stderr
+
+
+def test_a_panorama_is_refused_as_a_reference_and_as_a_query_and_nothing_is_stored(
+    service: RunningProcess, helsinki_id: int, tmp_path: Path
+) -> None:
+    data = panorama_jpeg_bytes(gps=INSIDE_HELSINKI[0])  # 2:1 with GPano:ProjectionType="equirectangular"
+    folder = tmp_path / "sphere"
+    folder.mkdir()
+    (folder / "sphere.jpg").write_bytes(data)
+    counts, files = table_counts(service.database), stored_files(service.data_dir)
+    out = tmp_path / "sphere.json"
+    result = run_ingest(service, str(folder), "--map", str(helsinki_id), "--json", str(out))
+    assert result.returncode == 0, result.stdout + result.stderr  # a rejection, not a failure
+    (only,) = json.loads(out.read_text())["files"]
+    assert (only["outcome"], only["http_status"], only["error_code"]) == ("rejected", 422, "unsupported_projection")
+    assert "equirectangular panorama" in only["reason"] and "perspective photos" in only["reason"]
+    assert "422 unsupported_projection" in result.stdout
+    with service.client(READ_KEY) as client:
+        answer = client.post(
+            f"/v1/maps/{helsinki_id}/queries", files={"image": ("sphere.jpg", data)}, data={"wait_s": "0"}
+        )
+    assert answer.status_code == 422, answer.text
+    error = answer.json()["error"]
+    assert error["code"] == "unsupported_projection" and "equirectangular" in error["message"]
+    assert error["details"]["supported"] == ["perspective"]
+    assert str(service.data_dir) not in answer.text and "Traceback" not in answer.text, "no server path or stack"
+    assert table_counts(service.database) == counts, "no reference or query row"
+    assert stored_files(service.data_dir) == files, "no file stored or left behind"
