@@ -1,8 +1,8 @@
 """``geoloc ingest`` against a real ``geoloc serve`` on loopback (API only, ``--workers 0``).
 
 The 29 real Lund photos rejected as outside the Helsinki map, a mixed folder (photos, non-images, a
-duplicate) and a second run that creates nothing; an unknown map, bad keys and an unreachable service; a
-panorama refused as a reference and as a query.
+duplicate) and a second run that creates nothing; an unknown map, bad keys and an unreachable service;
+photos without GPS placed by a GPX track (``--gpx``); a panorama refused as a reference and as a query.
 Retries against a mock transport are in ``tests/unit/cli/test_ingest_retries.py``.
 """
 
@@ -11,17 +11,21 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 import shutil
 import subprocess
 from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from PIL import Image
 
 from contracts.settings import shared_path
+from geoloc.photos.exif import write_jpeg
 from tests.conftest import Profile
 from tests.service_fixtures import (
     READ_KEY,
@@ -36,6 +40,7 @@ from tests.service_fixtures import (
     stored_files,
     table_counts,
 )
+from tests.unit.cli.test_ingest_geotag import write_gpx
 from tests.unit.cli.test_ingest_retries import INSIDE_HELSINKI, photo
 
 pytestmark = pytest.mark.slow  # a real server (tests/e2e/ is the slow suite)
@@ -180,6 +185,42 @@ def test_cannot_start_exits_2_with_the_reason(service: RunningProcess, helsinki_
         check=False,
     )
     assert nobody.returncode == 2 and "cannot reach the service" in nobody.stderr
+
+
+def test_a_gpx_track_places_photos_without_gps_and_skips_one_outside_it(
+    service: RunningProcess, helsinki_id: int, tmp_path: Path
+) -> None:
+    """A camera without GPS or compass, set to UTC+2, walking north in Helsinki with a logger."""
+    start = datetime(2024, 6, 1, 9, 0, 0, tzinfo=UTC)
+    lat0, lon0 = INSIDE_HELSINKI[0]
+    track = [(start + timedelta(seconds=2 * i), lat0 + i * 1.5 / 111_132.0, lon0) for i in range(30)]
+    gpx = write_gpx(tmp_path / "walk.gpx", track)
+    folder = tmp_path / "camera"
+    folder.mkdir()
+    rgb = np.random.default_rng(21).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
+    for name, seconds in (("a.jpg", 10), ("b.jpg", 31), ("late.jpg", 600)):
+        local = (start + timedelta(hours=2, seconds=seconds)).replace(tzinfo=None)
+        write_jpeg(folder / name, rgb + seconds % 7, lat=None, lon=None, focal_35mm=28, taken=local)
+    out = tmp_path / "gpx.json"
+    result = run_ingest(
+        service, str(folder), "--map", str(helsinki_id), "--gpx", str(gpx), "--time-offset", "-7200", "--json", str(out)
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    report = json.loads(out.read_text())
+    assert outcomes(report) == {"a.jpg": "accepted", "b.jpg": "accepted", "late.jpg": "skipped"}
+    by_path = {f["path"]: f for f in report["files"]}
+    assert "after the GPX track ends" in by_path["late.jpg"]["reason"] and by_path["late.jpg"]["reference_id"] is None
+    assert "after the GPX track ends" in result.stdout
+    for name, seconds in (("a.jpg", 10), ("b.jpg", 31)):
+        (row,) = read_rows(
+            service.database,
+            "SELECT gps_lat, gps_lon, position_source, prior_heading_deg FROM reference_images WHERE id = ?",
+            (by_path[name]["reference_id"],),
+        )
+        north_m = (row["gps_lat"] - (lat0 + seconds / 2 * 1.5 / 111_132.0)) * 111_132.0
+        east_m = (row["gps_lon"] - lon0) * 111_320.0 * math.cos(math.radians(lat0))
+        assert math.hypot(north_m, east_m) < 1.0 and row["position_source"] == "request", row
+        assert abs((row["prior_heading_deg"] + 180.0) % 360.0 - 180.0) < 0.1, "the direction of travel: north"
 
 
 def test_a_panorama_is_refused_as_a_reference_and_as_a_query_and_nothing_is_stored(
