@@ -1,11 +1,14 @@
 """``geoloc ingest DIR --map ID``: upload a folder of geo-tagged photos as references of a map.
 
 Every file is checked by content (JPEG, PNG, WEBP, TIFF, HEIC; anything else is skipped with a reason),
-hashed (sha256) and posted to ``POST /v1/maps/{id}/references``. Files with the same content in
-the folder are uploaded once. The service answers ``duplicate: true`` for a photo it already holds,
-so a second run creates nothing new. Connection errors, 408, 429 and 5xx are retried with
-exponential backoff (``Retry-After`` honoured). ``--wait`` then polls ``GET /v1/references/{id}``
-until every new reference is labelled (``done``) or ``failed``.
+hashed (sha256), geotagged when asked (``--gpx TRACK.gpx [--time-offset S]``, and a
+``mapillary_image_description.json`` beside the photos: :mod:`cli.ingest_geotag` gives each photo its form
+fields, or skips it with the reason when the track cannot place it) and posted to
+``POST /v1/maps/{id}/references``. Files with the same content in the folder are uploaded once. The
+service answers ``duplicate: true`` for a photo it already holds, so a second run creates nothing new.
+Connection errors, 408, 429 and 5xx are retried with exponential backoff (``Retry-After`` honoured).
+``--wait`` then polls ``GET /v1/references/{id}`` until every new reference is labelled (``done``) or
+``failed``.
 
 Exit codes: 0 nothing failed (rejected photos are not failures), 1 some photos failed after
 retries (or, with ``--wait``, failed labelling or the wait timed out), 2 nothing could be done
@@ -32,10 +35,12 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+from cli.ingest_geotag import geotag_photos, load_geotagging
 from cli.ingest_report import IngestReport, print_summary
 from cli.photo_files import Candidate, FileResult, path_order, scan_folder
 from geoloc.client import ApiError, Client, Map, RetryPolicy, ServiceUnreachableError, calls
 from geoloc.client.retry import TRANSIENT_STATUSES as RETRY_STATUSES
+from geoloc.photos.geotag import GeotagError
 
 NOT_THE_PHOTOS_FAULT = frozenset({401, 403, 404})
 """4xx answers that are failures (key, scope, map gone), not a rejection of the photo."""
@@ -82,6 +87,8 @@ def upload_one(client: Client, stop: threading.Event, map_id: int, photo: Candid
     result = FileResult(
         photo.relative, "failed", sha256=photo.sha256, size_bytes=photo.size_bytes, mime_type=photo.mime_type
     )
+    if photo.fields:
+        result.form_fields, result.field_sources = dict(photo.fields), dict(photo.field_sources)
     if stop.is_set():
         result.reason = "not attempted: the service stopped answering"
         return result
@@ -91,7 +98,7 @@ def upload_one(client: Client, stop: threading.Event, map_id: int, photo: Candid
         result.reason = f"cannot read the file: {exc.strerror or exc}"
         return result
     try:
-        sent = client.call(calls.upload_reference(map_id, (photo.path.name, data, photo.mime_type), {}))
+        sent = client.call(calls.upload_reference(map_id, (photo.path.name, data, photo.mime_type), photo.fields))
     except ServiceUnreachableError as exc:
         if not _alive(client):
             stop.set()  # the rest would only wait for the same dead service
@@ -211,11 +218,21 @@ def ingest_folder(
     retries: int = 5,
     backoff_s: float = 0.5,
     timeout_s: float = 120.0,
+    gpx: Path | None = None,
+    time_offset_s: float = 0.0,
     console: Console | None = None,
     transport: httpx.BaseTransport | None = None,
 ) -> IngestReport:
-    """Scan, upload and (optionally) wait; raises :class:`IngestAbortError` when nothing can be done."""
+    """Scan, geotag, upload and (optionally) wait; raises :class:`IngestAbortError` when nothing can be done.
+
+    gpx: a GPS track that places every photo by its capture time (+ ``time_offset_s`` seconds), see
+    :mod:`cli.ingest_geotag`; a ``mapillary_image_description.json`` in the folder is read with or without it.
+    """
     console = console or Console(stderr=True)
+    try:
+        geotagging = load_geotagging(folder, gpx, time_offset_s, recursive=recursive)
+    except GeotagError as exc:
+        raise IngestAbortError(str(exc)) from exc
     stop = threading.Event()
     policy = RetryPolicy(retries=retries, backoff_s=backoff_s, statuses=RETRY_STATUSES, stop=stop.is_set)
     client = Client(url, api_key, timeout_s=timeout_s, retry=policy, transport=transport)
@@ -223,6 +240,10 @@ def ingest_folder(
         map_row = fetch_map(client, map_id)
         report = IngestReport(url=url, map_id=map_id, map_name=map_row.name)
         photos, others = scan_folder(folder, recursive=recursive)
+        photos, unplaced = geotag_photos(photos, geotagging)
+        others += unplaced
+        if geotagging.active:
+            console.print(geotagging.summary(), highlight=False)
         console.print(
             f"map {map_id} ({map_row.name}) at {url}: {len(photos)} photo(s) to upload from {folder}"
             + (f", {len(others)} other file(s) not uploaded" if others else "")
@@ -253,8 +274,27 @@ def ingest(
     json_out: Path | None = typer.Option(None, "--json", help="Write every file's outcome to this JSON file."),
     retries: int = typer.Option(5, "--retries", min=0, help="Retries of transient errors (connection, 429, 5xx)."),
     timeout: float = typer.Option(120.0, "--timeout", min=1, help="Seconds per HTTP request."),
+    gpx: Path | None = typer.Option(
+        None,
+        "--gpx",
+        exists=True,
+        file_okay=True,
+        dir_okay=False,
+        help="A GPS track: each photo's position (and, without a compass, its heading: the direction of travel) "
+        "from its capture time; photos outside the track's time span are skipped with the reason.",
+    ),
+    time_offset: float = typer.Option(
+        0.0,
+        "--time-offset",
+        help="Seconds added to the photos' capture times before the track is read (a camera clock that is off; "
+        "a time without a zone is read as UTC: -7200 for a camera set to UTC+2).",
+    ),
 ) -> None:
     """Upload every photo in a folder as a reference of a map; print what was accepted, rejected and why.
+
+    With --gpx, each photo is placed on the GPS track by its capture time (+ --time-offset); a
+    mapillary_image_description.json in the folder gives what a photo's EXIF lacks (position, heading,
+    capture time, sequence).
 
     Exit codes:
     0: nothing failed (photos the service rejects are listed with the reason, they are not failures);
@@ -275,6 +315,8 @@ def ingest(
             wait_timeout_s=wait_timeout,
             retries=retries,
             timeout_s=timeout,
+            gpx=gpx,
+            time_offset_s=time_offset,
             console=stderr,
         )
     except IngestAbortError as exc:

@@ -6,16 +6,19 @@ Also the per-file record (:class:`FileResult`) that the upload and the report fi
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from geoloc.client import ReferenceFields
+from geoloc.photos.geotag import DESCRIPTION_FILE
 
 OUTCOMES: dict[str, str] = {
     "accepted": "accepted (new reference)",
     "present": "already present (same sha256)",
     "duplicate": "duplicate within the folder",
     "rejected": "rejected by the service",
-    "skipped": "skipped (not a photo)",
+    "skipped": "skipped (not a photo, or not placed by --gpx)",
     "failed": "failed after retries",
 }
 """Outcome of one file -> its label in the summary, in summary order."""
@@ -59,6 +62,10 @@ class FileResult:
     duplicate_of: str | None = None
     final_status: str | None = None
     final_error: str | None = None
+    form_fields: dict[str, Any] | None = None
+    """The form fields sent with the photo (``--gpx``, Mapillary's description file), None when none were."""
+    field_sources: dict[str, str] | None = None
+    """Where each sent field came from (``position``, ``heading``, ``sequence``: the track, the description)."""
 
 
 @dataclass
@@ -70,6 +77,9 @@ class Candidate:
     sha256: str
     size_bytes: int
     mime_type: str
+    fields: ReferenceFields = field(default_factory=ReferenceFields)
+    """The upload's form fields (:mod:`cli.ingest_geotag`: position, heading, sequence); empty: EXIF only."""
+    field_sources: dict[str, str] = field(default_factory=dict)
 
 
 def path_order(relative: str) -> tuple[tuple[str, ...], str, str]:
@@ -79,8 +89,14 @@ def path_order(relative: str) -> tuple[tuple[str, ...], str, str]:
 
 
 def scan_folder(folder: Path, *, recursive: bool) -> tuple[list[Candidate], list[FileResult]]:
-    """Photos to upload (sorted by path, content-checked, hashed, one per sha256) and the files skipped."""
-    found = (p for p in (folder.rglob("*") if recursive else folder.iterdir()) if p.is_file())
+    """Photos to upload (sorted by path, content-checked, hashed, one per sha256) and the files skipped.
+
+    Mapillary's description files (``mapillary_image_description.json``) are metadata, read by
+    :mod:`cli.ingest_geotag`: neither uploaded nor listed.
+    """
+    found = (
+        p for p in (folder.rglob("*") if recursive else folder.iterdir()) if p.is_file() and p.name != DESCRIPTION_FILE
+    )
     paths = sorted(found, key=lambda p: path_order(p.relative_to(folder).as_posix()))
     candidates: list[Candidate] = []
     others: list[FileResult] = []

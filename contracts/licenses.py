@@ -89,6 +89,7 @@ LICENSES: tuple[LicenseEntry, ...] = (
     _dependency("pillow", "MIT-CMU", "pypi.org/project/pillow"),
     _dependency("pillow-heif", "BSD-3-Clause", "pypi.org/project/pillow-heif"),
     _dependency("piexif", "MIT", "pypi.org/project/piexif"),
+    _dependency("gpxpy", "Apache-2.0", "pypi.org/project/gpxpy"),
     _dependency("scikit-learn", "BSD-3-Clause", "pypi.org/project/scikit-learn"),
     _dependency("numba", "BSD-2-Clause", "pypi.org/project/numba"),
     _dependency("fastapi", "MIT", "pypi.org/project/fastapi"),

@@ -54,6 +54,7 @@ ERROR_CODES: tuple[tuple[int, str], ...] = (
     (422, "no_position"),
     (422, "outside_map"),
     (422, "unknown_place"),
+    (422, "unsupported_projection"),
     (429, "queue_full"),
     (429, "rate_limited"),
     (503, "not_ready"),

@@ -17,8 +17,9 @@ from fastapi.responses import FileResponse
 from PIL import Image, UnidentifiedImageError
 
 from geoloc.photos.capture import capture_of, photo_device
-from geoloc.photos.exif import exif_info, load_exif
+from geoloc.photos.exif import ExifInfo, exif_info, load_exif
 from geoloc.photos.heading_prior import DEFAULT_SIGMA_DEG
+from geoloc.photos.projection import photo_projection, read_head
 from service.errors import ApiError
 
 ACCEPTED_FORMATS = {"JPEG": "jpg", "MPO": "jpg", "PNG": "png", "WEBP": "webp", "TIFF": "tif", "HEIF": "heic"}
@@ -57,7 +58,8 @@ def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
     """Open, size-check and fully decode the image; raise :class:`ApiError` with the reason.
 
     Not an image (or an unsupported format) -> 415; more than ``max_pixels`` (checked from the
-    header, before decoding) -> 413; smaller than ``min_side`` or truncated/corrupt -> 422.
+    header, before decoding) -> 413; smaller than ``min_side``, a panorama (:func:`refuse_panorama`) or
+    truncated/corrupt -> 422. Reference, query and track uploads all pass through here.
     """
     with warnings.catch_warnings():
         warnings.simplefilter("error", Image.DecompressionBombWarning)
@@ -89,7 +91,8 @@ def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
                 422, "image_too_small", f"image is {width}x{height}; both sides must be at least {min_side} pixels"
             )
         info = ImageInfo(image.format, ACCEPTED_FORMATS[image.format], width, height)
-        _read_exif_into(path, info)
+        exif = _read_exif_into(path, info)
+        refuse_panorama(path, width, height, exif)
         try:
             image.load()
         except (OSError, SyntaxError, ValueError) as exc:
@@ -97,7 +100,27 @@ def validate_image(path: Path, *, max_pixels: int, min_side: int) -> ImageInfo:
     return info
 
 
-def _read_exif_into(path: Path, info: ImageInfo) -> None:
+def refuse_panorama(path: Path, width: int, height: int, exif: ExifInfo) -> None:
+    """422 ``unsupported_projection`` for a panorama (:func:`geoloc.photos.projection.photo_projection`).
+
+    The method models one perspective camera; the message names the projection, what told it and what
+    is supported, and (like every error) no server path.
+    """
+    has_focal = exif.focal_35mm is not None or exif.focal_mm is not None
+    projection = photo_projection(read_head(path), width, height, has_focal_length=has_focal)
+    if projection is None:
+        return
+    raise ApiError(
+        422,
+        "unsupported_projection",
+        f"the photo is a {projection.name} panorama ({projection.evidence}); the service supports ordinary "
+        "perspective photos only (one camera, one view, as a phone or a camera takes them) until the method "
+        "supports panoramas: upload perspective views cut from it instead",
+        {"projection": projection.name, "source": projection.source, "supported": ["perspective"]},
+    )
+
+
+def _read_exif_into(path: Path, info: ImageInfo) -> ExifInfo:
     """Fill GPS position, 35 mm focal length, the compass (heading, accuracy) and the capture from EXIF."""
     block = load_exif(path)  # read and parsed once for both readings
     exif = exif_info(block)
@@ -112,6 +135,7 @@ def _read_exif_into(path: Path, info: ImageInfo) -> None:
     if compass is not None:
         info.heading_deg = compass.heading_deg
         info.heading_accuracy_deg = DEFAULT_SIGMA_DEG if compass.accuracy_deg is None else compass.accuracy_deg
+    return exif
 
 
 def distance_outside_bbox_m(lat: float, lon: float, bbox: tuple[float, float, float, float]) -> float:

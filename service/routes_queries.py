@@ -277,7 +277,8 @@ async def create_query(
     used as priors and reported in ``result.search``. ``preset`` picks the query stage's configuration (fast,
     balanced, accurate; stored in ``params.preset``, the answer's ``search.preset`` and ``search.config``).
     200 with the answer, or 202 if it took longer than ``wait_s``; 429 while the job queue is full (retry after
-    ``Retry-After`` seconds).
+    ``Retry-After`` seconds). A panorama is a 422 ``unsupported_projection`` (only perspective photos are
+    supported).
     """
     form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm, top_n, k, wait_s, preset)
     intake = QueryIntake(settings, store, publisher, form)

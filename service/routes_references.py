@@ -223,9 +223,10 @@ async def upload_reference(
     202 with the reference and its job; 200 with the existing reference when the same photo
     (sha256) is already a reference of this map (``duplicate: true``, nothing queued).
     Errors: 404 unknown map, 413 too large (bytes or pixels), 415 not an image, 422 corrupt or
-    truncated image, no position, or a position outside the map (with the distance), a ``place`` that is
-    ambiguous (``ambiguous_place``, with candidates) or unknown (``unknown_place``), 429 while the
-    job queue is full (retry after ``Retry-After`` seconds).
+    truncated image, a panorama (``unsupported_projection``: equirectangular by its XMP or its 2:1 shape;
+    only perspective photos are supported), no position, or a position outside the map (with the
+    distance), a ``place`` that is ambiguous (``ambiguous_place``, with candidates) or unknown
+    (``unknown_place``), 429 while the job queue is full (retry after ``Retry-After`` seconds).
     """
     stated_sequence = sequence.strip() if sequence and sequence.strip() else None
     form = ReferenceForm(lat, lon, heading_deg, focal_length_35mm, stated_sequence, place)

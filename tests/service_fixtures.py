@@ -444,3 +444,38 @@ def phone_photo_twins(source: Path, max_side: int = 816) -> tuple[bytes, bytes]:
         image.save(buffer, kind, quality=80, exif=exif)
         twins.append(buffer.getvalue())
     return twins[0], twins[1]
+
+
+def panorama_jpeg_bytes(
+    width: int = 1024, height: int = 512, *, xmp: str | None = "attribute", gps: tuple[float, float] | None = None
+) -> bytes:
+    """A 2:1 JPEG as a 360-degree camera writes it: equirectangular, with Google's GPano XMP in an APP1 segment.
+
+    xmp: ``"attribute"`` (``GPano:ProjectionType="equirectangular"``), ``"element"``
+    (``<GPano:ProjectionType>equirectangular</GPano:ProjectionType>``) or None (no XMP, no EXIF focal length:
+    told by its shape alone). gps: EXIF GPS (lat, lon), as :func:`jpeg_bytes` writes it.
+    """
+    import piexif
+
+    plain = jpeg_bytes(width, height, gps=gps, seed=11)
+    exif = piexif.load(plain)
+    exif["Exif"].pop(piexif.ExifIFD.FocalLengthIn35mmFilm, None)  # a 360-degree camera states no perspective lens
+    out = io.BytesIO()
+    piexif.insert(piexif.dump(exif), plain, out)
+    data = out.getvalue()
+    if xmp is None:
+        return data
+    sizes = f'GPano:FullPanoWidthPixels="{width}" GPano:FullPanoHeightPixels="{height}"'
+    if xmp == "attribute":
+        description = f'GPano:UsePanoramaViewer="True" GPano:ProjectionType="equirectangular" {sizes}/>'
+    else:
+        description = f"{sizes}><GPano:ProjectionType>equirectangular</GPano:ProjectionType></rdf:Description>"
+    packet = (
+        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?><x:xmpmeta xmlns:x="adobe:ns:meta/">'
+        '<rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#"><rdf:Description rdf:about="" '
+        f'xmlns:GPano="http://ns.google.com/photos/1.0/panorama/" {description}</rdf:RDF></x:xmpmeta>'
+        '<?xpacket end="w"?>'
+    ).encode()
+    segment = b"http://ns.adobe.com/xap/1.0/\x00" + packet
+    at = 4 + struct.unpack(">H", data[4:6])[0] if data[2:4] == b"\xff\xe1" else 2  # after the EXIF APP1, as cameras
+    return data[:at] + b"\xff\xe1" + struct.pack(">H", len(segment) + 2) + segment + data[at:]

@@ -198,7 +198,7 @@ def parse_exif_time(original: Any, subsec: Any = None, offset: Any = None) -> da
     return stamp
 
 
-def _mapillary_compass(meta: dict[str, Any], declination_deg: float | None) -> tuple[CompassReading | None, ...]:
+def mapillary_compass(meta: dict[str, Any], declination_deg: float | None) -> tuple[CompassReading | None, ...]:
     """(true reading, magnetic reading) from ``MAPCompassHeading``, each None when absent or invalid."""
     compass = meta.get("MAPCompassHeading")
     if not isinstance(compass, dict):
@@ -238,7 +238,7 @@ def capture_from_exif(exif: dict[str, Any], *, declination_deg: float | None = N
     """:class:`CaptureInfo` from a ``piexif.load`` dict (see the module docstring for the rules)."""
     zeroth, ex, gps = exif.get("0th") or {}, exif.get("Exif") or {}, exif.get("GPS") or {}
     meta = mapillary_description(zeroth.get(piexif.ImageIFD.ImageDescription)) or {}
-    map_true, map_magnetic = _mapillary_compass(meta, declination_deg)
+    map_true, map_magnetic = mapillary_compass(meta, declination_deg)
     exif_true, exif_magnetic = _exif_compass(gps, declination_deg)
     compass = map_true or exif_true or map_magnetic or exif_magnetic
     exif_time = parse_exif_time(

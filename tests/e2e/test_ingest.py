@@ -1,7 +1,8 @@
 """``geoloc ingest`` against a real ``geoloc serve`` on loopback (API only, ``--workers 0``).
 
 The 29 real Lund photos rejected as outside the Helsinki map, a mixed folder (photos, non-images, a
-duplicate) and a second run that creates nothing; an unknown map, bad keys and an unreachable service.
+duplicate) and a second run that creates nothing; an unknown map, bad keys and an unreachable service;
+photos without GPS placed by a GPX track (``--gpx``); a panorama refused as a reference and as a query.
 Retries against a mock transport are in ``tests/unit/cli/test_ingest_retries.py``.
 """
 
@@ -10,17 +11,21 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 import shutil
 import subprocess
 from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from PIL import Image
 
 from contracts.settings import shared_path
+from geoloc.photos.exif import write_jpeg
 from tests.conftest import Profile
 from tests.service_fixtures import (
     READ_KEY,
@@ -29,10 +34,13 @@ from tests.service_fixtures import (
     RunningProcess,
     free_port,
     geoloc_command,
+    panorama_jpeg_bytes,
     read_rows,
     running_service,
+    stored_files,
     table_counts,
 )
+from tests.unit.cli.test_ingest_geotag import write_gpx
 from tests.unit.cli.test_ingest_retries import INSIDE_HELSINKI, photo
 
 pytestmark = pytest.mark.slow  # a real server (tests/e2e/ is the slow suite)
@@ -177,3 +185,67 @@ def test_cannot_start_exits_2_with_the_reason(service: RunningProcess, helsinki_
         check=False,
     )
     assert nobody.returncode == 2 and "cannot reach the service" in nobody.stderr
+
+
+def test_a_gpx_track_places_photos_without_gps_and_skips_one_outside_it(
+    service: RunningProcess, helsinki_id: int, tmp_path: Path
+) -> None:
+    """A camera without GPS or compass, set to UTC+2, walking north in Helsinki with a logger."""
+    start = datetime(2024, 6, 1, 9, 0, 0, tzinfo=UTC)
+    lat0, lon0 = INSIDE_HELSINKI[0]
+    track = [(start + timedelta(seconds=2 * i), lat0 + i * 1.5 / 111_132.0, lon0) for i in range(30)]
+    gpx = write_gpx(tmp_path / "walk.gpx", track)
+    folder = tmp_path / "camera"
+    folder.mkdir()
+    rgb = np.random.default_rng(21).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
+    for name, seconds in (("a.jpg", 10), ("b.jpg", 31), ("late.jpg", 600)):
+        local = (start + timedelta(hours=2, seconds=seconds)).replace(tzinfo=None)
+        write_jpeg(folder / name, rgb + seconds % 7, lat=None, lon=None, focal_35mm=28, taken=local)
+    out = tmp_path / "gpx.json"
+    result = run_ingest(
+        service, str(folder), "--map", str(helsinki_id), "--gpx", str(gpx), "--time-offset", "-7200", "--json", str(out)
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    report = json.loads(out.read_text())
+    assert outcomes(report) == {"a.jpg": "accepted", "b.jpg": "accepted", "late.jpg": "skipped"}
+    by_path = {f["path"]: f for f in report["files"]}
+    assert "after the GPX track ends" in by_path["late.jpg"]["reason"] and by_path["late.jpg"]["reference_id"] is None
+    assert "after the GPX track ends" in result.stdout
+    for name, seconds in (("a.jpg", 10), ("b.jpg", 31)):
+        (row,) = read_rows(
+            service.database,
+            "SELECT gps_lat, gps_lon, position_source, prior_heading_deg FROM reference_images WHERE id = ?",
+            (by_path[name]["reference_id"],),
+        )
+        north_m = (row["gps_lat"] - (lat0 + seconds / 2 * 1.5 / 111_132.0)) * 111_132.0
+        east_m = (row["gps_lon"] - lon0) * 111_320.0 * math.cos(math.radians(lat0))
+        assert math.hypot(north_m, east_m) < 1.0 and row["position_source"] == "request", row
+        assert abs((row["prior_heading_deg"] + 180.0) % 360.0 - 180.0) < 0.1, "the direction of travel: north"
+
+
+def test_a_panorama_is_refused_as_a_reference_and_as_a_query_and_nothing_is_stored(
+    service: RunningProcess, helsinki_id: int, tmp_path: Path
+) -> None:
+    data = panorama_jpeg_bytes(gps=INSIDE_HELSINKI[0])  # 2:1 with GPano:ProjectionType="equirectangular"
+    folder = tmp_path / "sphere"
+    folder.mkdir()
+    (folder / "sphere.jpg").write_bytes(data)
+    counts, files = table_counts(service.database), stored_files(service.data_dir)
+    out = tmp_path / "sphere.json"
+    result = run_ingest(service, str(folder), "--map", str(helsinki_id), "--json", str(out))
+    assert result.returncode == 0, result.stdout + result.stderr  # a rejection, not a failure
+    (only,) = json.loads(out.read_text())["files"]
+    assert (only["outcome"], only["http_status"], only["error_code"]) == ("rejected", 422, "unsupported_projection")
+    assert "equirectangular panorama" in only["reason"] and "perspective photos" in only["reason"]
+    assert "422 unsupported_projection" in result.stdout
+    with service.client(READ_KEY) as client:
+        answer = client.post(
+            f"/v1/maps/{helsinki_id}/queries", files={"image": ("sphere.jpg", data)}, data={"wait_s": "0"}
+        )
+    assert answer.status_code == 422, answer.text
+    error = answer.json()["error"]
+    assert error["code"] == "unsupported_projection" and "equirectangular" in error["message"]
+    assert error["details"]["supported"] == ["perspective"]
+    assert str(service.data_dir) not in answer.text and "Traceback" not in answer.text, "no server path or stack"
+    assert table_counts(service.database) == counts, "no reference or query row"
+    assert stored_files(service.data_dir) == files, "no file stored or left behind"
