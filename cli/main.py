@@ -26,3 +26,7 @@ app.command("analyze")(analyze_cmd.analyze)
 app.command("ingest")(ingest_cmd.ingest)
 app.command("about")(about_cmd.about)
 app.command("locate-track")(track_cmd.locate_track)
+
+
+if __name__ == "__main__":  # `python -m cli.main`: what `geoloc eval suite --background` starts
+    app()

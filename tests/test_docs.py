@@ -11,11 +11,15 @@
 
 from __future__ import annotations
 
+import json
 import re
 from functools import cache
 from pathlib import Path
 
 import pytest
+
+from geoloc.evaluation.suite.report import README_COMMAND, readme_table
+from geoloc.evaluation.suite.worlds import load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
@@ -141,3 +145,24 @@ def test_the_layout_page_lists_every_folder_and_module() -> None:
         gone += [f"{section}{name}" for name in names if not (ROOT / section / name).exists()]
     assert unlisted == [], f"modules missing from docs/layout.md's list: {unlisted}"
     assert gone == [], f"docs/layout.md lists modules that are not there: {gone}"
+
+
+ACCURACY_TABLE = re.compile(r"<!-- accuracy-table: [^\n]*-->\n(.*?)<!-- end of accuracy-table -->", re.S)
+
+
+def test_the_readme_accuracy_table_is_the_test_splits_report() -> None:
+    """The README's accuracy table is ``readme_table`` of ``docs/accuracy/test.json``, and its command is shown.
+
+    The report is of the test split the suite declares (its worlds, seeds and centres), pooled only.
+    """
+    readme = (ROOT / "README.md").read_text()
+    report = json.loads((ROOT / "docs" / "accuracy" / "test.json").read_text())
+    match = ACCURACY_TABLE.search(readme)
+    assert match, "README: no accuracy table between its markers"
+    assert match.group(1).strip() == readme_table(report).strip(), "README's accuracy table differs from test.json"
+    assert README_COMMAND in readme
+    suite = load_suite()
+    assert report["split"] == "test" and report["suite_version"] == suite.version
+    declared = [(w.name, w.seed, list(w.centre_wgs84), w.capture, w.form) for w in suite.split("test")]
+    assert [(w["name"], w["seed"], w["centre_wgs84"], w["capture"], w["form"]) for w in report["worlds"]] == declared
+    assert not any(g.startswith("world:") for g in report["figures"])

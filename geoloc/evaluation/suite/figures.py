@@ -71,6 +71,12 @@ def _worse_than_fix(margin_m: float) -> Callable[[Row], tuple[float, ...] | None
     return values
 
 
+def _radius_and_error(row: Row) -> tuple[float, ...]:
+    """An answer's radius (inf where it states none: the outcomes keep only finite numbers) and its error."""
+    radius = row.get("radius_m")
+    return (float("inf") if radius is None else float(radius), float(row["error_m"]))
+
+
 def _track_gain(row: Row) -> tuple[float, ...]:
     return (float(row["error_m"] <= 5.0) - float(row["alone_error_m"] <= 5.0),)
 
@@ -91,7 +97,7 @@ FIGURES: tuple[Figure, ...] = (
         "radius_over_error_median",
         "queries",
         "median radius / median error",
-        lambda row: (float(row["radius_m"]), float(row["error_m"])),
+        _radius_and_error,
         MEDIAN_RATIO,
         False,
     ),

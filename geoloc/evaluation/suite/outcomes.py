@@ -75,15 +75,30 @@ def _reference_rows(world: Any, labelled: Any, gps: dict[str, float | None]) -> 
     return rows
 
 
+def _method_context() -> Any:
+    """The method's context from the settings, as a worker builds it (``workers.context``, a layer above)."""
+    # The evaluated tree's modules (see evaluate_outcomes); BLAS and OpenCV run one thread, as in a worker.
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    from contracts.settings import default_threads, get_settings, models_dir
+    from geoloc.core.context import MethodContext
+    from geoloc.core.parallel import JobThreads
+
+    settings = get_settings()
+    threadpool_limits(limits=settings.worker_threads, user_api="blas")
+    cv2.setNumThreads(settings.worker_threads)
+    return MethodContext(models_dir(), JobThreads(settings.job_threads), default_threads(), settings.device)
+
+
 def evaluate_outcomes(world_dir: Path) -> dict[str, Any]:
     """The module docstring's outcomes of the world at ``world_dir``, with the evaluation's seconds."""
     # The evaluated tree's modules: whichever tree PYTHONPATH names (this checkout's or a baseline's).
     from geoloc.evaluation import world as evaluation
     from geoloc.localize.query import QueryConfig
-    from workers import context as contexts
 
     captured: dict[str, Any] = {}
-    label_references = evaluation.label_references
+    label_references = evaluation.label_references  # type: ignore[attr-defined]  # wrapped below, not exported
 
     def capturing(world: Any, city: Any, *args: Any, **kwargs: Any) -> Any:
         labelled = label_references(world, city, *args, **kwargs)
@@ -95,13 +110,13 @@ def evaluate_outcomes(world_dir: Path) -> dict[str, Any]:
     options: dict[str, Any] = {}
     if "track_priors" in inspect.signature(evaluation.evaluate_world).parameters:
         options["track_priors"] = ("gps",)
-    context = contexts.worker_context() if hasattr(contexts, "worker_context") else contexts.method_context()
+    context = _method_context()
     started = time.perf_counter()
-    evaluation.label_references = capturing  # type: ignore[assignment]
+    evaluation.label_references = capturing  # type: ignore[attr-defined]
     try:
         result = evaluation.evaluate_world(world_dir, config=config, runs=runs, context=context, **options)
     finally:
-        evaluation.label_references = label_references  # type: ignore[assignment]
+        evaluation.label_references = label_references  # type: ignore[attr-defined]
     world, city, labelled = captured["world"], captured["city"], captured["labelled"]
     gps = _gps_errors(world, city)
     queries = [

@@ -18,6 +18,7 @@ import numpy as np
 
 from geoloc.evaluation.figures import Axes, Series, line_chart
 from geoloc.evaluation.suite.figures import FIGURES
+from geoloc.evaluation.suite.worlds import CAPTURES
 
 __all__ = ["README_COMMAND", "markdown", "readme_table", "write_plots"]
 
@@ -64,7 +65,7 @@ def markdown(report: dict[str, Any]) -> str:
         "## Pooled and per capture kind",
         "",
     ]
-    captures = [g for g in figures if g.startswith("capture:")]
+    captures = [f"capture:{c}" for c in CAPTURES if f"capture:{c}" in figures]
     lines += _table(figures, ["pooled", *captures])
     lines += ["", "## Per urban form", ""]
     lines += _table(figures, [g for g in figures if g.startswith("form:")])
@@ -88,7 +89,9 @@ def markdown(report: dict[str, Any]) -> str:
         base = report["baseline"]
         lines += ["", f"## Paired differences: this method minus `{base['ref']}` ({base['commit'][:10]})", ""]
         paired = report["paired"]
-        lines += _table(paired, ["pooled", *[g for g in paired if g.startswith(("capture:", "form:"))]], signed=True)
+        groups = [f"capture:{c}" for c in CAPTURES if f"capture:{c}" in paired]
+        groups += [g for g in paired if g.startswith("form:")]
+        lines += _table(paired, ["pooled", *groups], signed=True)
     lines += ["", f"Seconds: {report['seconds']}.", ""]
     return "\n".join(lines)
 

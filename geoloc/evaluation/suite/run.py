@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 
 from contracts.settings import cache_dir, models_dir, shared_path
-from geoloc.evaluation.suite import outcomes as outcomes_module
 from geoloc.evaluation.suite.bootstrap import cluster_interval, paired_interval
-from geoloc.evaluation.suite.figures import FIGURES, figure_table
+from geoloc.evaluation.suite.figures import FIGURES, Figure, figure_table
+from geoloc.evaluation.suite.outcomes import OUTCOMES_VERSION
 from geoloc.evaluation.suite.trees import REPO_ROOT, export_commit, resolve_commit, tree_fingerprint
 from geoloc.evaluation.suite.worlds import (
     WORLDS_TOML,
@@ -141,9 +141,9 @@ def _evaluate_all(
     stage: str,
 ) -> list[WorldOutcomes]:
     """Each world's outcomes with ``tree``'s method, from the results cache or evaluated now ``jobs`` at a time."""
-    runner_source = Path(outcomes_module.__file__)
+    runner_source = Path(__file__).with_name("outcomes.py")
     fingerprint = tree_fingerprint(tree, models_dir())
-    results = cache / "results" / f"{fingerprint}-o{outcomes_module.OUTCOMES_VERSION}"
+    results = cache / "results" / f"{fingerprint}-o{OUTCOMES_VERSION}"
     results.mkdir(parents=True, exist_ok=True)
     runner = results / "outcomes.py"  # run from a folder of its own: no module beside it shadows the tree's
     shutil.copyfile(runner_source, runner)
@@ -213,7 +213,9 @@ def suite_figures(
     return out
 
 
-def _aligned(figure: Any, current: list[WorldOutcomes], baseline: list[WorldOutcomes]) -> tuple[list, list]:
+def _aligned(
+    figure: Figure, current: list[WorldOutcomes], baseline: list[WorldOutcomes]
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Per world, the figure's tables of the items both methods have and the figure keeps, in one order."""
     tables_now, tables_before = [], []
     for now, before in zip(current, baseline, strict=True):

@@ -61,4 +61,4 @@ def test_a_paired_difference_is_narrower_than_the_two_intervals_apart() -> None:
     difference = paired_interval(current, baseline, Statistic())
     alone = cluster_interval(current, Statistic())
     assert difference.value == pytest.approx(sum(float(b[:, 0].min() == 0) for b in baseline) / 240)
-    assert 0.0 <= difference.low and difference.high - difference.low < (alone.high - alone.low) / 3
+    assert difference.low >= 0.0 and difference.high - difference.low < (alone.high - alone.low) / 3

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from contracts.settings import shared_path
 from geoloc.core import labels
 from geoloc.core.camera import Intrinsics, vanishing_column_of_orientation, wrap_orientation_deg
 from geoloc.core.geo import LocalFrame
@@ -250,3 +251,18 @@ def test_small_world_writes_everything_and_is_deterministic(tmp_path: Path) -> N
         assert exif.lat == pytest.approx(gps["lat"], abs=1e-8) and exif.lon == pytest.approx(gps["lon"], abs=1e-8)
         assert im.record["buildings"] and im.record["building_fraction"] > 0.2
         assert np.array_equal(gt["building_id"], np.load(tmp_path / "w2" / im.record["gt"])["building_id"])
+
+
+def test_a_world_around_a_chosen_centre_samples_inside_its_disk_and_records_it(tmp_path: Path) -> None:
+    src = shared_path("data", "osm", "helsinki.osm.pbf")
+    centre = (60.174270, 24.945337)  # Kaisaniemi: far from the buildings' median, the default centre
+    opts = WorldOptions(n_references=2, n_queries=1, seed=3, width=320, height=240, radius_m=60.0, centre_wgs84=centre)
+    manifest = generate_world(src, tmp_path / "w", opts)
+    assert list(manifest["options"]["centre_wgs84"]) == list(centre)
+    assert manifest["region"]["centre_wgs84"] == pytest.approx(list(centre), abs=1e-9)
+    cx, cy = manifest["region"]["centre_m"]
+    for record in manifest["images"]:
+        pose = record["pose"]
+        assert math.hypot(pose["x_m"] - cx, pose["y_m"] - cy) <= 60.0 + 15.0, record["name"]  # queries sit off streets
+    default = WorldOptions(n_references=2, n_queries=1, seed=3, width=320, height=240, radius_m=60.0)
+    assert "centre_wgs84" not in generate_world(src, tmp_path / "d", default)["options"]
