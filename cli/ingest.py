@@ -7,16 +7,16 @@ fields, or skips it with the reason when the track cannot place it) and posted t
 ``POST /v1/maps/{id}/references``. Files with the same content in the folder are uploaded once. The
 service answers ``duplicate: true`` for a photo it already holds, so a second run creates nothing new.
 Connection errors, 408, 429 and 5xx are retried with exponential backoff (``Retry-After`` honoured).
-``--wait`` then polls ``GET /v1/references/{id}`` until every new reference is labelled (``done``) or
-``failed``.
+``--wait`` then waits until every new reference is labelled (``done``) or ``failed`` and the map's walks are
+placed, so every pose is final; ``--wait labelled`` only for the labelling (:mod:`cli.ingest_wait`).
 
 Exit codes: 0 nothing failed (rejected photos are not failures), 1 some photos failed after
-retries (or, with ``--wait``, failed labelling or the wait timed out), 2 nothing could be done
-(service unreachable, bad API key, unknown map).
+retries (or, with ``--wait``, failed labelling, a walk left unplaced or the wait timed out), 2 nothing could
+be done (service unreachable, bad API key, unknown map) or the command line is wrong.
 
 This module runs the steps; :mod:`cli.photo_files` picks the files, the client :mod:`geoloc.client`
-talks to the service (with :data:`~geoloc.client.retry.TRANSIENT_STATUSES` retried), :mod:`cli.ingest_report`
-prints the summary.
+talks to the service (with :data:`~geoloc.client.retry.TRANSIENT_STATUSES` retried), :mod:`cli.ingest_wait`
+waits, :mod:`cli.ingest_report` prints the summary.
 """
 
 from __future__ import annotations
@@ -33,10 +33,17 @@ from pathlib import Path
 import httpx
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from cli.ingest_geotag import geotag_photos, load_geotagging
 from cli.ingest_report import IngestReport, print_summary
+from cli.ingest_wait import (
+    FINAL_REFERENCE_STATES,
+    WAIT_MODES,
+    WaitFor,
+    progress_bar,
+    wait_for_labelling,
+    wait_for_placement,
+)
 from cli.photo_files import Candidate, FileResult, path_order, scan_folder
 from geoloc.client import ApiError, Client, Map, RetryPolicy, ServiceUnreachableError, calls
 from geoloc.client.retry import TRANSIENT_STATUSES as RETRY_STATUSES
@@ -44,7 +51,6 @@ from geoloc.photos.geotag import GeotagError
 
 NOT_THE_PHOTOS_FAULT = frozenset({401, 403, 404})
 """4xx answers that are failures (key, scope, map gone), not a rejection of the photo."""
-FINAL_REFERENCE_STATES = frozenset({"done", "failed"})
 
 
 class IngestAbortError(Exception):
@@ -133,19 +139,6 @@ def _refused(result: FileResult, exc: ApiError) -> FileResult:
     return result
 
 
-def _progress(console: Console) -> Progress:
-    return Progress(
-        SpinnerColumn(),
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TextColumn("{task.fields[status]}"),
-        console=console,
-        transient=False,
-    )
-
-
 def _count_text(results: Iterable[FileResult]) -> str:
     counts = Counter(r.outcome for r in results)
     return " ".join(f"{name} {counts[name]}" for name in ("accepted", "present", "rejected", "failed") if counts[name])
@@ -156,7 +149,7 @@ def upload_all(
 ) -> list[FileResult]:
     """Upload ``photos`` with ``concurrency`` threads and a progress bar; results in ``photos`` order."""
     results: dict[int, FileResult] = {}
-    with _progress(console) as progress, ThreadPoolExecutor(max_workers=concurrency) as pool:
+    with progress_bar(console) as progress, ThreadPoolExecutor(max_workers=concurrency) as pool:
         task = progress.add_task("uploading", total=len(photos), status="")
         futures = {pool.submit(upload_one, client, stop, map_id, photo): i for i, photo in enumerate(photos)}
         try:
@@ -170,40 +163,6 @@ def upload_all(
     return [results[i] for i in range(len(photos))]
 
 
-def wait_for_labelling(
-    client: Client, results: list[FileResult], *, timeout_s: float, poll_s: float, console: Console
-) -> bool:
-    """Poll the new references until each is ``done`` or ``failed``; False when ``timeout_s`` (> 0) ran out."""
-    pending = {r.reference_id: r for r in results if r.outcome == "accepted" and r.reference_id is not None}
-    deadline = time.monotonic() + timeout_s if timeout_s > 0 else None
-    with _progress(console) as progress:
-        task = progress.add_task("labelling", total=len(pending), status="")
-        while pending:
-            for reference_id, result in list(pending.items()):
-                try:
-                    reference = client.get_reference(reference_id)
-                    result.final_status, result.final_error = reference.status, reference.error
-                except ServiceUnreachableError:
-                    continue  # keep waiting: the service may come back
-                except ApiError as exc:
-                    if (
-                        exc.status < 500 and exc.status not in RETRY_STATUSES
-                    ):  # deleted meanwhile, or the key cannot read
-                        result.final_status = "failed"
-                        result.final_error = f"cannot read the reference: {exc.status} {exc.code}: {exc.message}"
-                if result.final_status in FINAL_REFERENCE_STATES:
-                    del pending[reference_id]
-                    progress.update(task, advance=1)
-            statuses = Counter(r.final_status for r in results if r.outcome == "accepted" and r.final_status)
-            progress.update(task, status=" ".join(f"{k} {v}" for k, v in sorted(statuses.items())))
-            if not pending:
-                break
-            if deadline is not None and time.monotonic() >= deadline:
-                return False
-            time.sleep(poll_s)
-    return True
-
-
 def ingest_folder(
     folder: Path,
     map_id: int,
@@ -212,7 +171,7 @@ def ingest_folder(
     api_key: str | None,
     concurrency: int = 4,
     recursive: bool = False,
-    wait: bool = False,
+    wait: WaitFor | None = None,
     wait_timeout_s: float = 0.0,
     poll_s: float = 1.0,
     retries: int = 5,
@@ -224,6 +183,9 @@ def ingest_folder(
     transport: httpx.BaseTransport | None = None,
 ) -> IngestReport:
     """Scan, geotag, upload and (optionally) wait; raises :class:`IngestAbortError` when nothing can be done.
+
+    wait: ``placed`` (until the new references are labelled and the map's walks placed: every pose final) or
+    ``labelled`` (labelling only), for at most ``wait_timeout_s`` in all (0: no limit); None: do not wait.
 
     gpx: a GPS track that places every photo by its capture time (+ ``time_offset_s`` seconds), see
     :mod:`cli.ingest_geotag`; a ``mapillary_image_description.json`` in the folder is read with or without it.
@@ -250,17 +212,42 @@ def ingest_folder(
         )
         uploaded = upload_all(client, stop, map_id, photos, concurrency=concurrency, console=console) if photos else []
         report.files = sorted([*uploaded, *others], key=lambda r: path_order(r.path))
-        if wait:
-            report.waited = True
-            report.wait_timed_out = not wait_for_labelling(
-                client, report.files, timeout_s=wait_timeout_s, poll_s=poll_s, console=console
-            )
+        if wait is not None:
+            report.wait_for = wait
+            deadline = time.monotonic() + wait_timeout_s if wait_timeout_s > 0 else None
+            in_time = wait_for_labelling(client, report.files, deadline=deadline, poll_s=poll_s, console=console)
+            if in_time and wait == "placed":
+                report.placement = wait_for_placement(
+                    client, map_id, report.files, deadline=deadline, poll_s=poll_s, console=console
+                )
+                in_time = report.placement is not None
+            report.wait_timed_out = not in_time
         return report
     finally:
         client.close()
 
 
+CONTEXT_SETTINGS = {"allow_extra_args": True}
+"""The command's settings: the word after ``--wait`` (``placed``, ``labelled``) arrives as an extra argument."""
+
+
+def wait_mode(wait: bool, extra: list[str]) -> WaitFor | None:
+    """What ``--wait [placed|labelled]`` asks for (None: no waiting); a usage error for anything else.
+
+    Typer has no option with an optional value, so ``--wait`` is a flag and the mode after it is read from
+    the command's extra arguments: ``--wait`` alone is ``placed``.
+    """
+    if not extra:
+        return "placed" if wait else None
+    for mode in WAIT_MODES:
+        if wait and extra == [mode]:
+            return mode
+    hint = "after --wait: placed or labelled" if wait else "a wait mode follows --wait"
+    raise typer.BadParameter(f"unexpected argument(s) {' '.join(extra)!r} ({hint})", param_hint="--wait")
+
+
 def ingest(
+    ctx: typer.Context,
     folder: Path = typer.Argument(..., exists=True, file_okay=False, dir_okay=True, help="Folder of photos."),
     map_id: int = typer.Option(..., "--map", "-m", help="Id of the map the photos are references of."),
     url: str = typer.Option("http://127.0.0.1:8000", "--url", envvar="GEOLOC_URL", help="Base URL of the service."),
@@ -269,8 +256,15 @@ def ingest(
     ),
     concurrency: int = typer.Option(4, "--workers", "--concurrency", "-j", min=1, max=64, help="Parallel uploads."),
     recursive: bool = typer.Option(False, "--recursive", "-r", help="Include photos in subfolders."),
-    wait: bool = typer.Option(False, "--wait", help="Then wait until every new reference is labelled or failed."),
-    wait_timeout: float = typer.Option(0.0, "--wait-timeout", min=0, help="Stop waiting after S seconds (0: never)."),
+    wait: bool = typer.Option(
+        False,
+        "--wait",
+        help="Then wait until every new reference is labelled (or failed) and the map's walks are placed: every "
+        "pose final. '--wait labelled': only until the new references are labelled (walks may still move).",
+    ),
+    wait_timeout: float = typer.Option(
+        0.0, "--wait-timeout", min=0, help="Stop waiting after S seconds in all (0: never)."
+    ),
     json_out: Path | None = typer.Option(None, "--json", help="Write every file's outcome to this JSON file."),
     retries: int = typer.Option(5, "--retries", min=0, help="Retries of transient errors (connection, 429, 5xx)."),
     timeout: float = typer.Option(120.0, "--timeout", min=1, help="Seconds per HTTP request."),
@@ -292,15 +286,20 @@ def ingest(
 ) -> None:
     """Upload every photo in a folder as a reference of a map; print what was accepted, rejected and why.
 
+    With --wait, return once every pose is final (labelled, and each walk placed jointly); --wait labelled
+    returns once the new references are labelled.
+
     With --gpx, each photo is placed on the GPS track by its capture time (+ --time-offset); a
     mapillary_image_description.json in the folder gives what a photo's EXIF lacks (position, heading,
     capture time, sequence).
 
     Exit codes:
     0: nothing failed (photos the service rejects are listed with the reason, they are not failures);
-    1: some photos failed after retries (with --wait: some labelling failed or the wait timed out);
+    1: some photos failed after retries (with --wait: some labelling failed, a walk was left unplaced or the
+    wait timed out);
     2: the service cannot be reached, the API key is refused, or the map does not exist.
     """
+    wait_for = wait_mode(wait, ctx.args)
     stdout = Console(width=None if sys.stdout.isatty() else 160)
     stderr = Console(stderr=True)
     try:
@@ -311,7 +310,7 @@ def ingest(
             api_key=api_key,
             concurrency=concurrency,
             recursive=recursive,
-            wait=wait,
+            wait=wait_for,
             wait_timeout_s=wait_timeout,
             retries=retries,
             timeout_s=timeout,

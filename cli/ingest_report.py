@@ -9,6 +9,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
+from cli.ingest_wait import Placement, WaitFor
 from cli.photo_files import OUTCOMES, FileResult
 
 
@@ -20,8 +21,23 @@ class IngestReport:
     map_id: int
     map_name: str | None = None
     files: list[FileResult] = field(default_factory=list)
-    waited: bool = False
+    wait_for: WaitFor | None = None
+    """What ``--wait`` waited for (``placed``, ``labelled``); None without ``--wait``."""
     wait_timed_out: bool = False
+    placement: Placement | None = None
+    """With ``--wait`` (``placed``): the walks found and placed, once the map had nothing left to place."""
+
+    @property
+    def waited(self) -> bool:
+        """Whether the run waited (``--wait``)."""
+        return self.wait_for is not None
+
+    @property
+    def unplaced_walks(self) -> int:
+        """Walks of this run left unplaced (or a placement wait stopped by an error) once the map was idle."""
+        if self.placement is None:
+            return 0
+        return len(self.placement.unplaced) + (self.placement.error is not None)
 
     def counts(self) -> dict[str, int]:
         """Files per outcome (every outcome present, in summary order)."""
@@ -34,11 +50,11 @@ class IngestReport:
 
     @property
     def exit_code(self) -> int:
-        """1 when a photo failed (with ``--wait``: or its labelling failed, or the wait ran out), else 0."""
+        """1 when a photo failed (with ``--wait``: or its labelling failed, a walk was not placed, the wait ran out)."""
         failed = self.counts()["failed"] > 0
         if self.waited:
             labels = self.labelling_counts()
-            failed = failed or self.wait_timed_out or labels.get("failed", 0) > 0
+            failed = failed or self.wait_timed_out or labels.get("failed", 0) > 0 or self.unplaced_walks > 0
         return 1 if failed else 0
 
     def as_json(self) -> dict[str, Any]:
@@ -52,8 +68,11 @@ class IngestReport:
             "files": [asdict(f) for f in self.files],
         }
         if self.waited:
+            out["wait_for"] = self.wait_for
             out["labelling"] = self.labelling_counts()
             out["wait_timed_out"] = self.wait_timed_out
+        if self.placement is not None:
+            out["placement"] = asdict(self.placement)
         return out
 
 
@@ -95,6 +114,8 @@ def _outcome_table(report: IngestReport) -> Table:
     if report.waited:
         for status, n in sorted(report.labelling_counts().items()):
             table.add_row(f"labelling of new references: {status}", str(n))
+    if report.placement is not None:
+        table.add_row("walks of these photos placed", f"{report.placement.placed} of {report.placement.walks}")
     return table
 
 
@@ -126,7 +147,20 @@ def _notes(report: IngestReport) -> list[str]:
     failed_labels = report.labelling_counts().get("failed", 0) if report.waited else 0
     if failed_labels:
         notes.append(f"{failed_labels} new reference(s) were stored but their labelling failed (errors above).")
+    placement = report.placement
     if report.waited and report.wait_timed_out:
-        notes.append("stopped waiting before every new reference was labelled (--wait-timeout).")
+        what = "labelled" if report.wait_for == "labelled" else "labelled and every walk placed"
+        notes.append(f"stopped waiting before every new reference was {what} (--wait-timeout).")
+    elif placement is not None and placement.error is not None:
+        notes.append(f"stopped waiting for the walks to be placed: {placement.error}")
+    elif placement is not None and placement.unplaced:
+        notes.append(
+            f"{len(placement.unplaced)} walk(s) were not placed jointly (the map's walk placement job failed; "
+            f"the service's log says why): {', '.join(placement.unplaced)}; their poses are their own labels'."
+        )
+    elif placement is not None:
+        notes.append("every pose is final: the new references are labelled and the map's walks placed.")
+    elif report.wait_for == "labelled":
+        notes.append("labelled; poses of references in walks may still move until the map's walks_placing is 0.")
     notes.append(f"exit code {report.exit_code}")
     return notes

@@ -23,7 +23,7 @@ app.add_typer(eval_cmd.app, name="eval")
 serve_cmd.register(app)
 backup_cmd.register(app)
 app.command("analyze")(analyze_cmd.analyze)
-app.command("ingest")(ingest_cmd.ingest)
+app.command("ingest", context_settings=ingest_cmd.CONTEXT_SETTINGS)(ingest_cmd.ingest)
 app.command("about")(about_cmd.about)
 app.command("locate-track")(track_cmd.locate_track)
 

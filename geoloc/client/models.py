@@ -111,6 +111,23 @@ class ReferenceList(_Model):
     next_after_id: int | None
     attribution: str
 
+    @property
+    def labelling(self) -> int:
+        """The map's references still being labelled (``queued`` or ``processing``)."""
+        return self.counts.get("queued", 0) + self.counts.get("processing", 0)
+
+    @property
+    def status(self) -> Literal["labelling", "placing", "placed"]:
+        """Where the map's poses stand: references being labelled, else walks being placed, else all final."""
+        if self.labelling:
+            return "labelling"
+        return "placing" if self.walks_placing else "placed"
+
+    @property
+    def placed(self) -> bool:
+        """Whether every pose of the map is final: nothing being labelled and no walk placement pending."""
+        return self.status == "placed"
+
 
 class Query(_Model):
     """A query: its status and, once ``done``, its answer (``result``: ranked locations, heatmap, buildings)."""

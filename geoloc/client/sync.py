@@ -140,6 +140,19 @@ class Client(ClientBase):
             lambda _: self.get_reference(reference_id), timeout_s=timeout_s, what=f"reference {reference_id}"
         )
 
+    def wait_for_map_placed(self, map_id: int, *, timeout_s: float = 600.0) -> models.ReferenceList:
+        """Poll until every reference of the map is labelled (or failed) and its walks placed, at most ``timeout_s``.
+
+        Then every pose is final (``ReferenceList.placed``: no reference ``queued`` or ``processing``,
+        ``walks_placing`` 0); returns the map's first reference page as last read (totals, ``counts``).
+        """
+        return self.wait(
+            lambda _: self.list_references(map_id, limit=1),
+            timeout_s=timeout_s,
+            done=lambda page: page.placed,
+            what=f"map {map_id}'s labelling and walk placement",
+        )
+
     # --- queries and jobs ---------------------------------------------------------------------
 
     def upload_query(self, map_id: int, image: Upload, **fields: Unpack[QueryFields]) -> models.Query:

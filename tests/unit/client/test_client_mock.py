@@ -126,6 +126,48 @@ def test_the_async_client_sends_the_same_requests() -> None:
     assert b'name="wait_s"\r\n\r\n0' in body and b'filename="q.jpg"' in body
 
 
+def test_waiting_for_a_map_s_walks_to_be_placed() -> None:
+    """Read the map's state (one reference a page) until nothing is labelled or placed; sync and async alike."""
+    states = [(1, 1), (0, 1), (0, 1), (0, 0)]  # (references processing, walks_placing) per read
+    seen: list[dict[str, str]] = []
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        assert request.url.path == "/v1/maps/3/references"
+        seen.append(dict(request.url.params))
+        processing, placing = states[min(len(seen), len(states)) - 1]
+        return httpx.Response(200, json={
+            "map_id": 3, "references": [], "total": 4, "counts": {"queued": 0, "processing": processing, "done": 3},
+            "walks_placing": placing, "next_after_id": None, "attribution": "© OSM",
+        })  # fmt: skip
+
+    with Client("http://mock", transport=httpx.MockTransport(handler), sleep=lambda _: None) as client:
+        page = client.wait_for_map_placed(3)
+    assert (
+        page.placed
+        and page.status == "placed"
+        and len(seen) == 4
+        and seen[0] == {"after_id": "0", "limit": "1", "format": "json"}
+    )
+
+    async def sleep(_: float) -> None:
+        return None
+
+    async def run() -> models.ReferenceList:
+        async with AsyncClient("http://mock", transport=httpx.MockTransport(handler), sleep=sleep) as client:
+            return await client.wait_for_map_placed(3)
+
+    seen.clear()
+    assert asyncio.run(run()).placed and len(seen) == 4
+
+    states[:] = [(0, 1)]
+    with (
+        Client("http://mock", transport=httpx.MockTransport(handler)) as client,
+        pytest.raises(WaitTimeoutError, match="last status: placing") as caught,
+    ):
+        client.wait_for_map_placed(3, timeout_s=0.6)
+    assert isinstance(caught.value.last, models.ReferenceList) and caught.value.last.walks_placing == 1
+
+
 @pytest.mark.parametrize(
     ("model", "schema"),
     [
