@@ -1,8 +1,8 @@
 """Source trees the suite evaluates: a commit exported with ``git archive``, and a tree's content fingerprint.
 
 :func:`export_commit` is the one export of a baseline commit (the speed benchmarks' ``benchmarks/baseline.py`` use
-it too). :func:`tree_fingerprint` names what a tree's evaluation results depend on: the sources of the runtime
-(``contracts``, ``geoloc`` less the suite's own reporting code, ``workers``) and the built models; the suite caches
+it too). :func:`tree_fingerprint` names what a tree's evaluation results depend on: the sources the evaluation
+runs (``contracts`` and ``geoloc`` less the suite's own reporting code) and the built models; the suite caches
 a world's outcomes under it, so a tree whose method is unchanged is not evaluated again.
 """
 
@@ -17,8 +17,8 @@ from pathlib import Path
 REPO_ROOT = Path(__file__).resolve().parents[3]
 """This checkout (the tree the running code came from)."""
 
-FINGERPRINTED = ("contracts", "geoloc", "workers")
-"""The packages whose sources the method's results depend on."""
+FINGERPRINTED = ("contracts", "geoloc")
+"""The packages whose sources the method's results depend on (the evaluation imports nothing above them)."""
 NOT_FINGERPRINTED = ("geoloc/evaluation/suite",)
 """The suite's reporting code changes no outcome (its runner, ``outcomes.py``, is keyed on its own)."""
 
