@@ -173,7 +173,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "with code `invalid_request` and `details.problems`, a list of `{field, problem}`.\n\n"
             "Under load: new work (references, queries) gets `429` `queue_full` with `Retry-After` while the job "
             "queue is full, an API key past its rate limit gets `429` `rate_limited` with `Retry-After`, and a "
-            "write on a full disk gets `507` `insufficient_storage` with nothing stored. This document describes "
+            "write on a full disk gets `507` `insufficient_storage` with nothing stored.\n\n"
+            "Every response carries `X-Request-ID`: the request's own (1 to 128 letters, digits and `._:/+=@-`; "
+            "another value is `400` `invalid_request_id`) or one the service made; it is logged with the request "
+            "and with the jobs it queued.\n\nThis document describes "
             "the running configuration: authentication, `401`/`403` and the rate limit appear only when API keys "
             "are configured."
         ),
