@@ -1,7 +1,7 @@
 """Metrics and structured logs end to end (issue 50, items 1 and 2), on both profiles.
 
 A real service (JSON logs, a metrics key) labels references and answers queries while a real Prometheus server
-(Debian's ``prometheus``) on loopback scrapes its ``/metrics`` every second; what the service exported is read
+(Debian's ``prometheus``) on loopback scrapes its ``/metrics`` every 2 s; what the service exported is read
 back through Prometheus's own HTTP API: request counts by route, a latency histogram, jobs queued and running
 by kind, stage durations, live workers. ``promtool check metrics`` passes on the exposition. Every request's log
 line is JSON with its request id; a query's job lines in the worker carry the id of the request that queued it,
@@ -40,7 +40,7 @@ def world_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     generate_world(
         shared_path("data", "osm", "helsinki.osm.pbf"),
         out,
-        WorldOptions(n_references=5, n_queries=3, seed=5, radius_m=90.0, query_gps_noise_m=10.0),
+        WorldOptions(n_references=5, n_queries=4, seed=5, radius_m=90.0, query_gps_noise_m=10.0),
     )
     return out
 
@@ -73,12 +73,12 @@ def test_prometheus_scrapes_the_service_and_logs_carry_request_ids(
     env = {**profile.new_env(), "GEOLOC_LOG_FORMAT": "json", "GEOLOC_METRICS_KEY": METRICS_KEY}
     with running_service(tmp_path / "data", workers=1, models=built_models, log_level="info", **env) as service:
         target = service.base_url.removeprefix("http://") if service.base_url else ""
-        prometheus = PrometheusServer([target], interval_s=1.0, bearer=METRICS_KEY).start()
+        # Every 2 s (a scrape may take up to that): the tests run niced beside other work, so the API can be slow.
+        prometheus = PrometheusServer([target], interval_s=2.0, bearer=METRICS_KEY).start()
         try:
             with service.client(timeout=300.0) as client:
                 query_ids = _run_load(client, world, prometheus)
-                # two more scrapes after the last answer
-                time.sleep(2.5)
+                time.sleep(5.0)  # two more scrapes after the last answer
                 _check_prometheus(prometheus)
                 exposition = client.get("/metrics", headers={"Authorization": f"Bearer {METRICS_KEY}"})
                 assert exposition.status_code == 200, exposition.text
@@ -95,7 +95,7 @@ def _run_load(client: httpx.Client, world: Any, prometheus: PrometheusServer) ->
 
     Returns each query's request id (sent in ``X-Request-ID``) and its job id.
     """
-    wait_for(lambda: _value(prometheus, "up") == 1, timeout=60, what=lambda: f"a scrape: {prometheus.targets()}")
+    wait_for(lambda: _value(prometheus, "up") == 1, timeout=120, what=lambda: f"a scrape: {prometheus.targets()}")
     path = shared_path("data", "osm", "helsinki.osm.pbf")
     with path.open("rb") as f:
         response = client.post("/v1/maps", files={"file": (path.name, f)}, data={"wait_s": "120", "name": "metrics"})
@@ -137,7 +137,7 @@ def _run_load(client: httpx.Client, world: Any, prometheus: PrometheusServer) ->
 def _check_prometheus(prometheus: PrometheusServer) -> None:
     # Request counts by route template.
     requests = _by_label(prometheus, "sum by (route) (geoloc_http_requests_total)", "route")
-    assert requests.get(REFERENCES_ROUTE, 0) >= 5 and requests.get(QUERIES_ROUTE, 0) >= 3, requests
+    assert requests.get(REFERENCES_ROUTE, 0) >= 5 and requests.get(QUERIES_ROUTE, 0) >= 4, requests
     assert requests.get("/v1/references/{reference_id}", 0) >= 1, requests
     # A latency histogram: buckets with `le`, and a quantile from them.
     buckets = prometheus.query(f'geoloc_http_request_duration_seconds_bucket{{route="{QUERIES_ROUTE}"}}')
@@ -151,17 +151,17 @@ def _check_prometheus(prometheus: PrometheusServer) -> None:
             seen = _value(prometheus, f'max_over_time(geoloc_jobs{{kind="{kind}",state="{state}"}}[15m])')
             assert seen >= 1, (kind, state, seen)
     done = _by_label(prometheus, 'geoloc_jobs{state="done"}', "kind")
-    assert done["label_reference"] >= 5 and done["localize_query"] >= 3, done
+    assert done["label_reference"] >= 5 and done["localize_query"] >= 4, done
     # Stage durations of the workers' jobs, and the jobs' own.
     stages = _by_label(
         prometheus, 'sum by (stage) (geoloc_stage_duration_seconds_count{kind="localize_query"})', "stage"
     )
     assert {"segmentation", "features", "retrieval", "anchors", "localize"} <= set(stages), stages
-    assert all(count >= 3 for count in stages.values()), stages
+    assert all(count >= 4 for count in stages.values()), stages
     labelled = _value(prometheus, 'sum(geoloc_stage_duration_seconds_count{kind="label_reference",stage="labeling"})')
     assert labelled >= 5
     jobs_done = _by_label(prometheus, 'sum by (kind) (geoloc_job_duration_seconds_count{outcome="done"})', "kind")
-    assert jobs_done["localize_query"] >= 3 and jobs_done["label_reference"] >= 5, jobs_done
+    assert jobs_done["localize_query"] >= 4 and jobs_done["label_reference"] >= 5, jobs_done
     # Worker liveness and the catalogue's sizes.
     assert _value(prometheus, 'geoloc_workers{state="live"}') >= 1
     assert _value(prometheus, 'geoloc_references{status="done"}') >= 5
