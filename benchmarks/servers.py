@@ -188,3 +188,90 @@ class RedisServer:
         """Stop the server and remove its folder."""
         self.stop()
         shutil.rmtree(self.root, ignore_errors=True)
+
+
+class PrometheusServer:
+    """A Prometheus server (Debian's ``prometheus``) on 127.0.0.1 scraping ``targets`` every ``interval_s``.
+
+    For the metrics' end-to-end test (``tests/e2e/test_metrics.py``): the service's ``/metrics`` read by a
+    real scraper and queried through Prometheus's own HTTP API (:meth:`query`). ``bearer``: the metrics key
+    (``GEOLOC_METRICS_KEY``) sent as ``Authorization: Bearer``.
+    """
+
+    def __init__(self, targets: list[str], *, interval_s: float = 1.0, bearer: str | None = None) -> None:
+        binary = shutil.which("prometheus")
+        if binary is None:
+            raise RuntimeError("prometheus not found: install Debian's `prometheus` package (.ci/run does)")
+        self.binary = binary
+        self.root = Path(tempfile.mkdtemp(prefix="geoloc-prometheus-"))
+        self.port = _free_port()
+        self.process: subprocess.Popen[bytes] | None = None
+        auth = f"\n    authorization:\n      credentials: {bearer}" if bearer else ""
+        quoted = ", ".join(f"'{t}'" for t in targets)
+        (self.root / "prometheus.yml").write_text(
+            f"global:\n  scrape_interval: {interval_s:g}s\n  scrape_timeout: {interval_s:g}s\n"
+            f"scrape_configs:\n  - job_name: geoloc{auth}\n    static_configs:\n      - targets: [{quoted}]\n"
+        )
+
+    @property
+    def url(self) -> str:
+        """The server's base URL."""
+        return f"http://127.0.0.1:{self.port}"
+
+    def start(self) -> PrometheusServer:
+        """Start the server and wait until it listens."""
+        log = (self.root / "server.log").open("ab")
+        self.process = subprocess.Popen(
+            [
+                self.binary,
+                f"--config.file={self.root / 'prometheus.yml'}",
+                f"--storage.tsdb.path={self.root / 'data'}",
+                f"--web.listen-address=127.0.0.1:{self.port}",
+            ],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        log.close()
+        _wait_port(self.port, 60, "prometheus")
+        return self
+
+    def query(self, promql: str) -> list[dict[str, object]]:
+        """An instant query's result vector (``[{"metric": {...}, "value": [time, "value"]}, ...]``)."""
+        import json
+        import urllib.parse
+        import urllib.request
+
+        url = f"{self.url}/api/v1/query?" + urllib.parse.urlencode({"query": promql})
+        with urllib.request.urlopen(url, timeout=10) as response:
+            body = json.loads(response.read())
+        if body.get("status") != "success":
+            raise RuntimeError(f"prometheus query {promql!r} failed: {body}")
+        result: list[dict[str, object]] = body["data"]["result"]
+        return result
+
+    def targets(self) -> list[dict[str, object]]:
+        """The scrape targets as Prometheus sees them (``health``, ``lastError``, ``scrapeUrl``, ...)."""
+        import json
+        import urllib.request
+
+        with urllib.request.urlopen(f"{self.url}/api/v1/targets", timeout=10) as response:
+            active: list[dict[str, object]] = json.loads(response.read())["data"]["activeTargets"]
+        return active
+
+    def log_tail(self, lines: int = 30) -> str:
+        """The end of the server's own log."""
+        path = self.root / "server.log"
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:]) if path.exists() else ""
+
+    def stop(self) -> None:
+        """Stop the server and remove its folder."""
+        if self.process is not None and self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.process = None
+        shutil.rmtree(self.root, ignore_errors=True)

@@ -2,7 +2,8 @@
 
 The profile follows the settings: with ``GEOLOC_DATABASE_URL`` and ``GEOLOC_BROKER_URL`` the workers are
 a Celery worker (:mod:`workers.celery_worker`) on that broker and database; without them they are the
-built-in pool on the SQLite file in ``GEOLOC_DATA_DIR``.
+built-in pool on the SQLite file in ``GEOLOC_DATA_DIR``. Both remove, at start, the metric files their machine's
+dead processes left (:func:`workers.metrics.remove_dead_files`).
 """
 
 from __future__ import annotations
@@ -94,15 +95,22 @@ def _worker_specs(settings: Settings, count: int, log_level: str) -> list[Any]:
 
 
 def _start(log_level: str) -> Settings:
-    """Logging and settings (exit 2 with the reason when a setting is invalid)."""
-    from contracts.settings import SettingsError, get_settings  # lazy: keeps `geoloc --help` fast (pydantic)
+    """Settings, logging, the metrics folder (exit 2 with the reason when a setting is invalid)."""
+    # lazy: keeps `geoloc --help` fast (pydantic)
+    from contracts.logs import configure_logging
+    from contracts.settings import SettingsError, get_settings
+    from workers.metrics import metrics_folder, remove_dead_files
 
-    _setup_logging(log_level)
     try:
-        return get_settings()
+        settings = get_settings()
     except SettingsError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
+    configure_logging(log_level, settings.log_format, "supervisor")
+    if settings.metrics and metrics_folder(settings).is_dir():
+        removed = remove_dead_files(metrics_folder(settings))
+        logging.getLogger("geoloc.supervisor").info("metrics: %d files of stopped processes removed", removed)
+    return settings
 
 
 def _needs_models(settings: Settings) -> bool:
@@ -125,10 +133,6 @@ def _require_models() -> None:
     if problems:
         typer.echo("error: the workers cannot run jobs:\n  " + "\n  ".join(problems), err=True)
         raise typer.Exit(2)
-
-
-def _setup_logging(level: str) -> None:
-    logging.basicConfig(level=level.upper(), format="%(asctime)s %(levelname)s [supervisor] %(message)s")
 
 
 def _prepare_database(target: Path | str) -> None:

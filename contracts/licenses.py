@@ -101,6 +101,7 @@ LICENSES: tuple[LicenseEntry, ...] = (
     _dependency("psycopg", "LGPL-3.0-only", "pypi.org/project/psycopg"),
     _dependency("celery", "BSD-3-Clause", "pypi.org/project/celery"),
     _dependency("redis", "MIT", "pypi.org/project/redis"),
+    _dependency("prometheus-client", "Apache-2.0 AND BSD-2-Clause", "pypi.org/project/prometheus-client"),
 )
 """Everything the service ships or is built from, models and data first, then the main runtime dependencies."""
 

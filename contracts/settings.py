@@ -8,9 +8,6 @@ The environment is read once per process, on the first :func:`get_settings` call
 changes ``os.environ`` afterwards (tests that point ``GEOLOC_DATA_DIR`` at a temporary folder) calls
 :func:`reset_settings` after the change and again after restoring it; ``tests/conftest.py`` also
 resets before and after every test.
-
-This module lives in ``geoloc`` because the method needs two of the settings itself (where the
-shared data and the model cache are); ``service``, ``workers`` and ``cli`` import it from here.
 """
 
 from __future__ import annotations
@@ -211,8 +208,27 @@ class Settings(BaseSettings):
         "threads are the parallelism)",
     )
     log_level: str = Field(default="INFO", description="log level of the workers")
+    log_format: Literal["text", "json"] = Field(
+        default="text",
+        description="how the API and the workers log: `text` lines, or `json`: one JSON object a line, with the "
+        "request id (`X-Request-ID`) on a request's line and on its jobs' lines (docs/operations.md#logs)",
+    )
+    metrics: bool = Field(
+        default=True,
+        description="`GET /metrics` in Prometheus's text format (requests, latencies, jobs, stages, workers, "
+        "sizes, rejections); `false`: a 404 there, and no process records any",
+    )
+    metrics_key: str | None = Field(
+        default=None, description="when set, `/metrics` needs `Authorization: Bearer KEY` (without: open)"
+    )
+    metrics_dir: Path | None = Field(
+        default=None,
+        description="the folder where every API and worker process of a machine writes its metrics "
+        "(prometheus-client's `PROMETHEUS_MULTIPROC_DIR`); `/metrics` adds them up",
+        json_schema_extra=_shown("`GEOLOC_DATA_DIR/metrics`"),
+    )
 
-    @field_validator("shared", "data_dir", "store_dir", mode="after")
+    @field_validator("shared", "data_dir", "store_dir", "metrics_dir", mode="after")
     @classmethod
     def _absolute(cls, path: Path | None) -> Path | None:
         return path.expanduser().resolve() if path is not None else None

@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from typing import Any, cast, overload
 
 from contracts.jobs import JobPayload
+from contracts.logs import current_request_id
 from db.connection import Database, transaction
 from db.rows import JobRow, WorkerRow
 
@@ -71,11 +72,13 @@ def enqueue_job(
     reference_id: int | None = None,
     max_queued: int | None = None,
     tenant: str | None = None,
+    request_id: str | None = None,
 ) -> int:
     """Add a queued job; returns its id. Joins the caller's transaction if one is open.
 
     The payload is stored as the JSON of its model (:meth:`contracts.jobs.JobPayload.to_json`). The job's
-    tenant (``jobs.tenant``, who may see it in the API) is ``tenant``, else its map's (None: untenanted).
+    tenant (``jobs.tenant``, who may see it in the API) is ``tenant``, else its map's (None: untenanted). Its
+    ``request_id`` is the one given, else the current request's or job's (:func:`contracts.logs.current_request_id`).
 
     With ``max_queued``, raise :class:`QueueFullError` instead when that many jobs already wait
     (inside the caller's transaction, under :data:`ENQUEUE_LOCK`, the count cannot change before the
@@ -88,10 +91,12 @@ def enqueue_job(
         row = db.execute("SELECT tenant FROM maps WHERE id = ?", (map_id,)).fetchone()
         tenant = row[0] if row is not None else None
     now = time.time()
+    request_id = request_id or current_request_id()
     return db.insert_returning_id(
         "INSERT INTO jobs (kind, payload, status, priority, max_attempts, map_id, reference_id, tenant,"
-        " created_at, updated_at) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?, ?)",
-        (kind, json.dumps(payload.to_json()), priority, max_attempts, map_id, reference_id, tenant, now, now),
+        " request_id, created_at, updated_at) VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?, ?, ?)",
+        (kind, json.dumps(payload.to_json()), priority, max_attempts, map_id, reference_id, tenant, request_id)
+        + (now, now),
     )
 
 

@@ -47,6 +47,8 @@ Storage decisions (see also the module docstrings of the access modules):
   for its box and counts. ``status`` is ``queued`` (the job waits or runs), ``done`` or ``failed`` (``error``
   says why, without server paths); every map stored before is ``done``. The parsed counts are the parse's
   progress (elements read, buildings so far), written at most once a second.
+- ``jobs.request_id`` (migration 12): the id of the API request that queued the job (``X-Request-ID``, taken or
+  made; a job queued by another job inherits its id), logged by the worker that runs it; NULL before.
 """
 
 from __future__ import annotations
@@ -317,6 +319,13 @@ MIGRATIONS: list[tuple[int, str, str]] = [
         "workers: the job kinds each worker claims (NULL: every kind); /readyz counts those that take queries",
         """
         ALTER TABLE workers ADD COLUMN kinds TEXT;
+        """,
+    ),
+    (
+        12,
+        "request ids: the API request that queued a job, logged by the worker that runs it",
+        """
+        ALTER TABLE jobs ADD COLUMN request_id TEXT;
         """,
     ),
 ]

@@ -153,6 +153,8 @@ class JobRow(TypedDict):
     started_at: float | None
     finished_at: float | None
     published_at: float | None
+    request_id: str | None
+    """The API request that queued it (migration 12; a job queued by a job inherits its id); None before."""
 
 
 class WorkerRow(TypedDict):

@@ -9,6 +9,7 @@ import sys
 import threading
 import time
 
+from contracts.logs import configure_logging
 from contracts.settings import SettingsError, get_settings
 from service.auth import is_loopback_host
 
@@ -47,7 +48,11 @@ def main(argv: list[str] | None = None) -> int:
 
     from service.app import create_app  # lazy: see above
 
-    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
+    # Our own log lines in GEOLOC_LOG_FORMAT: uvicorn's loggers go to the root handler, and its access log is
+    # replaced by the request observer's line (service/observe.py), which carries the request id.
+    configure_logging(args.log_level, settings.log_format, "api")
+    app = create_app(settings)
+    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level, log_config=None, access_log=False)
     return 0
 
 

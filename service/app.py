@@ -1,7 +1,8 @@
 """The FastAPI application.
 
-Settings, migrations at start, body-size guard, errors, limits, the job waiter, the OpenAPI document of
-the running configuration, routes.
+Settings, migrations at start, the request observer (request ids, log lines, metrics: :mod:`service.observe`),
+body-size guard, errors, limits, the job waiter, the OpenAPI document of the running configuration, routes,
+``/metrics``.
 """
 
 from __future__ import annotations
@@ -20,14 +21,16 @@ from db import connect, migrate
 from db.files import open_store
 from db.jobs import QueueFullError
 from db.stats import stored_file_paths
-from service import places, routes_maps, routes_queries, routes_references, routes_system, routes_tracks
+from service import metrics, places, routes_maps, routes_queries, routes_references, routes_system, routes_tracks
 from service.errors import error_body, error_response, install_error_handlers
 from service.limits import queue_full, rate_limiter_for
+from service.observe import RequestObserver
 from service.routes_viewer import install_viewer
 from service.spec import install_openapi
 from service.uploads import clean_orphan_files, clean_stale_temp_files
 from service.waiting import JobWaiter
 from workers.broker import publisher_for
+from workers.metrics import enable_metrics
 
 log = logging.getLogger("geoloc.api")
 
@@ -170,13 +173,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "with code `invalid_request` and `details.problems`, a list of `{field, problem}`.\n\n"
             "Under load: new work (references, queries) gets `429` `queue_full` with `Retry-After` while the job "
             "queue is full, an API key past its rate limit gets `429` `rate_limited` with `Retry-After`, and a "
-            "write on a full disk gets `507` `insufficient_storage` with nothing stored. This document describes "
+            "write on a full disk gets `507` `insufficient_storage` with nothing stored.\n\n"
+            "Every response carries `X-Request-ID`: the request's own (1 to 128 letters, digits and `._:/+=@-`; "
+            "another value is `400` `invalid_request_id`) or one the service made; it is logged with the request "
+            "and with the jobs it queued.\n\nThis document describes "
             "the running configuration: authentication, `401`/`403` and the rate limit appear only when API keys "
             "are configured."
         ),
         lifespan=lifespan,
     )
     app.state.settings = settings
+    enable_metrics(settings)
     app.state.rate_limiter = rate_limiter_for(settings)
     app.state.job_waiter = JobWaiter(settings.database)
     app.state.file_store = open_store(settings.file_store_dir)
@@ -200,6 +207,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return max(settings.max_map_bytes, settings.max_image_bytes) + FORM_OVERHEAD_BYTES
 
     app.add_middleware(BodySizeLimit, limit_for_path=limit_for_path)
+    app.add_middleware(RequestObserver)  # outermost: sees every answer, the body-size guard's 413 included
 
     app.include_router(routes_system.router)
     app.include_router(routes_maps.router)
@@ -207,5 +215,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(routes_references.router)
     app.include_router(routes_queries.router)
     app.include_router(routes_tracks.router)
+    app.include_router(metrics.router)
     install_viewer(app)
     return app

@@ -229,9 +229,12 @@ def running_service(
     models: Path | None = None,
     api_keys: str | None = API_KEYS,
     cwd: Path = REPO_ROOT,
+    log_level: str = "warning",
     **env_overrides: str,
 ) -> Iterator[RunningProcess]:
     """``geoloc serve`` on a free loopback port (with ``api_keys``, none if None); yields once /healthz answers.
+
+    ``log_level``: of the API and the workers (``info`` logs each request and each job).
 
     Workers need the built models: pass ``models`` (the ``built_models`` fixture) to link them into
     ``data_dir`` when ``workers`` > 0. ``workers=0`` still runs one worker that claims only ``load_map`` jobs
@@ -250,7 +253,7 @@ def running_service(
     else:
         env.pop("GEOLOC_API_KEYS", None)
     running = start_process(
-        ["serve", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers), "--log-level", "warning"],
+        ["serve", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers), "--log-level", log_level],
         data_dir,
         env,
         cwd,

@@ -36,12 +36,14 @@ import threading
 import time
 from typing import Any
 
+from contracts.logs import configure_logging
 from contracts.settings import Settings, SettingsError, get_settings
 from db import Database, connect, migrate
 from db import jobs as job_store
 from workers.broker import RECONCILE_INTERVAL_S, RUN_JOB_TASK, CeleryPublisher, celery_app, reconcile
 from workers.context import model_problems, needs_models
 from workers.handlers import load_builtin_handlers, load_plugins
+from workers.metrics import enable_metrics
 from workers.retention import purge_interval_s
 from workers.worker import Worker
 
@@ -170,7 +172,13 @@ def watch_consumer(publisher: CeleryPublisher, concurrency: int, stop: threading
 
 def create_app(settings: Settings, concurrency: int = 1) -> Any:
     """The Celery app with the ``run_job`` task, the per-process start and stop hooks and the consumer watchdog."""
-    from celery.signals import worker_process_init, worker_process_shutdown, worker_ready, worker_shutting_down
+    from celery.signals import (
+        setup_logging,
+        worker_process_init,
+        worker_process_shutdown,
+        worker_ready,
+        worker_shutting_down,
+    )
 
     assert settings.broker_url is not None
     app = celery_app(settings.broker_url)
@@ -179,6 +187,10 @@ def create_app(settings: Settings, concurrency: int = 1) -> Any:
     def run_job(job_id: int) -> None:
         outcome = _process["state"].run_job(int(job_id))
         log.debug("message for job %s: %s", job_id, outcome)
+
+    @setup_logging.connect(weak=False)  # type: ignore[untyped-decorator]
+    def _keep_our_logging(**_: Any) -> None:  # connected: Celery leaves the logging that main() configured
+        pass
 
     @worker_process_init.connect(weak=False)  # type: ignore[untyped-decorator]
     def _process_started(**_: Any) -> None:
@@ -220,7 +232,8 @@ def main(argv: list[str] | None = None) -> int:
         print("error: GEOLOC_BROKER_URL is not set (the embedded profile runs `python -m workers`)", file=sys.stderr)
         return 2
     level = (args.log_level or settings.log_level).upper()
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s")
+    configure_logging(level, settings.log_format, "worker")
+    enable_metrics(settings)  # before the fork of its pool: each process writes its own files (workers/metrics.py)
     problems = model_problems() if needs_models(settings) else []
     if problems:
         print("error: the worker cannot run jobs:\n  " + "\n  ".join(problems), file=sys.stderr)

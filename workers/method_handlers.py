@@ -69,6 +69,7 @@ from geoloc.vision.onnx_session import used_device
 from geoloc.vision.segmentation import ModelNotBuiltError
 from workers.context import worker_context
 from workers.handlers import PermanentJobError, answer_checked, register, treat_as_permanent
+from workers.metrics import observe_stages
 from workers.reference_store import DatabaseReferenceStore
 from workers.sbow_files import sbow_cache_dir
 
@@ -296,6 +297,7 @@ def label_reference(db: Database, payload: LabelReferencePayload) -> LabelRefere
     vocabulary = vocabulary_for(db, map_id)
     words = vocabulary.words(labelled.cues.features.descriptors)
     labels = reference_labels(city, alone.column_scale, labelled, 1e3 * (time.perf_counter() - t0))
+    observe_stages(LABEL_REFERENCE, labelled.timings_ms)
     walker = reference_store.may_join_walk(ref)
     with transaction(db):
         if reference_store.get_reference(db, reference_id) is None:
@@ -378,6 +380,7 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         **{k: round(v, 1) for k, v in answer.timings_ms.items()},
         "total": round(1e3 * (time.perf_counter() - t0), 1),
     }
+    observe_stages(LOCALIZE_QUERY, answer.timings_ms)
     with answer_checked("query answer"):
         result = query_result(city, photo, answer, timings_ms)
     with transaction(db):

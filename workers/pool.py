@@ -38,10 +38,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contracts.logs import configure_logging
 from contracts.settings import Settings, SettingsError, get_settings
 from geoloc.localize.sbow_index import SbowIndex
 from workers.context import device_probe, model_problems, needs_models
 from workers.handlers import load_builtin_handlers, load_plugins
+from workers.metrics import enable_metrics
 from workers.supervisor import MAX_RESTART_DELAY_S, STARTUP_FAILURE_S
 from workers.worker import Worker, install_signal_handlers
 
@@ -227,18 +229,17 @@ def _run_worker(settings: Settings, pool_pid: int) -> int:
 def prepare(log_level: str | None) -> Settings | None:
     """What a worker process does before its loop; None (after printing the reason) when it must exit with 2.
 
-    The settings, logging, the model check (when the workers run the method's jobs), the niceness
-    ``GEOLOC_WORKER_NICE``, the shipped handlers and ``GEOLOC_WORKER_PLUGINS``. Shared by ``python -m workers``.
+    The settings, logging (``GEOLOC_LOG_FORMAT``), metrics (``GEOLOC_METRICS``), the model check (when the workers
+    run the method's jobs), the niceness ``GEOLOC_WORKER_NICE``, the shipped handlers and ``GEOLOC_WORKER_PLUGINS``.
+    Shared by ``python -m workers``.
     """
     try:
         settings = get_settings()
     except SettingsError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return None
-    logging.basicConfig(
-        level=(log_level or settings.log_level).upper(),
-        format="%(asctime)s %(levelname)s [worker %(process)d] %(message)s",
-    )
+    configure_logging(log_level or settings.log_level, settings.log_format, "worker")
+    enable_metrics(settings)
     problems = model_problems() if needs_models(settings) else []
     if problems:
         print("error: the worker cannot run jobs:\n  " + "\n  ".join(problems), file=sys.stderr)

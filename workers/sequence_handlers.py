@@ -38,6 +38,7 @@ from workers.method_handlers import (
     reference_priors,
     save_labels,
 )
+from workers.metrics import observe_stage
 
 PENDING_STATUSES = ("queued", "processing")
 """Reference statuses of a reference still being labelled."""
@@ -81,6 +82,7 @@ def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> Placed
     t0 = time.perf_counter()
     arrays, frames = zip(*(_walk_frame(db, city, row) for row in walk), strict=True)
     placed = place_labelled_sequence(city, frames)
+    observe_stage(PLACE_SEQUENCE, "placement", time.perf_counter() - t0)
     total_ms = 1e3 * (time.perf_counter() - t0) / len(walk)
     # A frame that keeps its own label comes back as None: its stored label stands (and is marked placed).
     moved = {

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from contracts.logs import REQUEST_ID
 from contracts.settings import Settings
 from db import Database, connect, migrate
 from db import jobs as job_store
@@ -36,6 +37,7 @@ from db.files import open_store
 from db.rows import JobRow
 from workers.handlers import HANDLERS, PermanentJobError, Registration, is_permanent
 from workers.memory import HeapTrimmer, settle_heap
+from workers.metrics import observe_job
 from workers.retention import purge_expired_queries, purge_interval_s
 
 log = logging.getLogger("geoloc.worker")
@@ -144,6 +146,7 @@ class Worker:
             log.exception("retention: deleting expired queries failed; will try again")
 
     def _execute(self, job: JobRow, outcome: _Outcome) -> None:
+        REQUEST_ID.set(job.get("request_id"))  # this thread's log lines (and jobs it queues) carry the job's id
         registration = self.handlers.get(job["kind"])
         if registration is None:
             outcome.error = PermanentJobError(
@@ -159,9 +162,21 @@ class Worker:
             db.close()
 
     def run_job(self, db: Database, job: JobRow) -> bool:
-        """Run one claimed job to its outcome; False if it was released with the handler still running."""
-        job_id, lease_s = int(job["id"]), self.settings.job_lease_s
-        log.info("job %d (%s) attempt %d/%d", job_id, job["kind"], job["attempts"], job["max_attempts"])
+        """Run one claimed job to its outcome; False if it was released with the handler still running.
+
+        Its log lines carry the request id stored on the job (:data:`contracts.logs.REQUEST_ID`), its run is
+        recorded in ``geoloc_job_duration_seconds`` (:mod:`workers.metrics`).
+        """
+        token = REQUEST_ID.set(job.get("request_id"))
+        try:
+            return self._run_job(db, job)
+        finally:
+            REQUEST_ID.reset(token)
+
+    def _run_job(self, db: Database, job: JobRow) -> bool:
+        job_id, lease_s, kind = int(job["id"]), self.settings.job_lease_s, job["kind"]
+        fields: dict[str, Any] = {"job_id": job_id, "kind": kind, "attempt": job["attempts"]}
+        log.info("job %d (%s) attempt %d/%d", job_id, kind, job["attempts"], job["max_attempts"], extra=fields)
         started = time.monotonic()
         outcome = _Outcome()
         thread = threading.Thread(target=self._execute, args=(job, outcome), name=f"job-{job_id}", daemon=True)
@@ -183,26 +198,39 @@ class Worker:
                     log.info("job %d: stop requested, waiting up to %.0f s", job_id, self.settings.worker_grace_s)
                 elif time.monotonic() >= stop_deadline:
                     released = job_store.release_job(db, job_id, self.worker_id)
-                    log.info("job %d: released back to the queue (%s)", job_id, released)
+                    log.info("job %d: released back to the queue (%s)", job_id, released, extra=fields)
+                    observe_job(kind, "released", time.monotonic() - started)
                     return False
         elapsed = time.monotonic() - started
+        fields["duration_ms"] = round(elapsed * 1e3, 1)
         if outcome.error is None:
             if job_store.complete_job(db, job_id, self.worker_id, outcome.result or {}):
-                log.info("job %d done in %.2f s", job_id, elapsed)
+                log.info("job %d done in %.2f s", job_id, elapsed, extra={**fields, "outcome": "done"})
+                observe_job(kind, "done", elapsed)
             else:
-                log.warning("job %d finished but its lease was lost; result dropped", job_id)
+                log.warning("job %d finished but its lease was lost; result dropped", job_id, extra=fields)
         else:
-            permanent = is_permanent(outcome.error)
-            error = error_summary(outcome.error)
-            if gone := job_store.deleted_subject(db, job):  # whatever the attempt hit, this is why it cannot succeed
-                permanent, error = True, f"{gone} while the job ran (not retried)\n{error}"
-            delay = min(self.settings.job_retry_delay_s * 2 ** max(int(job["attempts"]) - 1, 0), MAX_RETRY_DELAY_S)
-            status = job_store.fail_job(db, job_id, self.worker_id, error, retry_delay_s=delay, permanent=permanent)
-            log.warning("job %d attempt failed (%s) -> %s", job_id, outcome.error, status)
+            self._record_failure(db, job, outcome.error, fields, elapsed)
         del outcome  # its result and error (with the handler's frames) before the heap is settled
         self.heap.job_done(time.monotonic())
         job_store.heartbeat_worker(db, self.worker_id, None)
         return True
+
+    def _record_failure(
+        self, db: Database, job: JobRow, exc: BaseException, fields: dict[str, Any], elapsed: float
+    ) -> None:
+        """A failed attempt recorded on the job (retried or failed), logged and counted."""
+        job_id = int(job["id"])
+        permanent = is_permanent(exc)
+        error = error_summary(exc)
+        if gone := job_store.deleted_subject(db, job):  # whatever the attempt hit, this is why it cannot succeed
+            permanent, error = True, f"{gone} while the job ran (not retried)\n{error}"
+        delay = min(self.settings.job_retry_delay_s * 2 ** max(int(job["attempts"]) - 1, 0), MAX_RETRY_DELAY_S)
+        status = job_store.fail_job(db, job_id, self.worker_id, error, retry_delay_s=delay, permanent=permanent)
+        outcome = "retry" if status == "queued" else "failed"
+        log.warning("job %d attempt failed (%s) -> %s", job_id, exc, status, extra={**fields, "outcome": outcome})
+        if status is not None:
+            observe_job(job["kind"], outcome, elapsed)
 
 
 def install_signal_handlers(worker: Worker) -> None:
