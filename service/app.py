@@ -21,6 +21,7 @@ from db.files import open_store
 from db.jobs import QueueFullError
 from db.stats import stored_file_paths
 from service import places, routes_maps, routes_queries, routes_references, routes_system, routes_tracks
+from service.connections import BodyDeadline
 from service.errors import error_body, error_response, install_error_handlers
 from service.limits import queue_full, rate_limiter_for
 from service.routes_viewer import install_viewer
@@ -200,6 +201,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return max(settings.max_map_bytes, settings.max_image_bytes) + FORM_OVERHEAD_BYTES
 
     app.add_middleware(BodySizeLimit, limit_for_path=limit_for_path)
+    app.add_middleware(BodyDeadline, idle_s=settings.http_body_idle_s, total_s=settings.http_body_timeout_s)
 
     app.include_router(routes_system.router)
     app.include_router(routes_maps.router)

@@ -38,6 +38,7 @@ _CODES_BY_STATUS = {
 
 ERROR_CODES: tuple[tuple[int, str], ...] = (
     *sorted(_CODES_BY_STATUS.items()),
+    (408, "request_timeout"),
     (409, "map_not_ready"),
     (409, "not_ready"),
     (413, "too_many_frames"),
