@@ -75,6 +75,7 @@ class PostgresServer:
             self._as_user = ["runuser", "-u", POSTGRES_USER, "--"]
         self._names = itertools.count(1)
         self.template = "geoloc_template"
+        self.options = ""
 
     def _run(self, *argv: str) -> None:
         subprocess.run([*self._as_user, *argv], check=True, capture_output=True, timeout=120)
@@ -86,8 +87,8 @@ class PostgresServer:
             f"-p {self.port} -c listen_addresses=127.0.0.1 -k {self.root} -c fsync=off -c synchronous_commit=off"
             " -c full_page_writes=off -c max_connections=300 -c shared_buffers=64MB"
         )
-        self._run(postgres_bin("pg_ctl"), "-D", str(self.data), "-l", str(self.log), "-o", options, "-w", "start")
-        _wait_port(self.port, 30, "PostgreSQL")
+        self.options = options
+        self.resume()
         self._admin(f"CREATE DATABASE {self.template}")
         db = connect(self.url(self.template))
         try:
@@ -96,6 +97,16 @@ class PostgresServer:
             db.close()
         self._drop_pool(self.template)
         return self
+
+    def halt(self) -> None:
+        """Stop the server (fast shutdown: sessions are ended) and keep its data; :meth:`resume` starts it again."""
+        self._run(postgres_bin("pg_ctl"), "-D", str(self.data), "-m", "fast", "-w", "stop")
+
+    def resume(self) -> None:
+        """Start the (initialised) cluster and wait until it accepts connections."""
+        pg_ctl = postgres_bin("pg_ctl")
+        self._run(pg_ctl, "-D", str(self.data), "-l", str(self.log), "-o", self.options, "-w", "start")
+        _wait_port(self.port, 30, "PostgreSQL")
 
     def url(self, database: str) -> str:
         """``postgresql://`` URL of one database of this cluster."""

@@ -17,11 +17,11 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
-from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource, SettingsConfigDict
 
 from contracts.keys import ApiKey, parse_api_keys
 from contracts.queries import DEFAULT_QUERY_PRESET, QueryPreset
+from contracts.settings_table import fields_table
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 ENV_PREFIX = "GEOLOC_"
@@ -177,6 +177,43 @@ class Settings(BaseSettings):
         default=DEFAULT_QUERY_PRESET,
         description="the preset of a query that names none: `fast`, `balanced` or `accurate` (the query stage's "
         "configurations, `geoloc/localize/query/config.py: PRESETS`)",
+    )
+    database_timeout_s: float = Field(
+        default=5.0,
+        ge=1,
+        description="longest the API waits to open a PostgreSQL connection; while the database is down or "
+        "restarting (or SQLite's file is read-only or locked past `GEOLOC_DATABASE_LOCK_TIMEOUT_S`) requests get "
+        "`503` `database_unavailable` with `Retry-After` and workers pause claiming until it is back",
+    )
+    database_lock_timeout_s: float = Field(
+        default=30.0,
+        ge=0.1,
+        description="longest an API request waits for a database lock (SQLite busy, PG `lock_timeout`)",
+    )
+    http_max_connections: int = Field(
+        default=4096,
+        ge=16,
+        description="open connections and running requests the API takes at once (uvicorn's `limit_concurrency`; "
+        "past it, `503`); `geoloc serve` raises its open-files limit to fit",
+    )
+    http_keep_alive_s: float = Field(default=5.0, ge=0.1, description="an idle keep-alive connection is closed then")
+    http_header_timeout_s: float = Field(
+        default=10.0,
+        ge=0.1,
+        description="a request's headers must be complete within this long of the connection opening (or of the "
+        "previous response); a connection that sends none or too slowly is closed",
+    )
+    http_max_header_bytes: int = Field(default=32768, ge=1024, description="largest request head (`400` above)")
+    http_body_idle_s: float = Field(
+        default=30.0, ge=0.1, description="an upload that sends no body bytes for this long gets `408` and is closed"
+    )
+    http_body_timeout_s: float = Field(
+        default=900.0, ge=1, description="the whole request body must arrive within this long (else `408`, closed)"
+    )
+    forwarded_allow_ips: str = Field(
+        default="127.0.0.1",
+        description="addresses of reverse proxies whose `X-Forwarded-For`/`-Proto` are believed (comma-separated, "
+        "`*` for any); the client address the logs show (docs/operations.md)",
     )
     ready_worker_s: float = Field(
         default=30.0,
@@ -419,30 +456,8 @@ def default_threads() -> int:
 
 
 def settings_table() -> str:
-    """The README's settings table (markdown): variable, default, lower bound, meaning; one row per field."""
-    rows = ["| variable | default | valid | what |", "| --- | --- | --- | --- |"]
-    for name, info in Settings.model_fields.items():
-        rows.append(
-            f"| `{ENV_PREFIX}{name.upper()}` | {_shown_default(info)} | {_lower_bound(info)} | {info.description} |"
-        )
-    return "\n".join(rows)
-
-
-def _lower_bound(info: FieldInfo) -> str:
-    """The valid range of a numeric field: ``≥ low``, or ``low – high`` when it also has an upper bound."""
-    lows = [m.ge for m in info.metadata if isinstance(getattr(m, "ge", None), int | float)]
-    highs = [m.le for m in info.metadata if isinstance(getattr(m, "le", None), int | float)]
-    if lows and highs:
-        return f"{lows[0]:g} – {highs[0]:g}"
-    return f"≥ {lows[0]:g}" if lows else ""
-
-
-def _shown_default(info: FieldInfo) -> str:
-    extra = info.json_schema_extra
-    if isinstance(extra, dict) and "shown_default" in extra:
-        return str(extra["shown_default"])
-    default = info.get_default(call_default_factory=True)
-    return f"{default:g}" if isinstance(default, float) else str(default)
+    """The settings table of docs/operations.md (markdown): variable, default, bounds, meaning; one row per field."""
+    return fields_table(Settings.model_fields, ENV_PREFIX)
 
 
 if __name__ == "__main__":

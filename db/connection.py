@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import re
+import select
 import sqlite3
 import threading
 import time
@@ -34,6 +35,8 @@ from contracts.settings import data_dir
 
 DATABASE_FILENAME = "geoloc.sqlite3"
 BUSY_TIMEOUT_MS = 30_000
+CONNECT_TIMEOUT_S = 10.0
+"""PostgreSQL's connect timeout unless the caller gives one (the API passes ``GEOLOC_DATABASE_TIMEOUT_S``)."""
 POSTGRES_SCHEMES = ("postgresql://", "postgres://", "postgresql+psycopg://")
 POOL_IDLE_MAX = 8
 """Idle PostgreSQL connections kept per process and URL."""
@@ -184,14 +187,21 @@ def database_key(db: Database) -> str:
     return str(next((row[2] for row in rows if row[1] == "main"), ""))
 
 
-def connect(target: Path | str | None = None, *, busy_timeout_ms: int = BUSY_TIMEOUT_MS) -> Database:
+def connect(
+    target: Path | str | None = None,
+    *,
+    busy_timeout_ms: int = BUSY_TIMEOUT_MS,
+    connect_timeout_s: float = CONNECT_TIMEOUT_S,
+) -> Database:
     """Open the database at ``target``: a PostgreSQL URL, or a SQLite file (created if needed).
 
     SQLite is opened with WAL, a busy timeout and foreign keys on; PostgreSQL in autocommit, from a
-    per-process pool, with ``busy_timeout_ms`` as its ``lock_timeout`` (set when the connection is made).
+    per-process pool, with ``busy_timeout_ms`` as its ``lock_timeout`` and ``connect_timeout_s`` (whole
+    seconds, at least 2: libpq's rule) bounding a new connection; TCP keepalives and ``tcp_user_timeout``
+    bound a query on a connection whose server vanished without closing it.
     """
     if is_postgres_url(target):
-        return _pool_for(str(target)).get(busy_timeout_ms)
+        return _pool_for(str(target)).get(busy_timeout_ms, connect_timeout_s)
     path = Path(target) if target is not None else database_path()
     path.parent.mkdir(parents=True, exist_ok=True)
     conn = sqlite3.connect(str(path), timeout=busy_timeout_ms / 1000, isolation_level=None, check_same_thread=False)
@@ -219,39 +229,70 @@ def _set_wal(conn: sqlite3.Connection, busy_timeout_ms: int) -> None:
             time.sleep(0.01)
 
 
+def _closed_by_server(conn: Any) -> bool:
+    """Whether an idle pooled connection was closed by its server (it has something to read: an error, EOF).
+
+    A server that stopped or restarted ends its idle sessions; without this check the first request after it
+    comes back would get one of those dead connections.
+    """
+    try:
+        readable, _, _ = select.select([conn.fileno()], [], [], 0)
+    except (OSError, ValueError):
+        return True
+    return bool(readable)
+
+
 class _PostgresPool:
-    """Idle PostgreSQL connections of one URL in this process (forgotten after a fork)."""
+    """Idle PostgreSQL connections of one URL in this process (forgotten after a fork), with their lock timeouts."""
 
     def __init__(self, url: str) -> None:
         self.url = re.sub(r"^postgresql\+psycopg://", "postgresql://", url)
         self.pid = os.getpid()
         self.idle: list[Any] = []
+        self.lock_timeouts: dict[int, int] = {}
+        """``lock_timeout`` (ms) of each idle connection, by ``id``."""
         self.lock = threading.Lock()
 
-    def get(self, busy_timeout_ms: int) -> Database:
+    def get(self, busy_timeout_ms: int, connect_timeout_s: float = CONNECT_TIMEOUT_S) -> Database:
         import psycopg
 
-        conn = None
+        conn, lock_timeout, had = None, int(busy_timeout_ms), None
         with self.lock:
             if self.pid != os.getpid():  # inherited through fork: the server talks to the parent on these
-                self.idle, self.pid = [], os.getpid()
+                self.idle, self.lock_timeouts, self.pid = [], {}, os.getpid()
             while self.idle and conn is None:
                 candidate = self.idle.pop()
-                if not candidate.closed:
-                    conn = candidate
+                had = self.lock_timeouts.pop(id(candidate), None)
+                if candidate.closed or _closed_by_server(candidate):
+                    candidate.close()
+                    continue
+                conn = candidate
+        if conn is not None and had != lock_timeout:
+            conn.execute(f"SET lock_timeout = {lock_timeout}")
         if conn is None:
+            timeout_ms = int(max(connect_timeout_s, 2.0) * 1000)
             conn = psycopg.connect(
-                self.url, autocommit=True, connect_timeout=10, options=f"-c lock_timeout={int(busy_timeout_ms)}"
+                self.url,
+                autocommit=True,
+                connect_timeout=max(int(round(connect_timeout_s)), 2),
+                options=f"-c lock_timeout={lock_timeout}",
+                keepalives=1,
+                keepalives_idle=max(timeout_ms // 1000, 1),
+                keepalives_interval=1,
+                keepalives_count=3,
+                tcp_user_timeout=timeout_ms,
             )
-        return Database(conn, "postgresql", release=self.release)
+        return Database(conn, "postgresql", release=lambda raw: self.release(raw, lock_timeout))
 
-    def release(self, conn: Any) -> None:
+    def release(self, conn: Any, lock_timeout: int | None = None) -> None:
         from psycopg.pq import TransactionStatus
 
-        healthy = not conn.closed and conn.info.transaction_status == TransactionStatus.IDLE
+        healthy = not conn.closed and not conn.broken and conn.info.transaction_status == TransactionStatus.IDLE
         with self.lock:
             if healthy and self.pid == os.getpid() and len(self.idle) < POOL_IDLE_MAX:
                 self.idle.append(conn)
+                if lock_timeout is not None:
+                    self.lock_timeouts[id(conn)] = lock_timeout
                 return
         conn.close()
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import signal
 import sys
 import threading
@@ -19,6 +20,15 @@ def _watch_parent(parent_pid: int) -> None:
     while os.getppid() == parent_pid:
         time.sleep(1.0)
     os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _raise_open_files(connections: int) -> None:
+    """Raise this process's soft limit of open files toward the hard one, to fit ``connections`` and the rest."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    wanted = connections + 256  # the database, stored files, logs
+    if soft != resource.RLIM_INFINITY and soft < wanted:
+        target = wanted if hard == resource.RLIM_INFINITY else min(wanted, hard)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (target, hard))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -47,12 +57,17 @@ def main(argv: list[str] | None = None) -> int:
     import uvicorn
 
     from service.app import create_app  # lazy: see above
+    from service.connections import uvicorn_options  # lazy: see above
 
     # Our own log lines in GEOLOC_LOG_FORMAT: uvicorn's loggers go to the root handler, and its access log is
     # replaced by the request observer's line (service/observe.py), which carries the request id.
     configure_logging(args.log_level, settings.log_format, "api")
+    _raise_open_files(settings.http_max_connections)
+    options = uvicorn_options(settings)
     app = create_app(settings)
-    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level, log_config=None, access_log=False)
+    uvicorn.run(
+        app, host=args.host, port=args.port, log_level=args.log_level, log_config=None, access_log=False, **options
+    )
     return 0
 
 

@@ -22,6 +22,7 @@ from db.files import open_store
 from db.jobs import QueueFullError
 from db.stats import stored_file_paths
 from service import metrics, places, routes_maps, routes_queries, routes_references, routes_system, routes_tracks
+from service.connections import BodyDeadline
 from service.errors import error_body, error_response, install_error_handlers
 from service.limits import queue_full, rate_limiter_for
 from service.observe import RequestObserver
@@ -207,7 +208,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return max(settings.max_map_bytes, settings.max_image_bytes) + FORM_OVERHEAD_BYTES
 
     app.add_middleware(BodySizeLimit, limit_for_path=limit_for_path)
-    app.add_middleware(RequestObserver)  # outermost: sees every answer, the body-size guard's 413 included
+    app.add_middleware(BodyDeadline, idle_s=settings.http_body_idle_s, total_s=settings.http_body_timeout_s)
+    app.add_middleware(RequestObserver)  # outermost: sees every answer, the body guards' 413 and 408 included
 
     app.include_router(routes_system.router)
     app.include_router(routes_maps.router)

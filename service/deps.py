@@ -23,9 +23,19 @@ def app_settings(request: Request) -> Settings:
     return settings
 
 
+def open_db(settings: Settings, lock_timeout_s: float | None = None) -> Database:
+    """A connection for the API, bounded in time (past either bound the request is a ``503``).
+
+    ``GEOLOC_DATABASE_TIMEOUT_S`` to connect (PostgreSQL), ``lock_timeout_s`` (default
+    ``GEOLOC_DATABASE_LOCK_TIMEOUT_S``) for a lock.
+    """
+    lock_s = settings.database_lock_timeout_s if lock_timeout_s is None else lock_timeout_s
+    return connect(settings.database, busy_timeout_ms=int(lock_s * 1000), connect_timeout_s=settings.database_timeout_s)
+
+
 def get_db(request: Request) -> Iterator[Database]:
     """A database connection for one request (closed, or given back to the pool, afterwards)."""
-    db = connect(app_settings(request).database)
+    db = open_db(app_settings(request))
     try:
         yield db
     finally:

@@ -16,6 +16,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from db.outages import is_database_unavailable, outage_reason
 from service.deps import app_settings
 
 log = logging.getLogger("geoloc.api")
@@ -38,6 +39,7 @@ _CODES_BY_STATUS = {
 ERROR_CODES: tuple[tuple[int, str], ...] = (
     *sorted(_CODES_BY_STATUS.items()),
     (400, "invalid_request_id"),
+    (408, "request_timeout"),
     (409, "map_not_ready"),
     (409, "not_ready"),
     (413, "too_many_frames"),
@@ -58,6 +60,7 @@ ERROR_CODES: tuple[tuple[int, str], ...] = (
     (422, "unsupported_projection"),
     (429, "queue_full"),
     (429, "rate_limited"),
+    (503, "database_unavailable"),
     (503, "not_ready"),
 )
 """Every (status, code) the service answers with; the OpenAPI schema of ``ErrorDetail.code`` lists them
@@ -111,6 +114,11 @@ OPENAPI_METHODS = ("get", "put", "post", "delete", "options", "head", "patch", "
 DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
 NEARLY_FULL_BYTES = 1024 * 1024
 """Below this much free space an I/O error from SQLite is taken for a full disk."""
+DATABASE_RETRY_AFTER_S = 5
+"""``Retry-After`` (seconds) of a ``503`` ``database_unavailable``."""
+DATABASE_UNAVAILABLE_MESSAGE = (
+    "the database is unavailable for now (down, restarting, read-only or busy): nothing was stored; retry later"
+)
 DISK_FULL_MESSAGE = (
     "the server's storage is full: nothing was stored; retry once space has been freed (reads keep working meanwhile)"
 )
@@ -165,6 +173,12 @@ def allowed_methods(app: Any, path: str) -> list[str]:
     return sorted(methods)
 
 
+def database_unavailable() -> JSONResponse:
+    """The ``503`` ``database_unavailable`` answer, with ``Retry-After``."""
+    headers = {"Retry-After": str(DATABASE_RETRY_AFTER_S)}
+    return error_response(503, "database_unavailable", DATABASE_UNAVAILABLE_MESSAGE, headers=headers)
+
+
 def install_error_handlers(app: FastAPI) -> None:
     """Route every error through :func:`error_response`."""
 
@@ -191,6 +205,9 @@ def install_error_handlers(app: FastAPI) -> None:
         if is_disk_full(exc, app_settings(request).data_dir):
             log.error("disk full on %s %s: %s", request.method, request.url.path, exc)
             return error_response(507, "insufficient_storage", DISK_FULL_MESSAGE)
+        if is_database_unavailable(exc):
+            log.warning("database unavailable on %s %s: %s", request.method, request.url.path, outage_reason(exc))
+            return database_unavailable()
         return await _unexpected(request, exc)
 
     app.add_exception_handler(OSError, _storage_error)

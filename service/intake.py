@@ -25,11 +25,12 @@ from fastapi import UploadFile
 
 from contracts.jobs import JobPayload, WorkStatus, reported_status
 from contracts.settings import Settings
-from db import Database, connect, transaction
+from db import Database, transaction
 from db import jobs as job_store
 from db.files import FileStore
 from db.rows import JobRow, MapRow
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
+from service.deps import open_db
 from service.images import ImageInfo, validate_image
 from service.models import error_responses
 from service.tenancy import check_ready, require_ready_map
@@ -127,7 +128,7 @@ class PhotoIntake(ABC):
     def accept(self, map_id: int, image: UploadFile, tenant: str | None) -> Accepted:
         """Check and store an upload of map ``map_id`` (of ``tenant``, else 404) with its job; see the module."""
         settings = self.settings
-        db = connect(settings.database)
+        db = open_db(settings)
         try:
             map_row = require_ready_map(db, map_id, tenant)
             self.check_form()

@@ -28,9 +28,8 @@ from typing import Any
 from fastapi import Request
 
 from contracts.settings import Settings
-from db import connect
 from db import jobs as job_store
-from service.deps import app_settings
+from service.deps import app_settings, open_db
 from service.errors import ApiError
 from workers.broker import redis_client
 
@@ -147,7 +146,7 @@ def queue_full(exc: job_store.QueueFullError) -> ApiError:
 def require_queue_capacity(request: Request) -> None:
     """Dependency of the routes that enqueue jobs: ``429 queue_full`` while the queue is at its limit."""
     settings = app_settings(request)
-    db = connect(settings.database)
+    db = open_db(settings)
     try:
         job_store.check_queue_capacity(db, settings.max_queued_jobs)
     except job_store.QueueFullError as exc:

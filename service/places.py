@@ -25,14 +25,13 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
 from contracts.settings import Settings
-from db import connect
 from db.files import open_store
 from db.rows import MapRow
 from geoloc.maps import MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.maps.places import Place, PlaceIndex, place_index, resolve_place
 from service.auth import Caller, request_caller, require_read
 from service.bounds import MapId
-from service.deps import app_settings
+from service.deps import app_settings, open_db
 from service.errors import ApiError
 from service.models import error_responses
 from service.tenancy import require_map
@@ -122,7 +121,7 @@ def resolve_form_place(settings: Settings, map_row: MapRow, text: str) -> Place:
 
 
 def _search(settings: Settings, map_id: int, tenant: str | None, q: str, limit: int) -> PlaceList:
-    db = connect(settings.database)
+    db = open_db(settings)
     try:
         row = require_map(db, map_id, tenant)
     finally:

@@ -21,7 +21,7 @@ from contracts.answers import BoundingBox, LatLon
 from contracts.jobs import LOAD_MAP, LoadMapPayload
 from contracts.licenses import map_attribution
 from contracts.settings import Settings
-from db import Database, connect, database_key, transaction
+from db import Database, database_key, transaction
 from db import jobs as job_store
 from db import maps as map_store
 from db.files import FileStore
@@ -32,7 +32,7 @@ from geoloc.maps.guard import DecompressedTooLargeError, check_decompressed_size
 from geoloc.maps.sniff import sniff_format
 from service.auth import Caller, request_caller, require_read, require_write
 from service.bounds import MapId
-from service.deps import app_settings, get_db, get_publisher, get_store
+from service.deps import app_settings, get_db, get_publisher, get_store, open_db
 from service.errors import ApiError
 from service.intake import loaded_map, work_status
 from service.models import MapList, MapOut, MapProgressOut, error_responses, timestamp
@@ -226,7 +226,7 @@ def _accept_map(
     Blocking: run in a worker thread. The parse itself is the job's (:mod:`workers.map_handlers`).
     """
     read_options = options.as_dict()
-    db = connect(settings.database)
+    db = open_db(settings)
     try:
         with received_upload(file, store, settings.max_map_bytes, "the map file") as received:
             shown_name = public_name(received.filename)
@@ -277,7 +277,7 @@ def _accept_map(
 
 def _map_model(settings: Settings, map_id: int, duplicate: bool, tenant: str | None) -> MapOut:
     """The map's API model, read on a connection of its own (blocking: run in a worker thread)."""
-    db = connect(settings.database)
+    db = open_db(settings)
     try:
         row = require_map(db, map_id, tenant)
         return map_out(db, row, reference_count=_reference_total(db, map_id), duplicate=duplicate)
@@ -417,7 +417,7 @@ def _delete_map(settings: Settings, store: FileStore, map_id: int, db: Database 
     ``db``, or a connection of its own.
     """
     own = db is None
-    db = connect(settings.database) if db is None else db
+    db = open_db(settings) if db is None else db
     try:
         with transaction(db):
             deleted = map_store.delete_map(db, map_id)

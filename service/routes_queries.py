@@ -27,7 +27,7 @@ from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload
 from contracts.licenses import map_attribution
 from contracts.queries import DEFAULT_PRIOR_RADIUS_M, PriorPosition, QueryParams, QueryPreset, gps_prior_radius_m
 from contracts.settings import Settings
-from db import Database, connect, transaction
+from db import Database, transaction
 from db import jobs as job_store
 from db import maps as map_store
 from db import queries as query_store
@@ -35,7 +35,7 @@ from db.files import FileStore
 from db.rows import JobRow, MapRow, QueryRow
 from service.auth import Caller, request_caller, require_read, require_write
 from service.bounds import MapId, QueryId, bounded_form, check_bounds
-from service.deps import app_settings, get_db, get_publisher, get_store
+from service.deps import app_settings, get_db, get_publisher, get_store, open_db
 from service.errors import ApiError
 from service.geojson import (
     GEOJSON_MEDIA_TYPE,
@@ -197,7 +197,7 @@ def _load_query(
 
     The FeatureCollection is :mod:`service.geojson`'s.
     """
-    db = connect(settings.database)
+    db = open_db(settings)
     try:
         row, job = _load(db, query_id, tenant)
         out = query_out(row, job, _attribution(db, row["map_id"]))

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import threading
 import time
+from pathlib import Path
 from typing import Literal
 
 from fastapi import APIRouter, Depends, Request
@@ -11,12 +13,13 @@ from fastapi.responses import JSONResponse
 
 from contracts.licenses import about_document
 from contracts.settings import Settings
-from db import LATEST_VERSION, Database, connect, schema_version
+from db import LATEST_VERSION, Database, schema_version
 from db import jobs as job_store
+from db.outages import outage_reason
 from db.rows import JobRow
 from service.auth import Caller, request_caller, require_read
 from service.bounds import JobId
-from service.deps import app_settings, get_db
+from service.deps import app_settings, get_db, open_db
 from service.errors import error_body
 from service.models import About, ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
 from service.tenancy import require_job
@@ -39,6 +42,11 @@ def model_problems_cached(settings: Settings) -> list[str]:
             problems = model_problems()
             _model_check[key] = (time.monotonic(), problems)
     return problems
+
+
+def _writable(database: Path) -> bool:
+    """Whether the embedded database's file and folder (its WAL and journal live there) can be written."""
+    return os.access(database, os.W_OK) and os.access(database.parent, os.W_OK | os.X_OK)
 
 
 @router.get("/healthz", response_model=Health, tags=["system"])
@@ -69,7 +77,7 @@ def readyz(request: Request) -> Readiness | JSONResponse:
     problems: list[str] = []
     version, workers, database_ok = -1, 0, False
     try:
-        db = connect(settings.database, busy_timeout_ms=2000)
+        db = open_db(settings, lock_timeout_s=2.0)
         try:
             db.execute("SELECT 1").fetchone()
             version = schema_version(db)
@@ -78,8 +86,11 @@ def readyz(request: Request) -> Readiness | JSONResponse:
             database_ok = True
         finally:
             db.close()
-    except Exception as exc:  # any failure means "not ready"
-        problems.append(f"database unreachable: {exc}")
+    except Exception as exc:  # any failure means "not ready"; the reason without paths
+        problems.append(f"database unreachable: {outage_reason(exc)}")
+    if database_ok and not settings.database_url and not _writable(settings.database_path):
+        database_ok = False
+        problems.append("database is read-only: its file or folder cannot be written")
     broker: Literal["ok", "unreachable"] | None = None
     if settings.broker_url is not None:
         broker_error = broker_problem(settings.broker_url)

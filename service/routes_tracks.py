@@ -21,14 +21,14 @@ from contracts.answers import TrackFrameResult, TrackResult
 from contracts.licenses import map_attribution
 from contracts.queries import QueryPreset
 from contracts.settings import Settings
-from db import Database, connect
+from db import Database
 from db import jobs as job_store
 from db import maps as map_store
 from db import tracks as track_store
 from db.files import FileStore
 from service.auth import Caller, request_caller, require_read, require_write
 from service.bounds import MapId, TrackId, bounded_form, check_bounds
-from service.deps import app_settings, get_db, get_publisher, get_store
+from service.deps import app_settings, get_db, get_publisher, get_store, open_db
 from service.errors import ApiError
 from service.geojson import GEOJSON_MEDIA_TYPE, GEOJSON_RESPONSE, GeoJsonFormat, track_collection, wants_geojson
 from service.images import ACCEPTED_NAMES
@@ -48,7 +48,7 @@ _PRIORS = TypeAdapter(list[FramePrior | None])
 
 def load_track(settings: Settings, track_id: int, tenant: str | None) -> TrackOut:
     """The track as its API model: the stored answer's frames when done, else each frame's query and file name."""
-    db = connect(settings.database)
+    db = open_db(settings)
     try:
         row = require_track(db, track_id, tenant)
         job = job_store.get_job(db, row["job_id"]) if row["job_id"] else None

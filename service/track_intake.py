@@ -26,12 +26,13 @@ from pydantic import BaseModel, ConfigDict, Field
 from contracts.jobs import LOCATE_TRACK, LocateTrackPayload
 from contracts.queries import QueryParams, QueryPreset
 from contracts.settings import Settings
-from db import Database, connect, transaction
+from db import Database, transaction
 from db import jobs as job_store
 from db import queries as query_store
 from db import tracks as track_store
 from db.files import FileStore
 from db.rows import MapRow, QueryRow
+from service.deps import open_db
 from service.errors import ApiError
 from service.images import validate_image
 from service.routes_queries import QueryForm, QueryIntake
@@ -156,7 +157,7 @@ class TrackIntake:
                 422, "invalid_request", f"priors has {len(form.priors)} entries for {len(images)} frames: one per frame"
             )
         form = replace(form, priors=form.priors or [None] * len(images))
-        db = connect(self.settings.database)
+        db = open_db(self.settings)
         try:
             map_row = require_ready_map(db, map_id, tenant)
             with contextlib.ExitStack() as stack:
@@ -171,7 +172,7 @@ class TrackIntake:
         Another tenant's query is "not found", as a missing one (no existence leak).
         """
         check_frame_count(self.settings, len(body.query_ids))
-        db = connect(self.settings.database)
+        db = open_db(self.settings)
         try:
             require_ready_map(db, map_id, tenant)
             frames = []

@@ -40,6 +40,7 @@ from contracts.logs import configure_logging
 from contracts.settings import Settings, SettingsError, get_settings
 from db import Database, connect, migrate
 from db import jobs as job_store
+from db.outages import is_database_unavailable, outage_reason
 from workers.broker import RECONCILE_INTERVAL_S, RUN_JOB_TASK, CeleryPublisher, celery_app, reconcile
 from workers.context import model_problems, needs_models
 from workers.handlers import load_builtin_handlers, load_plugins
@@ -116,8 +117,17 @@ class ProcessState:
             self.stop_event.wait(min(RECONCILE_INTERVAL_S, self.worker.heartbeat_interval_s) / 2)
 
     def run_job(self, job_id: int) -> str:
-        """Claim job ``job_id`` and run it to its outcome; returns what happened (for the log)."""
-        db = connect(self.settings.database)
+        """Claim job ``job_id`` and run it to its outcome; returns what happened (for the log).
+
+        With the database away the message is dropped: the reconciler publishes the job again once the
+        database is back and the broker's queue is empty (the job is still claimable then).
+        """
+        try:
+            db = connect(self.settings.database)
+        except Exception as exc:
+            if not is_database_unavailable(exc):
+                raise
+            return f"the database is unavailable ({outage_reason(exc)}): left to the reconciler"
         try:
             kinds = self.settings.worker_kinds
             if kinds and (row := job_store.get_job(db, job_id)) is not None and row["kind"] not in kinds:
@@ -131,6 +141,10 @@ class ProcessState:
             finally:
                 self.current_job_id = None
             return "ran"
+        except Exception as exc:
+            if not is_database_unavailable(exc):
+                raise
+            return f"the database is unavailable ({outage_reason(exc)}): left to the reconciler"
         finally:
             db.close()
 
