@@ -52,6 +52,9 @@ AMBIGUOUS_MARGIN = 5.0
 Measured on a simulated Helsinki world (seed 1, network segmentation): of the references without a distinct
 runner-up 27 of 28 had the right heading; of those with a runner-up within 2.5x, half were wrong (mostly the
 mirror view across the street, which the map's geometry cannot tell apart)."""
+OPEN_GROUND_EVIDENCE = 0.15
+"""Below this mean facade evidence (``ImageModel.facade_present`` over its bins) a photo shows next to no facade
+(open ground, far buildings beyond the map's ray cast): the map is not weighed, its GPS and compass place it."""
 MODE_MIN_RELATIVE_WEIGHT = 1e-3
 """Grid modes weaker than this share of the strongest are not refined."""
 
@@ -279,6 +282,8 @@ def label_reference(
     as :func:`label_known_pose` does): the label's identities are those of the grid's poses near it.
     """
     gps_sigma_m, sharpness = options.gps_sigma_m, options.sharpness
+    if known_pose is None and says_little(image_model):
+        sharpness = 0.0
     prior = resolve_heading_prior(prior_yaw_deg, heading_prior)
     grid = grid_around(city_map, gps_xy, options.half_size_m, options.cell_m)
     positions = grid.positions if grid.valid.any() else np.asarray([gps_xy], dtype=float)
@@ -353,6 +358,11 @@ def label_reference(
         mode_scores=[score for score, _ in distinct],
         alternative=distinct[1][1] if len(distinct) > 1 else None,
     )
+
+
+def says_little(image_model: ImageModel) -> bool:
+    """Whether the photo's mean facade evidence is under :data:`OPEN_GROUND_EVIDENCE` (the map says little of it)."""
+    return float(np.mean(image_model.facade_present)) < OPEN_GROUND_EVIDENCE
 
 
 def label_known_pose(

@@ -18,7 +18,7 @@ import numpy as np
 
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.anchors import MapAnchors
-from geoloc.localize.labeling import LabelOptions
+from geoloc.localize.labeling import LabelOptions, says_little
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.reference import LabelCues, LabelledReference
 from geoloc.localize.refinement import position_spread
@@ -96,6 +96,8 @@ def map_position_covariance(
     building) at :data:`MAP_SPREAD_YAW_OFFSETS_DEG` from its heading, with no GPS prior; the spread is about
     their weighted mean, plus the cell's own variance. Where nothing has weight: the grid's half-size squared.
     """
+    if says_little(image_model):  # the label sits at its GPS: the map adds nothing to the walk's graph
+        return np.eye(2) * MAP_SPREAD_HALF_SIZE_M**2
     offsets = np.arange(-MAP_SPREAD_HALF_SIZE_M, MAP_SPREAD_HALF_SIZE_M + MAP_SPREAD_CELL_M / 2, MAP_SPREAD_CELL_M)
     east, north = np.meshgrid(offsets, offsets, indexing="ij")
     positions = np.stack([east.ravel(), north.ravel()], axis=1) + np.array([x_m, y_m])

@@ -6,12 +6,13 @@ import pytest
 
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.grid import GridOptions, PositionPrior, localize
-from geoloc.localize.labeling import LabelOptions, column_building_ids, label_reference
+from geoloc.localize.labeling import LabelOptions, column_building_ids, label_reference, says_little
 from geoloc.localize.likelihood import LikelihoodOptions, image_model_from_map
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.posterior import sharpened_likelihood
 from geoloc.localize.reference import LabelOptions as ReferenceLabelOptions
 from geoloc.localize.refinement import refine_pose, vanishing_point_yaw
+from geoloc.localize.sequence.frames import MAP_SPREAD_HALF_SIZE_M, map_position_covariance
 from geoloc.maps.raycast import cast_panoramas
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.vision.image_model import ImageModel, bin_offsets_deg
@@ -164,3 +165,26 @@ def test_label_options_are_label_reference_defaults() -> None:
     assert keywords == {"prior_yaw_deg": None, "heading_prior": None, "options": LabelOptions(), "known_pose": None}
     assert ReferenceLabelOptions is LabelOptions
     assert dataclasses.asdict(LabelOptions())["gps_sigma_m"] == 8.0 and LabelOptions().n_modes == 3
+
+
+def test_a_photo_showing_next_to_no_facade_is_labelled_by_its_gps_and_not_weighed_in_its_walk() -> None:
+    """Mean facade evidence under OPEN_GROUND_EVIDENCE (open ground, far buildings): the map is not weighed.
+
+    The same view with full evidence moves the label from its GPS toward the truth; with a tenth of it (a few weak
+    columns, as on open ground) the label stays at its GPS, and the walk's graph gets no map spread from it.
+    """
+    city = street_canyon()
+    model, _ = _clean_model(city, (0.0, -10.0), 48.0)
+    weak = dataclasses.replace(model, facade_present=model.facade_present * 0.1)
+    assert says_little(weak) and not says_little(model)
+    mask = np.zeros((480, 640), dtype=bool)
+    gps = (6.0, -6.0)
+    options = LabelOptions(cell_m=3.0, half_size_m=6.0)
+    strong = label_reference(
+        city, model, mask, INTRINSICS, gps, heading_prior=HeadingPrior(60.0, 15.0), options=options
+    )
+    assert np.hypot(strong.x_m - gps[0], strong.y_m - gps[1]) > 2.0  # the map moves a label it sees
+    label = label_reference(city, weak, mask, INTRINSICS, gps, heading_prior=HeadingPrior(60.0, 15.0), options=options)
+    assert np.hypot(label.x_m - gps[0], label.y_m - gps[1]) <= options.cell_m / 2
+    spread = map_position_covariance(city, weak, label.x_m, label.y_m, label.yaw_deg)
+    assert np.allclose(spread, np.eye(2) * MAP_SPREAD_HALF_SIZE_M**2)
