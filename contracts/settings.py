@@ -21,6 +21,7 @@ from pydantic_settings import BaseSettings, NoDecode, PydanticBaseSettingsSource
 
 from contracts.keys import ApiKey, parse_api_keys
 from contracts.queries import DEFAULT_QUERY_PRESET, QueryPreset
+from contracts.settings_http import HttpSettings
 from contracts.settings_table import fields_table
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -36,7 +37,7 @@ def _shown(default: str) -> dict[str, Any]:
     return {"shown_default": default}
 
 
-class Settings(BaseSettings):
+class Settings(HttpSettings):
     """Every setting of the service, its workers and the method, read from ``GEOLOC_*`` variables.
 
     Build with :func:`get_settings` (the process's settings, from the environment) or
@@ -189,31 +190,6 @@ class Settings(BaseSettings):
         default=30.0,
         ge=0.1,
         description="longest an API request waits for a database lock (SQLite busy, PG `lock_timeout`)",
-    )
-    http_max_connections: int = Field(
-        default=4096,
-        ge=16,
-        description="open connections and running requests the API takes at once (uvicorn's `limit_concurrency`; "
-        "past it, `503`); `geoloc serve` raises its open-files limit to fit",
-    )
-    http_keep_alive_s: float = Field(default=5.0, ge=0.1, description="an idle keep-alive connection is closed then")
-    http_header_timeout_s: float = Field(
-        default=10.0,
-        ge=0.1,
-        description="a request's headers must be complete within this long of the connection opening (or of the "
-        "previous response); a connection that sends none or too slowly is closed",
-    )
-    http_max_header_bytes: int = Field(default=32768, ge=1024, description="largest request head (`400` above)")
-    http_body_idle_s: float = Field(
-        default=30.0, ge=0.1, description="an upload that sends no body bytes for this long gets `408` and is closed"
-    )
-    http_body_timeout_s: float = Field(
-        default=900.0, ge=1, description="the whole request body must arrive within this long (else `408`, closed)"
-    )
-    forwarded_allow_ips: str = Field(
-        default="127.0.0.1",
-        description="addresses of reverse proxies whose `X-Forwarded-For`/`-Proto` are believed (comma-separated, "
-        "`*` for any); the client address the logs show (docs/operations.md)",
     )
     ready_worker_s: float = Field(
         default=30.0,

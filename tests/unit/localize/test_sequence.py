@@ -14,7 +14,7 @@ from geoloc.core.camera import Intrinsics
 from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.likelihood import image_model_from_map
 from geoloc.localize.sequence import PlacementOptions, SequenceFrame, SequenceMember, group_sequences, place_sequence
-from geoloc.localize.sequence.frames import map_position_covariance
+from geoloc.localize.sequence.frames import MAP_SPREAD_HALF_SIZE_M, map_position_covariance
 from geoloc.localize.sequence.pace import WalkPace, rules_out, walk_pace
 from geoloc.localize.sequence.placement import PlacedPose
 from geoloc.localize.sequence.relative import RelativePose, pose_in_frame
@@ -293,4 +293,6 @@ def test_the_maps_spread_is_wide_along_a_uniform_wall_and_narrow_where_it_ends()
         return math.sqrt(map_position_covariance(wall, model, x_m, 0.0, yaw_deg)[0, 0])
 
     assert east_sigma_m(0.0, 0.0) > 5.0  # the middle of the wall: anywhere along it looks the same
-    assert east_sigma_m(96.0, 45.0) < 2.5  # its east end in view
+    assert east_sigma_m(100.0, 0.0) < 2.5  # its east end ahead, the wall half the view
+    # Its end at the edge of a view it fills a tenth of: too little facade to weigh (labeling.says_little).
+    assert east_sigma_m(96.0, 45.0) == MAP_SPREAD_HALF_SIZE_M
