@@ -61,6 +61,7 @@ def suite(
     except SuiteError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from exc
+    run.report["command"] = " ".join(["geoloc", *sys.argv[1:]])
     if as_json:
         typer.echo(json.dumps(run.report, indent=1))
     else:

@@ -264,7 +264,6 @@ def run_suite(
     report: dict[str, Any] = {
         "suite_version": suite.version,
         "split": split,
-        "command": " ".join(["geoloc", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith("geoloc") else None,
         "commit": _describe(REPO_ROOT),
         "worlds": [{**r.world.as_dict(), "key": r.key, "evaluation_s": r.outcomes.get("seconds")} for r in results],
     }

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from geoloc.sim.options import WorldOptions
+from geoloc.vision.model_files import sha256_file
 
 __all__ = [
     "CAPTURES",
@@ -150,14 +151,6 @@ def load_suite(path: Path = WORLDS_TOML) -> Suite:
     return Suite(int(data.get("version", 0)), tuple(worlds))
 
 
-def _file_digest(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def simulator_digest() -> str:
     """sha256 over the simulator's Python sources (path and bytes, sorted): the generator's version."""
     digest = hashlib.sha256()
@@ -175,7 +168,7 @@ def world_key(world: SuiteWorld, map_path: Path, generator: str | None = None) -
     """
     options = world.options()
     content = {
-        "map_sha256": _file_digest(map_path),
+        "map_sha256": sha256_file(map_path),
         "generator": generator or simulator_digest(),
         "options": {k: getattr(options, k) for k in options.__dataclass_fields__},
     }
