@@ -238,7 +238,7 @@ class Settings(HttpSettings):
         default=None,
         description="the folder where every API and worker process of a machine writes its metrics "
         "(prometheus-client's `PROMETHEUS_MULTIPROC_DIR`); `/metrics` adds them up",
-        json_schema_extra=_shown("`GEOLOC_DATA_DIR/metrics`"),
+        json_schema_extra=_shown("a folder of the system's temporary directory, named after `GEOLOC_DATA_DIR`"),
     )
 
     @field_validator("shared", "data_dir", "store_dir", "metrics_dir", mode="after")

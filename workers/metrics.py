@@ -1,9 +1,9 @@
 """Prometheus metrics shared by every process of a machine: prometheus-client in multiprocess mode.
 
 Every API and worker process of a machine writes its counters and histograms into one folder
-(``GEOLOC_METRICS_DIR``, default ``GEOLOC_DATA_DIR/metrics``: :func:`metrics_folder`), one memory-mapped file per
-process and metric type, named ``<type>_<host>-<pid>.db`` (the host too, so that containers sharing a volume,
-whose pids repeat, never write the same file); the API's ``GET /metrics`` adds them up (:mod:`service.metrics`).
+(``GEOLOC_METRICS_DIR``, by default one in the system's temporary directory: :func:`metrics_folder`), one
+memory-mapped file per process and metric type, named ``<type>_<host>-<pid>.db`` (the host too, so that
+containers sharing a volume, whose pids repeat, never write the same file); the API's ``GET /metrics`` adds them up (:mod:`service.metrics`).
 :func:`enable_metrics` switches a process on (``GEOLOC_METRICS``, default on); until then, and with metrics off,
 the recording functions here do nothing. A supervisor (``geoloc serve``, ``geoloc worker``) removes the files of
 its host's dead processes when it starts (:func:`remove_dead_files`): a counter then restarts from zero, which
@@ -21,9 +21,11 @@ What the workers record (seconds):
 from __future__ import annotations
 
 import glob
+import hashlib
 import os
 import re
 import socket
+import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final
@@ -45,8 +47,19 @@ _state: dict[str, Any] = {}
 
 
 def metrics_folder(settings: Settings) -> Path:
-    """Where this machine's processes write their metrics: ``GEOLOC_METRICS_DIR``, else ``GEOLOC_DATA_DIR/metrics``."""
-    return settings.metrics_dir or settings.data_dir / "metrics"
+    """Where this machine's processes write their metrics: ``GEOLOC_METRICS_DIR``, else one of the temp folder.
+
+    The default is named after ``GEOLOC_DATA_DIR`` in the system's temporary directory, so every process of one
+    data folder finds the same one.
+
+    Not in the data folder by default: the files are memory-mapped and grow sparse, and a write into a page the
+    file system has no block for kills the process with SIGBUS. On a full data disk that was the API itself
+    (``tests/e2e/test_durability.py``: a map upload reset the connection instead of answering ``507``).
+    """
+    if settings.metrics_dir is not None:
+        return settings.metrics_dir
+    tag = hashlib.sha256(str(settings.data_dir).encode()).hexdigest()[:12]
+    return Path(tempfile.gettempdir()) / f"geoloc-metrics-{tag}"
 
 
 def process_identifier() -> str:

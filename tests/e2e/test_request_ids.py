@@ -12,7 +12,9 @@ from pathlib import Path
 import httpx
 import pytest
 
+from contracts.settings import Settings
 from tests.service_fixtures import running_service, wait_for
+from workers.metrics import metrics_folder
 
 pytestmark = pytest.mark.slow
 
@@ -44,4 +46,5 @@ def test_metrics_off_is_a_404(tmp_path: Path) -> None:
     with running_service(tmp_path / "data", workers=0, api_keys=None, GEOLOC_METRICS="false") as service:
         response = httpx.get(f"{service.base_url}/metrics")
         assert response.status_code == 404 and response.json()["error"]["code"] == "not_found"
-        assert not (tmp_path / "data" / "metrics").exists()  # no process recorded anything
+        folder = metrics_folder(Settings.from_values(data_dir=tmp_path / "data"))
+        assert not folder.exists()  # no process recorded anything

@@ -7,7 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from workers.metrics import process_identifier, remove_dead_files
+from contracts.settings import Settings
+from workers.metrics import metrics_folder, process_identifier, remove_dead_files
 
 RECORD = """
 import sys
@@ -32,7 +33,8 @@ def test_processes_write_their_own_files_which_add_up(tmp_path: Path) -> None:
     from prometheus_client import CollectorRegistry, generate_latest, multiprocess
 
     folder = _record(tmp_path)
-    assert folder == tmp_path / "metrics"
+    assert folder == metrics_folder(Settings.from_values(data_dir=tmp_path))
+    assert not folder.is_relative_to(tmp_path)  # off the data disk: a full one would kill the process (SIGBUS)
     _record(tmp_path)
     files = sorted(p.name for p in folder.iterdir())
     assert len(files) == 2 and all(name.startswith("histogram_") for name in files), files
@@ -46,7 +48,7 @@ def test_processes_write_their_own_files_which_add_up(tmp_path: Path) -> None:
 
 def test_metrics_off_records_nothing(tmp_path: Path) -> None:
     assert _record(tmp_path, "false") == Path("None")
-    assert not (tmp_path / "metrics").exists()
+    assert not metrics_folder(Settings.from_values(data_dir=tmp_path)).exists()
 
 
 def test_the_files_of_dead_processes_of_this_host_are_removed(tmp_path: Path) -> None:
