@@ -3,11 +3,11 @@
 Every API and worker process of a machine writes its counters and histograms into one folder
 (``GEOLOC_METRICS_DIR``, by default one in the system's temporary directory: :func:`metrics_folder`), one
 memory-mapped file per process and metric type, named ``<type>_<host>-<pid>.db`` (the host too, so that
-containers sharing a volume, whose pids repeat, never write the same file); the API's ``GET /metrics`` adds them up (:mod:`service.metrics`).
-:func:`enable_metrics` switches a process on (``GEOLOC_METRICS``, default on); until then, and with metrics off,
-the recording functions here do nothing. A supervisor (``geoloc serve``, ``geoloc worker``) removes the files of
-its host's dead processes when it starts (:func:`remove_dead_files`): a counter then restarts from zero, which
-Prometheus's ``rate()`` reads as a reset.
+containers sharing a volume, whose pids repeat, never write the same file); the API's ``GET /metrics`` adds
+them up (:mod:`service.metrics`). :func:`enable_metrics` switches a process on (``GEOLOC_METRICS``, default
+on); until then, and with metrics off, the recording functions here do nothing. A supervisor (``geoloc serve``,
+``geoloc worker``) removes the files of its host's dead processes when it starts (:func:`remove_dead_files`): a
+counter then restarts from zero, which Prometheus's ``rate()`` reads as a reset.
 
 What the workers record (seconds):
 
