@@ -371,9 +371,13 @@ def list_map_references(
     a GeoJSON FeatureCollection, a Point per reference at its estimated pose (else its uploaded position).
     """
     attribution = map_attribution(require_map(db, map_id, caller.tenant)["attribution"])
+    # The progress first, the rows after: a placement commits its poses before its job ends, so a page that
+    # says nothing is pending holds the final poses (read the other way round, a walk placed between the two
+    # reads showed its old poses beside ``walks_placing`` 0, and a client stopped polling on them).
+    counts = reference_store.effective_status_counts(db, map_id)
+    walks_placing = job_store.pending_job_count(db, PLACE_SEQUENCE, map_id)
     rows = reference_store.list_references_after(db, map_id, after_id=after_id, limit=limit + 1)
     page = rows[:limit]
-    counts = reference_store.effective_status_counts(db, map_id)
     listed = ReferenceList(
         map_id=map_id,
         references=[
@@ -382,7 +386,7 @@ def list_map_references(
         ],
         total=sum(counts.values()),
         counts=counts,
-        walks_placing=job_store.pending_job_count(db, PLACE_SEQUENCE, map_id),
+        walks_placing=walks_placing,
         next_after_id=page[-1]["id"] if len(rows) > limit else None,
         attribution=attribution,
     )
