@@ -27,10 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from contracts.settings import get_settings
+from contracts.settings import REPO_ROOT, get_settings
 from geoloc.evaluation.suite.trees import export_commit
-
-REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
 def without_options(argv: list[str], *names: str) -> list[str]:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +59,10 @@ def suite(
         _detach(split, out)
         return
     try:
-        run = _run_with_progress(run_suite, split, cache, jobs, fresh, baseline, toml)
+        with _progress_bars() as update:
+            run = run_suite(
+                split, cache=cache, jobs=jobs, fresh=fresh, baseline=baseline, progress=update, worlds_toml=toml
+            )
     except SuiteError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from exc
@@ -97,8 +102,9 @@ def _detach(split: str, out: Path | None) -> None:
     typer.echo(f"running in the background: pid {process.pid}, log {log}")
 
 
-def _run_with_progress(run_suite: Any, split: str, cache: Path | None, jobs: int, fresh: bool,
-                       baseline: str | None, toml: Path) -> Any:  # fmt: skip
+@contextmanager
+def _progress_bars() -> Iterator[Callable[[str, int, int], None]]:
+    """A bar per stage of the run (render, evaluate, baseline); the ``progress`` callback that moves them."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -114,9 +120,7 @@ def _run_with_progress(run_suite: Any, split: str, cache: Path | None, jobs: int
             if not console.is_terminal and total:
                 console.print(f"{what} {done}/{total}")
 
-        return run_suite(
-            split, cache=cache, jobs=jobs, fresh=fresh, baseline=baseline, progress=update, worlds_toml=toml
-        )
+        yield update
 
 
 def _print_pooled(report: dict[str, Any]) -> None:

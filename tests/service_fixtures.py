@@ -355,6 +355,16 @@ ONE_BUILDING: dict[str, Any] = {
         }
     ],
 }
+
+
+def upload_hall_map(client: httpx.Client) -> int:
+    """Upload :data:`ONE_BUILDING` as the map "hall" (waiting up to 120 s for it to load); its id."""
+    files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
+    response = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "hall"})
+    assert response.status_code == 201, response.text
+    return int(response.json()["id"])
+
+
 """A GeoJSON map of one building in Helsinki (loads in milliseconds)."""
 INSIDE_ONE_BUILDING = {"lat": "60.1699", "lon": "24.9402"}
 """Form fields placing a reference just south of that building."""

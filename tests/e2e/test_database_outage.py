@@ -28,10 +28,10 @@ from benchmarks.servers import PostgresServer, RedisServer
 from tests import TESTS_DIR
 from tests.service_fixtures import (
     INSIDE_ONE_BUILDING,
-    ONE_BUILDING,
     jpeg_bytes,
     read_rows,
     running_service,
+    upload_hall_map,
     wait_for,
 )
 
@@ -54,13 +54,6 @@ class Answer:
     code: str | None
     retry_after: str | None
     body: dict[str, Any]
-
-
-def _new_map(client: httpx.Client) -> int:
-    files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-    response = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "hall"})
-    assert response.status_code == 201, response.text
-    return int(response.json()["id"])
 
 
 def _upload(client: httpx.Client, map_id: int, seed: int) -> httpx.Response:
@@ -189,7 +182,7 @@ def test_postgres_stopped_mid_ingest_answers_503_and_loses_nothing(
             running_service(tmp_path / "data", workers=2, models=built_models, **env) as service,
             service.client(timeout=30.0) as client,
         ):
-            map_id = _new_map(client)
+            map_id = upload_hall_map(client)
             first = int(_upload(client, map_id, 0).json()["id"])
             wait_for(lambda: client.get(f"/v1/references/{first}").json()["status"] == "done", 60, what="a first label")
             baseline = _outcome(client.get(f"/v1/references/{first}").json())
@@ -250,7 +243,7 @@ def test_sqlite_locked_past_the_lock_timeout_answers_503_then_stores(tmp_path: P
         running_service(tmp_path / "data", workers=1, models=built_models, **env) as service,
         service.client(timeout=30.0) as client,
     ):
-        map_id = _new_map(client)
+        map_id = upload_hall_map(client)
         first = int(_upload(client, map_id, 0).json()["id"])
         holder = sqlite3.connect(str(service.database), isolation_level=None)
         holder.execute("BEGIN IMMEDIATE")  # another process holds the write lock

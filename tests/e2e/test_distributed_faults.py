@@ -10,7 +10,6 @@ write); the job machinery is the real one. Each test has its own Redis, so resta
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import time
@@ -26,12 +25,12 @@ from benchmarks.servers import PostgresServer, RedisServer
 from tests import TESTS_DIR
 from tests.service_fixtures import (
     INSIDE_ONE_BUILDING,
-    ONE_BUILDING,
     RunningProcess,
     jpeg_bytes,
     read_rows,
     running_service,
     running_workers,
+    upload_hall_map,
     wait_for,
 )
 
@@ -56,13 +55,6 @@ def deployment(postgres_server: PostgresServer, tmp_path: Path) -> Iterator[tupl
         yield env, redis
     finally:
         redis.close()
-
-
-def _new_map(client: httpx.Client) -> int:
-    files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-    response = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "hall"})
-    assert response.status_code == 201, response.text
-    return int(response.json()["id"])
 
 
 def _upload(client: httpx.Client, map_id: int, seed: int) -> httpx.Response:
@@ -135,7 +127,7 @@ def test_worker_killed_and_redis_restarted_mid_ingest_lose_nothing(
         running_service(tmp_path / "data", workers=2, models=built_models, GEOLOC_JOB_LEASE_S="2", **env) as service,
         service.client() as client,
     ):
-        map_id = _new_map(client)
+        map_id = upload_hall_map(client)
         ids = [_accepted(_upload(client, map_id, seed)) for seed in range(8)]
 
         def running_job() -> dict[str, Any] | None:
@@ -176,7 +168,7 @@ def test_two_api_processes_same_photo_at_once_and_an_api_restart(
         second.client() as other,
         ThreadPoolExecutor(2) as pool,
     ):
-        map_id = _new_map(one)
+        map_id = upload_hall_map(one)
         ids: list[int] = []
         for seed in range(6):  # the same photo through both API processes at the same moment
             answers = list(pool.map(lambda client, s=seed: _upload(client, map_id, s), (one, other)))

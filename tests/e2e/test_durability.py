@@ -37,19 +37,13 @@ from tests.service_fixtures import (
     running_workers,
     stored_files,
     table_counts,
+    upload_hall_map,
     wait_for,
 )
 
 pytestmark = pytest.mark.slow
 
 FINAL = ("done", "failed", "cancelled")
-
-
-def _upload_map(client: httpx.Client) -> int:
-    files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-    response = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "hall"})
-    assert response.status_code == 201, response.text
-    return int(response.json()["id"])
 
 
 def _upload_reference(client: httpx.Client, map_id: int, photo: bytes) -> httpx.Response:
@@ -77,7 +71,7 @@ def _integrity(db_path: Path) -> str:
 def test_a_corrupted_stored_photo_fails_its_job_the_others_go_on(tmp_path: Path, built_models: Path) -> None:
     data_dir = tmp_path / "data"
     with running_service(data_dir, workers=0) as service, service.client(WRITE_KEY) as client:
-        map_id = _upload_map(client)
+        map_id = upload_hall_map(client)
         corrupted, good, gone = (_upload_reference(client, map_id, jpeg_bytes(seed=s)).json() for s in (1, 2, 3))
         for reference, damage in ((corrupted, "corrupt"), (gone, "delete")):
             path = data_dir / read_rows(service.database, "SELECT image_path FROM reference_images WHERE id = ?",
@@ -157,7 +151,7 @@ def test_sigkill_of_the_api_mid_upload_loses_nothing(tmp_path: Path) -> None:
     photos = [jpeg_bytes(1600, 1200, seed=seed, quality=95) for seed in range(24)]
     with running_service(tmp_path / "data", workers=0) as service:
         with service.client(WRITE_KEY) as client:
-            map_id = _upload_map(client)
+            map_id = upload_hall_map(client)
         outcomes: dict[int, int | str] = {}
 
         def upload(index: int) -> None:
@@ -251,7 +245,7 @@ def test_a_full_disk_answers_507_stores_nothing_and_recovers(tmp_path: Path, pro
     with _small_disk(tmp_path / "disk") as disk, running_service(disk, workers=0, **env) as service:
         filler = disk / "filler"
         with service.client(WRITE_KEY) as client:
-            map_id = _upload_map(client)
+            map_id = upload_hall_map(client)
             assert _upload_reference(client, map_id, jpeg_bytes(seed=1)).status_code == 202
 
             _fill(filler)

@@ -6,7 +6,6 @@ per-key rate limits, ids beyond 64 bits, ``Allow`` on 405.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -19,7 +18,6 @@ import pytest
 from tests.conftest import Profile
 from tests.service_fixtures import (
     INSIDE_ONE_BUILDING,
-    ONE_BUILDING,
     READ_KEY,
     WRITE_KEY,
     RunningProcess,
@@ -28,6 +26,7 @@ from tests.service_fixtures import (
     running_service,
     stored_files,
     table_counts,
+    upload_hall_map,
     wait_for,
 )
 
@@ -41,13 +40,6 @@ WAIT_S = 12.0
 
 QUERY_JOBS = "SELECT COUNT(*) AS n FROM jobs WHERE kind = 'localize_query'"
 """The query jobs (the map's own load_map job is done before any query)."""
-
-
-def _upload_map(client: httpx.Client) -> int:
-    files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
-    response = client.post("/v1/maps", files=files, data={"wait_s": "120", "name": "hall"})
-    assert response.status_code == 201, response.text
-    return int(response.json()["id"])
 
 
 def _error(response: httpx.Response) -> dict[str, Any]:
@@ -65,7 +57,7 @@ def queue_service(tmp_path_factory: pytest.TempPathFactory, profile: Profile) ->
 
 def test_waiting_queries_hold_no_thread_and_a_full_queue_answers_429(queue_service: RunningProcess) -> None:
     with queue_service.client(WRITE_KEY) as client:
-        map_id = _upload_map(client)
+        map_id = upload_hall_map(client)
 
     def ask(seed: int) -> httpx.Response:
         with queue_service.client(READ_KEY, timeout=WAIT_S + 30) as own:

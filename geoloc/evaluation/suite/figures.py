@@ -18,7 +18,7 @@ import numpy as np
 
 from geoloc.evaluation.suite.bootstrap import Statistic
 
-__all__ = ["FIGURES", "POPULATIONS", "Figure", "figure_table"]
+__all__ = ["FIGURES", "POPULATIONS", "Figure", "figure_table", "values_table"]
 
 POPULATIONS = {"queries": "queries", "references": "references", "track_frames": "track frames"}
 
@@ -128,6 +128,10 @@ FIGURES: tuple[Figure, ...] = (
 
 def figure_table(figure: Figure, rows: list[Row]) -> np.ndarray:
     """(n, k) float table of the items' values (items the figure leaves out are not in it)."""
-    values = [v for v in (figure.values(row) for row in rows) if v is not None]
+    return values_table([v for v in (figure.values(row) for row in rows) if v is not None])
+
+
+def values_table(values: list[tuple[float, ...]]) -> np.ndarray:
+    """(n, k) float table of n items' values (k: their width; 1 when there are none)."""
     width = len(values[0]) if values else 1
     return np.array(values, dtype=float).reshape(len(values), width)

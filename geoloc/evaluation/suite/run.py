@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from contracts.settings import cache_dir, models_dir, shared_path
+from contracts.settings import REPO_ROOT, cache_dir, models_dir, shared_path
 from geoloc.evaluation.suite.bootstrap import cluster_interval, paired_interval
-from geoloc.evaluation.suite.figures import FIGURES, Figure, figure_table
+from geoloc.evaluation.suite.figures import FIGURES, Figure, figure_table, values_table
 from geoloc.evaluation.suite.outcomes import OUTCOMES_VERSION
-from geoloc.evaluation.suite.trees import REPO_ROOT, export_commit, resolve_commit, tree_fingerprint
+from geoloc.evaluation.suite.trees import export_commit, resolve_commit, tree_fingerprint
 from geoloc.evaluation.suite.worlds import (
     WORLDS_TOML,
     SuiteWorld,
@@ -87,22 +87,22 @@ def _map_path(world: SuiteWorld) -> Path:
     return path
 
 
-def _render(world: SuiteWorld, folder: Path, generator: str) -> str:
-    """Render one world into the cache (in a pool process); returns its folder's name."""
-    return rendered_world(world, _map_path(world), folder, generator).name
+def _render(world: SuiteWorld, folder: Path) -> None:
+    """Render one world into its cache folder (in a pool process)."""
+    rendered_world(world, _map_path(world), folder)
 
 
 def _render_all(worlds: list[SuiteWorld], cache: Path, jobs: int, progress: Progress) -> dict[str, Path]:
     """Each world's rendered folder (rendering those not in the cache ``jobs`` at a time), by world name."""
     generator = simulator_digest()
-    folders = {w.name: cache / "worlds" / _world_key(w, generator) for w in worlds}
+    folders = {w.name: cache / "worlds" / world_key(w, _map_path(w), generator) for w in worlds}
     missing = [w for w in worlds if not (folders[w.name] / "manifest.json").is_file()]
     done = 0
     progress("render", done, len(missing))
     if missing:
         (cache / "worlds").mkdir(parents=True, exist_ok=True)
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = {pool.submit(_render, w, cache / "worlds", generator): w for w in missing}
+            futures = {pool.submit(_render, w, folders[w.name]): w for w in missing}
             for future, world in futures.items():
                 try:
                     future.result()
@@ -111,10 +111,6 @@ def _render_all(worlds: list[SuiteWorld], cache: Path, jobs: int, progress: Prog
                 done += 1
                 progress("render", done, len(missing))
     return folders
-
-
-def _world_key(world: SuiteWorld, generator: str) -> str:
-    return world_key(world, _map_path(world), generator)
 
 
 def _evaluate_one(tree: Path, runner: Path, world_dir: Path, out: Path, threads: int) -> None:
@@ -219,16 +215,15 @@ def _aligned(
     """Per world, the figure's tables of the items both methods have and the figure keeps, in one order."""
     tables_now, tables_before = [], []
     for now, before in zip(current, baseline, strict=True):
-        rows_before = {row["name"]: row for row in _rows(before, figure.population)}
+        values_before = {row["name"]: figure.values(row) for row in _rows(before, figure.population)}
         pairs = [
-            (row, rows_before[row["name"]])
+            (value, value_before)
             for row in _rows(now, figure.population)
-            if row["name"] in rows_before
-            and figure.values(row) is not None
-            and figure.values(rows_before[row["name"]]) is not None
+            if (value := figure.values(row)) is not None
+            and (value_before := values_before.get(row["name"])) is not None
         ]
-        tables_now.append(figure_table(figure, [a for a, _ in pairs]))
-        tables_before.append(figure_table(figure, [b for _, b in pairs]))
+        tables_now.append(values_table([a for a, _ in pairs]))
+        tables_before.append(values_table([b for _, b in pairs]))
     return tables_now, tables_before
 
 

@@ -14,8 +14,7 @@ import subprocess
 import tarfile
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
-"""This checkout (the tree the running code came from)."""
+from contracts.settings import REPO_ROOT
 
 FINGERPRINTED = ("contracts", "geoloc")
 """The packages whose sources the method's results depend on (the evaluation imports nothing above them)."""

@@ -5,7 +5,7 @@ A :class:`SuiteWorld` is one simulated world of the list: a map (a file under th
 tracks), its urban form and its split (``dev`` or ``test``). :func:`load_suite` reads and checks the list;
 :func:`world_key` is the content key a rendered world is cached under (the map file's bytes, the simulator's
 source, the world's options); :func:`rendered_world` renders a world once into ``CACHE/suite/worlds/KEY`` and
-returns the folder, written atomically (a world is rendered into a temporary folder and renamed, so an
+returns its folder, written atomically (a world is rendered into a temporary folder and renamed, so an
 interrupted render leaves nothing that reads as done).
 """
 
@@ -176,17 +176,15 @@ def world_key(world: SuiteWorld, map_path: Path, generator: str | None = None) -
 
 
 def rendered_world(
-    world: SuiteWorld,
-    map_path: Path,
-    cache: Path,
-    generator: str | None = None,
-    progress: Callable[[str], None] | None = None,
+    world: SuiteWorld, map_path: Path, folder: Path, progress: Callable[[str], None] | None = None
 ) -> Path:
-    """The folder of ``world`` rendered from ``map_path`` under ``cache/KEY``: rendered now unless already there."""
+    """``folder`` (``CACHE/worlds/KEY``, :func:`world_key`) with ``world`` rendered from ``map_path`` in it.
+
+    Rendered now unless already there.
+    """
     # lazy: rendering loads the simulator's renderer (OpenCV, the compiled ray caster) only when a world is missing
     from geoloc.sim.world import generate_world
 
-    folder = cache / world_key(world, map_path, generator)
     if (folder / "manifest.json").is_file():
         return folder
     partial = folder.with_name(folder.name + ".partial")
