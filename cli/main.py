@@ -7,6 +7,7 @@ import typer
 from cli import about as about_cmd
 from cli import analyze as analyze_cmd
 from cli import backup as backup_cmd
+from cli import doctor as doctor_cmd
 from cli import eval as eval_cmd
 from cli import ingest as ingest_cmd
 from cli import map as map_cmd
@@ -25,6 +26,7 @@ backup_cmd.register(app)
 app.command("analyze")(analyze_cmd.analyze)
 app.command("ingest", context_settings=ingest_cmd.CONTEXT_SETTINGS)(ingest_cmd.ingest)
 app.command("about")(about_cmd.about)
+app.command("doctor")(doctor_cmd.doctor)
 app.command("locate-track")(track_cmd.locate_track)
 
 
