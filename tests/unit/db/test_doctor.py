@@ -123,7 +123,8 @@ def test_orphaned_and_temporary_files_are_reported_then_deleted(deployment: Depl
     repaired = examine(deployment.db, store, repair=True, grace_s=60)
     assert [(f.check, f.repair) for f in repaired.findings] == [("orphaned_file", "deleted"), ("temp_file", "deleted")]
     assert repaired.clean
-    assert not store.local_path("images/1/orphan.jpg").exists() and not store.local_path("tmp/upload-0123.part").exists()
+    assert not store.local_path("images/1/orphan.jpg").exists()
+    assert not store.local_path("tmp/upload-0123.part").exists()
     assert store.local_path("queries/1/young.jpg").exists()
     assert store.local_path(f"images/{deployment.map_id}/r.jpg").exists(), "a file with its row stays"
     assert examine(deployment.db, store, grace_s=60).findings == []
@@ -231,7 +232,8 @@ def test_pending_work_whose_job_is_done_or_gone_is_failed(deployment: Deployment
     assert [(f.check, f.subject, f.problem) for f in report.findings] == [
         ("unfinished_work", f"reference {deployment.reference_id}",
          f"still pending, but its job {deployment.reference_job} is done"),
-        ("unfinished_work", f"query {deployment.query_id}", f"still pending, but its job {deployment.query_job} is gone"),
+        ("unfinished_work", f"query {deployment.query_id}",
+         f"still pending, but its job {deployment.query_job} is gone"),
     ]  # fmt: skip
     assert report.clean
     reference = reference_store.get_reference(db, deployment.reference_id)
