@@ -100,6 +100,7 @@ class LocalService:
     """``geoloc serve --workers N`` on a fresh data folder ``data_dir``, ready when constructed.
 
     env: extra environment (e.g. the distributed profile's URLs); API keys are removed, so it needs none.
+    fresh: False starts it on what ``data_dir`` already holds (a restart after a crash), else the folder is emptied.
     source: the source folder to run (default this checkout). The log goes to ``log_path`` (default
     ``serve.log`` beside ``data_dir``).
     """
@@ -114,12 +115,14 @@ class LocalService:
         log_path: Path | None = None,
         ready_timeout_s: float = 180.0,
         name: str = "geoloc serve",
+        fresh: bool = True,
     ) -> None:
         if problems := model_problems():
             raise SystemExit("the built models are not usable: " + " ".join(problems))
-        shutil.rmtree(data_dir, ignore_errors=True)
-        (data_dir / "cache").mkdir(parents=True)
-        (data_dir / "cache" / "models").symlink_to(cache_dir() / "models", target_is_directory=True)
+        if fresh or not (data_dir / "cache" / "models").exists():
+            shutil.rmtree(data_dir, ignore_errors=True)
+            (data_dir / "cache").mkdir(parents=True)
+            (data_dir / "cache" / "models").symlink_to(cache_dir() / "models", target_is_directory=True)
         self.name = name
         self.data_dir = data_dir
         self.port = free_port()
@@ -129,7 +132,7 @@ class LocalService:
         self.log_path = log_path or data_dir.parent / "serve.log"
         serve = f"serve --host 127.0.0.1 --port {self.port} --workers {workers} --log-level warning".split()
         exit_on_sigterm()
-        with self.log_path.open("wb") as log:
+        with self.log_path.open("wb" if fresh else "ab") as log:
             self.process = subprocess.Popen(
                 [sys.executable, "-c", "from cli.main import app; app()", *serve],
                 cwd=source,
