@@ -52,7 +52,7 @@ def stale_temp_files(store: FileStore, grace_s: float) -> list[Path]:
     """Temporary uploads (``tmp/upload-*.part``) last written more than ``grace_s`` (s) ago, sorted."""
     cutoff = time.time() - grace_s
     found = []
-    for path in store.temp_dir().glob(TEMP_UPLOADS):
+    for path in store.local_path("tmp").glob(TEMP_UPLOADS):  # not temp_dir(): a report creates no folder
         with contextlib.suppress(OSError):
             if path.stat().st_mtime < cutoff:
                 found.append(path)
