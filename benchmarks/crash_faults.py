@@ -336,7 +336,8 @@ def _reason(error: str) -> str:
     """A failure's reason without its ids, to count alike ones together."""
     lines = error.strip().splitlines()
     line = lines[-1] if "worker lost" in lines[-1] else lines[0]  # a lost worker's note is added last
-    return " ".join("N" if word.strip(":,()").isdigit() else word for word in line.split())[:120]
+    words = ("W" if word.count(":") == 2 else "N" if word.strip(":,()").isdigit() else word for word in line.split())
+    return " ".join(words)[:120]  # W: a worker id (host:pid:random)
 
 
 def pending_jobs(database: Path) -> int:
