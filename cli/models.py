@@ -10,7 +10,7 @@ from contracts.settings import models_dir
 from geoloc.export.models import build_aliked_model, build_segmentation_model
 from geoloc.vision.feature_types import canonical_method
 from geoloc.vision.model_files import ALIKED_CONFIG_NAMES, parse_size, read_meta, segmentation_files, vocabulary_path
-from workers.context import method_context
+from workers.context import method_context, segmentation_size
 
 app = typer.Typer(
     no_args_is_help=True, help="Build the exported models (ONNX networks, SBoW vocabularies) in the cache."
@@ -21,7 +21,9 @@ app = typer.Typer(
 def build(
     force: bool = typer.Option(False, "--force", help="Re-export even if the cached ONNX is current."),
     size: str | None = typer.Option(
-        None, "--size", help="Network input WxH, multiples of 16 (default: the runtime's size)."
+        None,
+        "--size",
+        help="Network input WxH, multiples of 16 (default: GEOLOC_SEGMENTATION_SIZE, else the runtime's size).",
     ),
     features: list[str] | None = typer.Option(
         None,
@@ -36,9 +38,9 @@ def build(
     needs at run time, so that nothing is built on a first request.
     """
     try:
-        net_size = parse_size(size) if size else None
+        net_size = parse_size(size) if size else segmentation_size()
     except ValueError as exc:
-        raise typer.BadParameter(str(exc), param_hint="--size") from exc
+        raise typer.BadParameter(str(exc), param_hint="--size or GEOLOC_SEGMENTATION_SIZE") from exc
     try:
         methods = sorted({canonical_method(m) for m in features}) if features else [canonical_method(None)]
     except ValueError as exc:

@@ -207,6 +207,12 @@ class Settings(HttpSettings):
         description="where segmentation and ALIKED run: `cpu`; `cuda` (needs the `gpu` extra and a GPU: workers "
         "refuse to start without them); `auto`: CUDA when onnxruntime can use a GPU here, else CPU",
     )
+    segmentation_size: str | None = Field(
+        default=None,
+        pattern=r"^[0-9]+x[0-9]+$",
+        description="the segmentation network's input `WxH`, multiples of 16 (`geoloc models build` builds it); "
+        "default the method's (docs/speed.md#the-segmentation-network); `768x384` answers as before issue 52",
+    )
     job_threads: int = Field(
         default=2,
         ge=1,

@@ -28,15 +28,23 @@ _limited: dict[int, int] = {}
 
 
 @lru_cache(maxsize=8)
-def _context(models: Path, job_threads: int, onnx_threads: int, device: Device) -> MethodContext:
+def _context(
+    models: Path, job_threads: int, onnx_threads: int, device: Device, segmentation_size: tuple[int, int] | None
+) -> MethodContext:
     """One context (and so one job thread pool) per distinct setting."""
-    return MethodContext(models, JobThreads(job_threads), onnx_threads, device)
+    return MethodContext(models, JobThreads(job_threads), onnx_threads, device, segmentation_size)
+
+
+def segmentation_size(settings: Settings | None = None) -> tuple[int, int] | None:
+    """``GEOLOC_SEGMENTATION_SIZE`` as (W, H), None when unset (the method's default); ValueError if not a size."""
+    text = (settings or get_settings()).segmentation_size
+    return None if text is None else model_files.parse_size(text)
 
 
 def method_context() -> MethodContext:
     """The method's context from the current settings (the same object while they stay the same)."""
     settings = get_settings()
-    return _context(models_dir(), settings.job_threads, default_threads(), settings.device)
+    return _context(models_dir(), settings.job_threads, default_threads(), settings.device, segmentation_size(settings))
 
 
 def limit_threads(threads: int | None = None) -> None:
@@ -61,9 +69,14 @@ def worker_context() -> MethodContext:
 def model_problems(size: tuple[int, int] | None = None) -> list[str]:
     """What stops the workers: missing or stale models, a device that is not here; [] when they can run.
 
-    :func:`geoloc.vision.model_files.model_problems` for the settings' models folder and shared weights, and
+    :func:`geoloc.vision.model_files.model_problems` for the settings' models folder, segmentation network size
+    (``size``, else ``GEOLOC_SEGMENTATION_SIZE``, else the method's) and shared weights, and
     :func:`geoloc.vision.onnx_session.device_problems` for ``GEOLOC_DEVICE`` (checked without opening a network).
     """
+    try:
+        size = size or segmentation_size()
+    except ValueError as exc:
+        return [f"GEOLOC_SEGMENTATION_SIZE: {exc}"]
     problems = model_files.model_problems(models_dir(), shared_dir() / "models", size)
     return problems + onnx_session.device_problems(get_settings().device)
 

@@ -66,7 +66,7 @@ from geoloc.photos.photo import Photo, load_photo
 from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.model_files import vocabulary_path
 from geoloc.vision.onnx_session import used_device
-from geoloc.vision.segmentation import ModelNotBuiltError
+from geoloc.vision.segmentation import ModelNotBuiltError, network_name
 from workers.context import worker_context
 from workers.handlers import PermanentJobError, answer_checked, register, treat_as_permanent
 from workers.metrics import observe_stages
@@ -376,6 +376,7 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
     )
     answer.search["preset"] = params.preset_name  # beside search.config: which preset chose it
     answer.search["device"] = used_device(context.device)  # where segmentation and ALIKED ran: cpu or cuda
+    answer.search["segmentation"] = network_name(context)  # which network (its input size) labelled the photo
     timings_ms = {
         **{k: round(v, 1) for k, v in answer.timings_ms.items()},
         "total": round(1e3 * (time.perf_counter() - t0), 1),

@@ -6,7 +6,7 @@ entries (:func:`geoloc.vision.evidence.analyze_photo`, :func:`geoloc.localize.re
 :func:`geoloc.localize.query.geolocate`) and the model factories
 (:func:`geoloc.vision.segmentation.load_session`, :func:`geoloc.vision.aliked.load_runtime`). Answers do not
 depend on the thread counts, nor on the device beyond floating-point rounding (a GPU's kernels sum in another
-order).
+order); they do depend on the segmentation network's size.
 """
 
 from __future__ import annotations
@@ -31,12 +31,15 @@ class MethodContext:
     parts (:class:`geoloc.core.parallel.JobThreads`). onnx_threads: onnxruntime intra-op threads of the
     networks (segmentation, ALIKED; they wait without spinning). device: where the networks run, ``cpu``,
     ``cuda`` or ``auto`` (CUDA when onnxruntime can use a GPU here, else CPU; :mod:`geoloc.vision.onnx_session`).
+    segmentation_size: the segmentation network's input (W, H), None for the method's default
+    (:data:`geoloc.vision.model_files.SEG_DEFAULT_SIZE`); answers depend on it.
     """
 
     models_dir: Path
     threads: JobThreads = field(default_factory=JobThreads)
     onnx_threads: int = 1
     device: Device = "cpu"
+    segmentation_size: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         """ValueError unless ``onnx_threads`` >= 1 and ``device`` is one of :data:`DEVICES`."""

@@ -5,8 +5,9 @@ ONNX by ``geoloc models build`` (``geoloc.export.models``) into the models folde
 (:mod:`geoloc.vision.model_files`). This module never imports torch; :func:`load_session` opens the export
 with a :class:`~geoloc.core.context.MethodContext`.
 
-Pipeline: RGB image -> resize to the network size (default 768x384, W x H, whatever the image's
-aspect) -> logits at half that size -> softmax over the kept Cityscapes channels -> probabilities
+Pipeline: RGB image -> resize to the network size (default 768x384, W x H, whatever the image's aspect; the
+context's ``segmentation_size``, ``GEOLOC_SEGMENTATION_SIZE``, picks another: docs/speed.md says what smaller
+sizes and int8 cost) -> logits at half that size -> softmax over the kept Cityscapes channels -> probabilities
 summed per class group below -> bilinear resize to the image size -> argmax.
 
 Cityscapes trainId -> our class (``CITYSCAPES_TO_OURS``):
@@ -109,7 +110,8 @@ def load_session(context: MethodContext, size: tuple[int, int] | None = None) ->
     context
         Where the built models are (``models_dir``), the intra-op threads (``onnx_threads``) and the device.
     size
-        Network input (W, H); default ``geoloc.vision.model_files.SEG_DEFAULT_SIZE``.
+        Network input (W, H); default the context's ``segmentation_size``, else
+        ``geoloc.vision.model_files.SEG_DEFAULT_SIZE``.
 
     Raises
     ------
@@ -118,7 +120,7 @@ def load_session(context: MethodContext, size: tuple[int, int] | None = None) ->
     geoloc.vision.onnx_session.DeviceUnavailableError
         The context's device is ``cuda`` and onnxruntime cannot run on a GPU here.
     """
-    size = size or SEG_DEFAULT_SIZE
+    size = size or context.segmentation_size or SEG_DEFAULT_SIZE
     path = segmentation_files(context.models_dir, size).onnx
     if not path.exists():
         flag = "" if size == SEG_DEFAULT_SIZE else f" --size {size[0]}x{size[1]}"
@@ -127,6 +129,11 @@ def load_session(context: MethodContext, size: tuple[int, int] | None = None) ->
             "(needs the export extra: pip install -e '.[export]')"
         )
     return onnx_session(str(path), context.onnx_threads, context.device)
+
+
+def network_name(context: MethodContext) -> str:
+    """The name of the segmentation network the context runs (its ONNX file's stem, e.g. ``espnetv2_s2_city_768x384``)."""
+    return segmentation_files(context.models_dir, context.segmentation_size).onnx.stem
 
 
 def network_size(session: ort.InferenceSession) -> tuple[int, int]:

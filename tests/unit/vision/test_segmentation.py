@@ -151,3 +151,33 @@ def test_cli_eval_camvid_writes_json(onnx_path: Path, tmp_path: Path) -> None:
     assert report["data"]["n_images"] == 2
     assert set(report["metrics"]["per_class"]) == set(labels.CLASS_NAMES)
     assert "building" in result.output
+
+
+def test_segmentation_size_setting_selects_the_network(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """GEOLOC_SEGMENTATION_SIZE reaches the context, the session's file, the answer's name and the model check."""
+    from workers.context import model_problems
+
+    monkeypatch.setenv("GEOLOC_DATA_DIR", str(tmp_path))
+    monkeypatch.setenv("GEOLOC_SEGMENTATION_SIZE", "512x256")
+    config.reset_settings()
+    try:
+        context = method_context()
+        assert context.segmentation_size == (512, 256)
+        assert segmentation.network_name(context) == "espnetv2_s2_city_512x256"
+        with pytest.raises(segmentation.ModelNotBuiltError, match="512x256"):
+            segmentation.load_session(context)
+        assert any("espnetv2_s2_city_512x256.onnx" in problem for problem in model_problems())
+        monkeypatch.setenv("GEOLOC_SEGMENTATION_SIZE", "500x256")  # a size, but not multiples of 16
+        config.reset_settings()
+        assert model_problems() == [
+            "GEOLOC_SEGMENTATION_SIZE: network size must be multiples of 16 and >= 64, got 500x256"
+        ]
+        monkeypatch.setenv("GEOLOC_SEGMENTATION_SIZE", "wide")
+        with pytest.raises(config.SettingsError, match="GEOLOC_SEGMENTATION_SIZE"):
+            config.reset_settings()
+            config.get_settings()
+    finally:
+        monkeypatch.delenv("GEOLOC_SEGMENTATION_SIZE")
+        config.reset_settings()
+    assert method_context().segmentation_size is None
+    assert segmentation.network_name(method_context()) == model_files.segmentation_files(tmp_path).onnx.stem
