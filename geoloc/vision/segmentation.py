@@ -132,7 +132,7 @@ def load_session(context: MethodContext, size: tuple[int, int] | None = None) ->
 
 
 def network_name(context: MethodContext) -> str:
-    """The name of the segmentation network the context runs (its ONNX file's stem, e.g. ``espnetv2_s2_city_768x384``)."""
+    """The segmentation network the context runs: its ONNX file's stem (e.g. ``espnetv2_s2_city_768x384``)."""
     return segmentation_files(context.models_dir, context.segmentation_size).onnx.stem
 
 
