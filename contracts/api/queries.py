@@ -1,4 +1,4 @@
-"""Queries and tracks: ``POST/GET`` of ``/v1/maps/{id}/queries``, ``/v1/queries/{id}`` and the tracks'."""
+"""Queries and tracks: a query (:class:`QueryOut`), a track (:class:`TrackOut`) and a track's JSON request."""
 
 from __future__ import annotations
 
