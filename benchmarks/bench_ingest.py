@@ -32,8 +32,8 @@ from baseline import add_baseline_option, baseline_figures
 from local_service import LocalService
 from servers import PostgresServer, RedisServer
 
+from client import Client
 from contracts.settings import shared_path
-from geoloc.client import Client
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 
 TARGET_RATIO = 0.8

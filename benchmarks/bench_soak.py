@@ -47,9 +47,9 @@ import httpx
 from local_service import LocalService
 from soak_checks import process_checks, sample, under_load, verdict
 
+from client import ApiError, AsyncClient, RetryPolicy, Sent, ServiceUnreachableError, calls
+from client.calls import Call
 from contracts.settings import shared_path
-from geoloc.client import ApiError, AsyncClient, RetryPolicy, Sent, ServiceUnreachableError, calls
-from geoloc.client.calls import Call
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from workers.retention import purge_interval_s
 

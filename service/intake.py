@@ -32,7 +32,7 @@ from db.rows import JobRow, MapRow
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from service.deps import open_db
 from service.images import ImageInfo, validate_image
-from service.models import error_responses
+from service.responses import error_responses
 from service.tenancy import check_ready, require_ready_map
 from service.uploads import ReceivedFile, received_upload
 from workers.broker import JobPublisher

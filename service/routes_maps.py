@@ -18,6 +18,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
 from contracts.answers import BoundingBox, LatLon
+from contracts.api import MapList, MapOut, MapProgressOut
 from contracts.jobs import LOAD_MAP, LoadMapPayload
 from contracts.licenses import map_attribution
 from contracts.settings import Settings
@@ -35,7 +36,7 @@ from service.bounds import MapId
 from service.deps import app_settings, get_db, get_publisher, get_store, open_db
 from service.errors import ApiError
 from service.intake import loaded_map, work_status
-from service.models import MapList, MapOut, MapProgressOut, error_responses, timestamp
+from service.responses import error_responses, timestamp
 from service.tenancy import require_map, require_ready_map
 from service.uploads import received_upload
 from service.waiting import JobWaiter

@@ -23,6 +23,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
 from contracts.answers import QueryResult
+from contracts.api import QueryOut
 from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload
 from contracts.licenses import map_attribution
 from contracts.queries import DEFAULT_PRIOR_RADIUS_M, PriorPosition, QueryParams, QueryPreset, gps_prior_radius_m
@@ -49,8 +50,8 @@ from service.heatmap_png import heatmap_png
 from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
 from service.intake import READ_ERRORS, PhotoIntake, loaded_map, work_status
 from service.limits import require_queue_capacity
-from service.models import QueryOut, error_responses, timestamp
 from service.places import resolve_form_place
+from service.responses import error_responses, timestamp
 from service.spec import QUEUE_FULL_RESPONSE
 from service.tenancy import require_map, require_query
 from service.uploads import ReceivedFile

@@ -14,6 +14,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
 from contracts.answers import BuildingInPhoto, EstimatedPose
+from contracts.api import Position, ReferenceAccepted, ReferenceList, ReferenceOut
 from contracts.jobs import LABEL_REFERENCE, PLACE_SEQUENCE, LabelReferencePayload
 from contracts.licenses import map_attribution
 from contracts.settings import Settings
@@ -30,16 +31,9 @@ from service.geojson import GEOJSON_MEDIA_TYPE, GEOJSON_RESPONSE, GeoJsonFormat,
 from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
 from service.intake import READ_ERRORS, PhotoIntake, work_status
 from service.limits import require_queue_capacity
-from service.models import (
-    Position,
-    ReferenceAccepted,
-    ReferenceList,
-    ReferenceOut,
-    error_responses,
-    timestamp,
-)
 from service.places import resolve_form_place
 from service.rendering import identity_overlay_png
+from service.responses import error_responses, timestamp
 from service.spec import QUEUE_FULL_RESPONSE
 from service.tenancy import require_map, require_reference
 from service.uploads import ReceivedFile

@@ -1,7 +1,7 @@
 """Tracks: a walk of photos located together. Answered by the ``locate_track`` job in the worker pool (issue 20).
 
 ``POST /v1/maps/{id}/tracks`` takes the photos in one multipart request (the field ``images`` repeated, in frame
-order) or a JSON body naming earlier queries of the map (:class:`service.track_intake.TrackFromQueries`), stores
+order) or a JSON body naming earlier queries of the map (:class:`contracts.api.TrackFromQueries`), stores
 them as the track's frames (query rows: :mod:`db.tracks`) with one job, and waits up to ``wait_s`` for the answer
 as a query does (200 with the answer, 202 to poll ``GET /v1/tracks/{id}``, 429 while the queue is full).
 ``GET /v1/tracks/{id}`` serves the frames in order, each with its pose, and as GeoJSON the trajectory.
@@ -18,6 +18,7 @@ from fastapi.responses import JSONResponse
 from pydantic import TypeAdapter, ValidationError
 
 from contracts.answers import TrackFrameResult, TrackResult
+from contracts.api import FramePrior, TrackFromQueries, TrackOut
 from contracts.licenses import map_attribution
 from contracts.queries import QueryPreset
 from contracts.settings import Settings
@@ -34,11 +35,11 @@ from service.geojson import GEOJSON_MEDIA_TYPE, GEOJSON_RESPONSE, GeoJsonFormat,
 from service.images import ACCEPTED_NAMES
 from service.intake import work_status
 from service.limits import require_queue_capacity
-from service.models import TrackOut, error_responses, timestamp
+from service.responses import error_responses, timestamp
 from service.routes_queries import delete_with_photos
 from service.spec import QUEUE_FULL_RESPONSE
 from service.tenancy import require_track
-from service.track_intake import FramePrior, TrackForm, TrackFromQueries, TrackIntake
+from service.track_intake import TrackForm, TrackIntake
 from service.waiting import answered, long_poll
 from workers.broker import JobPublisher
 

@@ -1,17 +1,22 @@
 """The house's rules, read from the code's imports (see docs/layout.md).
 
-Layers run one way: ``contracts`` (typed contracts, at the bottom) <- ``geoloc`` (the method) <- ``db`` <-
-``workers`` <- ``service`` <- ``cli``; ``benchmarks`` and ``tests`` sit on top. Inside ``geoloc`` the runtime
-stages (``core`` <- ``photos``, ``maps`` <- ``vision`` <- ``localize``) never import the simulator, the evaluation
-or the model export, and none of the method reads the settings. No import circle anywhere; no module over
-450 lines outside tests; a project module imported inside a function says why in a comment (on its
-line, or above the run of imports it belongs to).
+Layers run one way: ``contracts`` (typed contracts, at the bottom) <- ``client`` (the HTTP client, on nothing
+but ``contracts``) and ``geoloc`` (the method) <- ``db`` <- ``workers`` <- ``service`` <- ``cli``; ``benchmarks``
+and ``tests`` sit on top. Inside ``geoloc`` the runtime stages (``core`` <- ``photos``, ``maps`` <- ``vision`` <-
+``localize``) never import the simulator, the evaluation or the model export, and none of the method reads the
+settings; the runtime never imports the client. The API's models are defined once, in ``contracts.api``. No
+import circle anywhere; no module over 450 lines outside tests; a project module imported inside a function says
+why in a comment (on its line, or above the run of imports it belongs to).
 """
 
 from __future__ import annotations
 
 import ast
 import graphlib
+import importlib
+import sys
+import warnings
+from collections import defaultdict
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -19,16 +24,18 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("contracts", "geoloc", "db", "workers", "service", "cli", "benchmarks", "tests")
+PACKAGES = ("contracts", "client", "geoloc", "db", "workers", "service", "cli", "benchmarks", "tests")
 LAYERS = {name: rank for rank, name in enumerate(PACKAGES)}
 """Each top-level package's layer: a module may import only its own layer or lower ones."""
 GEOLOC_LAYERS = {"core": 0, "photos": 1, "maps": 1, "vision": 2, "localize": 3, "sim": 4, "evaluation": 5}
-# The HTTP client (issue 21: ``geoloc.client.Client``) sits above every stage: no stage imports it.
-GEOLOC_LAYERS["client"] = 6
 """The method's packages: the runtime stages (up to ``localize``) below the simulator and the evaluation."""
-OFF_RUNTIME = ("geoloc.sim", "geoloc.evaluation", "geoloc.export", "geoloc.client")
+OFF_RUNTIME = ("geoloc.sim", "geoloc.evaluation", "geoloc.export", "client")
 """What the runtime never imports: the simulator, the evaluation, the model export (PyTorch) and the HTTP client
 (httpx; it talks to the service, for the CLI, the benchmarks and users' scripts)."""
+DEPRECATED = ("geoloc.client",)
+"""Aliases kept for one release that no project module imports (``geoloc.client``: the :mod:`client` package)."""
+API_MODEL_PACKAGES = ("contracts", "client", "service")
+"""Where the API's models could be declared; each pydantic model name is defined once across them."""
 MAX_MODULE_LINES = 450
 
 
@@ -201,3 +208,68 @@ def test_no_module_over_the_size_limit(package: str) -> None:
         if module.split(".")[0] == package and (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES
     }
     assert too_long == {}
+
+
+def test_the_client_imports_only_contracts() -> None:
+    wrong = [
+        f"{edge.importer}:{edge.line} imports {edge.imported}"
+        for edge in imports()
+        if edge.importer.split(".")[0] == "client" and edge.imported.split(".")[0] not in ("client", "contracts")
+    ]
+    assert wrong == []
+
+
+def test_no_module_imports_a_deprecated_alias() -> None:
+    wrong = [
+        f"{edge.importer}:{edge.line} imports {edge.imported}"
+        for edge in imports()
+        if edge.imported.startswith(DEPRECATED) and not edge.importer.startswith(DEPRECATED)
+    ]
+    assert wrong == []
+
+
+def _pydantic_models(package: str) -> list[tuple[str, str]]:
+    """(class name, module) of every pydantic model a package defines (subclasses of subclasses included)."""
+    classes = [
+        (node, module)
+        for module, path in modules().items()
+        if module.split(".")[0] == package
+        for node in ast.walk(ast.parse(path.read_text()))
+        if isinstance(node, ast.ClassDef)
+    ]
+    models, found = {"BaseModel", "ApiModel", "_Answer"}, True
+    while found:  # a class is a model when one of its bases is: grow the set until it stops
+        found = False
+        for node, _ in classes:
+            bases = {base.attr if isinstance(base, ast.Attribute) else getattr(base, "id", "") for base in node.bases}
+            if node.name not in models and bases & models:
+                models.add(node.name)
+                found = True
+    return [(node.name, module) for node, module in classes if node.name in models]
+
+
+def test_the_api_models_are_defined_once() -> None:
+    """One pydantic class per name across contracts, client and service; the client and the service define none."""
+    defined: dict[str, list[str]] = defaultdict(list)
+    for package in API_MODEL_PACKAGES:
+        for name, module in _pydantic_models(package):
+            defined[name].append(module)
+    assert {name: where for name, where in defined.items() if len(where) > 1} == {}
+    outside = {name: where for name, where in defined.items() if not where[0].startswith("contracts.")}
+    assert outside == {}, "the API's models belong in contracts.api"
+
+
+def test_geoloc_client_is_a_deprecated_alias_of_client() -> None:
+    import client
+    import client.models
+
+    for name in [name for name in sys.modules if name == "geoloc.client" or name.startswith("geoloc.client.")]:
+        del sys.modules[name]
+    with pytest.warns(DeprecationWarning, match="import client instead"):
+        alias = importlib.import_module("geoloc.client")
+    assert alias is client
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # warned once, at the first import
+        models = importlib.import_module("geoloc.client.models")
+    assert models is client.models
+    assert (alias.Client, alias.ApiError, models.Map) == (client.Client, client.ApiError, client.models.Map)
