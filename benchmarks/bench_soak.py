@@ -368,7 +368,7 @@ def main() -> int:
         servers: list[Any] = []
         database_url = None
         if args.profile == "distributed":
-            from servers import PostgresServer, RedisServer  # only this profile needs the servers
+            from testbed.servers import PostgresServer, RedisServer  # only this profile needs the servers
 
             servers = [PostgresServer().start(), RedisServer().start()]
             database_url = servers[0].new_database()

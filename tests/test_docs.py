@@ -23,7 +23,19 @@ from geoloc.evaluation.suite.worlds import load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
-PACKAGES = ("contracts", "client", "geoloc", "db", "workers", "service", "cli", "benchmarks", "tests")
+PACKAGES = (
+    "contracts",
+    "client",
+    "geoloc",
+    "db",
+    "workers",
+    "service",
+    "cli",
+    "testbed",
+    "benchmarks",
+    "research",
+    "tests",
+)
 FOLDERS = (*PACKAGES, "docker", "docs", ".ci")
 """Top-level folders whose paths the docs name; a token starting with one of them is checked."""
 FENCE = re.compile(r"^```.*?^```", re.M | re.S)

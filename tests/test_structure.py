@@ -1,12 +1,13 @@
 """The house's rules, read from the code's imports (see docs/layout.md).
 
 Layers run one way: ``contracts`` (typed contracts, at the bottom) <- ``client`` (the HTTP client, on nothing
-but ``contracts``) and ``geoloc`` (the method) <- ``db`` <- ``workers`` <- ``service`` <- ``cli``; ``benchmarks``
-and ``tests`` sit on top. Inside ``geoloc`` the runtime stages (``core`` <- ``photos``, ``maps`` <- ``vision`` <-
-``localize``) never import the simulator, the evaluation or the model export, and none of the method reads the
-settings; the runtime never imports the client. The API's models are defined once, in ``contracts.api``. No
-import circle anywhere; no module over 450 lines outside tests; a project module imported inside a function says
-why in a comment (on its line, or above the run of imports it belongs to).
+but ``contracts``) and ``geoloc`` (the method) <- ``db`` <- ``workers`` <- ``service`` <- ``cli``; the tools
+sit on top: ``testbed`` (the servers tests and benchmarks start) <- ``benchmarks`` <- ``research`` <- ``tests``.
+Inside ``geoloc`` the runtime stages (``core`` <- ``photos``, ``maps`` <- ``vision`` <- ``localize``) never
+import the simulator, the evaluation or the model export, and none of the method reads the settings; the
+runtime never imports the client. The API's models are defined once, in ``contracts.api``. No import circle
+anywhere; no module over 450 lines outside tests; a project module imported inside a function says why in a
+comment (on its line, or above the run of imports it belongs to).
 """
 
 from __future__ import annotations
@@ -24,7 +25,19 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("contracts", "client", "geoloc", "db", "workers", "service", "cli", "benchmarks", "tests")
+PACKAGES = (
+    "contracts",
+    "client",
+    "geoloc",
+    "db",
+    "workers",
+    "service",
+    "cli",
+    "testbed",
+    "benchmarks",
+    "research",
+    "tests",
+)
 LAYERS = {name: rank for rank, name in enumerate(PACKAGES)}
 """Each top-level package's layer: a module may import only its own layer or lower ones."""
 GEOLOC_LAYERS = {"core": 0, "photos": 1, "maps": 1, "vision": 2, "localize": 3, "sim": 4, "evaluation": 5}
