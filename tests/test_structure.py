@@ -286,3 +286,50 @@ def test_geoloc_client_is_a_deprecated_alias_of_client() -> None:
         models = importlib.import_module("geoloc.client.models")
     assert models is client.models
     assert (alias.Client, alias.ApiError, models.Map) == (client.Client, client.ApiError, client.models.Map)
+
+
+VENDORED_SCRIPTS: frozenset[str] = frozenset()
+"""Third-party JavaScript kept as shipped, left out of the size rule (none: the viewer vendors nothing)."""
+SCRIPT_IMPORT = r"^import\b[^;]*?\bfrom\s+[\"']\./([\w.-]+\.js)[\"']"
+"""An ES module's import of a sibling module (the viewer's modules import each other as ``./name.js``)."""
+
+
+@cache
+def scripts() -> dict[str, str]:
+    """The project's JavaScript (tracked, or new and not ignored) by repository path, with its text."""
+    import subprocess  # only the JavaScript rules list files through git
+
+    listed = subprocess.run(
+        ["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z", "--", "*.js"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split("\0")
+    return {path: (ROOT / path).read_text() for path in sorted(filter(None, listed)) if (ROOT / path).is_file()}
+
+
+def test_no_javascript_file_over_the_size_limit() -> None:
+    assert any(path.startswith("service/viewer/") for path in scripts()), "the viewer's modules are not found"
+    too_long = {
+        path: n
+        for path, text in scripts().items()
+        if path not in VENDORED_SCRIPTS and (n := len(text.splitlines())) > MAX_MODULE_LINES
+    }
+    assert too_long == {}
+
+
+def test_the_viewer_modules_import_no_circle() -> None:
+    """The viewer's modules by concern run one way: the panels over the page's shared parts over the map view."""
+    import re  # only this rule reads JavaScript imports
+
+    graph: dict[str, set[str]] = {}
+    for path, text in scripts().items():
+        folder = path.rpartition("/")[0]
+        graph[path] = {f"{folder}/{name}" for name in re.findall(SCRIPT_IMPORT, text, re.M)}
+    unknown = {f"{path} imports {target}" for path, targets in graph.items() for target in targets - graph.keys()}
+    assert unknown == set()
+    try:
+        graphlib.TopologicalSorter(graph).prepare()
+    except graphlib.CycleError as error:
+        pytest.fail(f"import circle: {error.args[1]}")
