@@ -35,7 +35,7 @@ from service.auth import Caller, request_caller, require_read, require_write
 from service.bounds import MapId
 from service.deps import app_settings, get_db, get_publisher, get_store, open_db
 from service.errors import ApiError
-from service.intake import loaded_map, work_status
+from service.reads import loaded_map, work_status
 from service.responses import error_responses, timestamp
 from service.tenancy import require_map, require_ready_map
 from service.uploads import received_upload
@@ -67,7 +67,7 @@ FILE_DESCRIPTION = (
 
 
 def map_out(db: Database, row: MapRow, *, reference_count: int = 0, duplicate: bool = False) -> MapOut:
-    """A map row as its API model; its status through :func:`service.intake.work_status` (row and job)."""
+    """A map row as its API model; its status through :func:`service.reads.work_status` (row and job)."""
     job = job_store.get_job(db, row["job_id"]) if row["job_id"] is not None else None
     reported, error = work_status(row["status"], row["error"], job)
     return MapOut(

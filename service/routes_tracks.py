@@ -33,13 +33,13 @@ from service.deps import app_settings, get_db, get_publisher, get_store, open_db
 from service.errors import ApiError
 from service.geojson import GEOJSON_MEDIA_TYPE, GEOJSON_RESPONSE, GeoJsonFormat, track_collection, wants_geojson
 from service.images import ACCEPTED_NAMES
-from service.intake import work_status
+from service.intake_tracks import TrackForm, TrackIntake
 from service.limits import require_queue_capacity
+from service.photo_deletion import delete_with_photos
+from service.reads import work_status
 from service.responses import error_responses, timestamp
-from service.routes_queries import delete_with_photos
 from service.spec import QUEUE_FULL_RESPONSE
 from service.tenancy import require_track
-from service.track_intake import TrackForm, TrackIntake
 from service.waiting import answered, long_poll
 from workers.broker import JobPublisher
 
