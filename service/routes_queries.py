@@ -13,6 +13,7 @@ thread for the few milliseconds it takes. While the job queue is full the reques
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 from typing import Annotated, Any
 
@@ -112,20 +113,30 @@ def _query_model(settings: Settings, query_id: int, tenant: str | None) -> Query
     return out
 
 
-@router.post(
-    "/v1/maps/{map_id}/queries",
-    response_model=QueryOut,
-    responses={
-        202: {"model": QueryOut, "description": "Not answered within wait_s: poll the query"},
-        **error_responses(404, 413, 415, 422),
-        **QUEUE_FULL_RESPONSE,
-    },
-    dependencies=[Depends(require_read), Depends(require_queue_capacity)],
-)
-async def create_query(
-    request: Request,
-    map_id: MapId,
-    image: Annotated[UploadFile, File(description=f"The photo to geolocate ({ACCEPTED_NAMES}; checked by content)")],
+@dataclass(frozen=True)
+class AnswerFields:
+    """The form fields of a query that shape its answer and the wait for it (:func:`answer_fields`)."""
+
+    top_n: int
+    k: int
+    wait_s: float
+    preset: QueryPreset | None
+
+
+def answer_fields(
+    top_n: Annotated[int, bounded_form("top_n", "How many distinct locations to return")] = 10,
+    k: Annotated[int, bounded_form("k", "How many references to retrieve for identities")] = 4,
+    wait_s: Annotated[float, bounded_form("wait_s", "How long to wait for the answer before 202")] = 60.0,
+    preset: Annotated[
+        QueryPreset | None,
+        Form(description="Speed against accuracy: fast, balanced or accurate (default GEOLOC_QUERY_PRESET)"),
+    ] = None,
+) -> AnswerFields:
+    """The query form's answer fields, as the upload route reads them (a dependency: the form's second half)."""
+    return AnswerFields(top_n, k, wait_s, preset)
+
+
+def query_form(
     lat: Annotated[float | None, bounded_form("lat", "Prior position latitude (WGS84)")] = None,
     lon: Annotated[float | None, bounded_form("lon", "Prior position longitude (WGS84)")] = None,
     radius_m: Annotated[
@@ -150,13 +161,31 @@ async def create_query(
     focal_length_35mm: Annotated[
         float | None, bounded_form("focal_length_35mm", "35 mm-equivalent focal length")
     ] = None,
-    top_n: Annotated[int, bounded_form("top_n", "How many distinct locations to return")] = 10,
-    k: Annotated[int, bounded_form("k", "How many references to retrieve for identities")] = 4,
-    wait_s: Annotated[float, bounded_form("wait_s", "How long to wait for the answer before 202")] = 60.0,
-    preset: Annotated[
-        QueryPreset | None,
-        Form(description="Speed against accuracy: fast, balanced or accurate (default GEOLOC_QUERY_PRESET)"),
-    ] = None,
+    *,
+    answer: Annotated[AnswerFields, Depends(answer_fields)],
+) -> QueryForm:
+    """The query form, as the upload route reads it: the prior fields, then the answer's (the documented order)."""
+    return QueryForm(
+        lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm,
+        answer.top_n, answer.k, answer.wait_s, answer.preset,
+    )  # fmt: skip
+
+
+@router.post(
+    "/v1/maps/{map_id}/queries",
+    response_model=QueryOut,
+    responses={
+        202: {"model": QueryOut, "description": "Not answered within wait_s: poll the query"},
+        **error_responses(404, 413, 415, 422),
+        **QUEUE_FULL_RESPONSE,
+    },
+    dependencies=[Depends(require_read), Depends(require_queue_capacity)],
+)
+async def create_query(
+    request: Request,
+    map_id: MapId,
+    image: Annotated[UploadFile, File(description=f"The photo to geolocate ({ACCEPTED_NAMES}; checked by content)")],
+    form: Annotated[QueryForm, Depends(query_form)],
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
@@ -176,12 +205,11 @@ async def create_query(
     ``Retry-After`` seconds). A panorama is a 422 ``unsupported_projection`` (only perspective photos are
     supported).
     """
-    form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm, top_n, k, wait_s, preset)
     intake = QueryIntake(settings, store, publisher, form)
     accepted = await run_in_threadpool(intake.accept, map_id, image, caller.tenant)
     assert accepted.job_id is not None  # a query is never a duplicate
     return await answered(
-        request, accepted.job_id, wait_s, partial(_query_model, settings, accepted.subject_id, caller.tenant)
+        request, accepted.job_id, form.wait_s, partial(_query_model, settings, accepted.subject_id, caller.tenant)
     )
 
 

@@ -53,20 +53,7 @@ SequenceField = Annotated[
 """The reference upload's ``sequence`` form field."""
 
 
-@router.post(
-    "/v1/maps/{map_id}/references",
-    response_model=ReferenceAccepted,
-    status_code=status.HTTP_202_ACCEPTED,
-    responses={
-        200: {"model": ReferenceAccepted, "description": "Already a reference of this map"},
-        **error_responses(404, 413, 415, 422),
-        **QUEUE_FULL_RESPONSE,
-    },
-    dependencies=[Depends(require_write), Depends(require_queue_capacity)],
-)
-async def upload_reference(
-    map_id: MapId,
-    image: Annotated[UploadFile, File(description=f"The photo ({ACCEPTED_NAMES}; checked by content)")],
+def reference_form(
     lat: Annotated[float | None, bounded_form("lat", "Latitude (WGS84); overrides EXIF GPS")] = None,
     lon: Annotated[float | None, bounded_form("lon", "Longitude (WGS84); overrides EXIF GPS")] = None,
     heading_deg: Annotated[
@@ -84,6 +71,27 @@ async def upload_reference(
             "address, a street (GET /v1/maps/{id}/places); overrides EXIF GPS",
         ),
     ] = None,
+) -> ReferenceForm:
+    """The reference upload's form fields (but the photo), as the upload route reads them (a dependency)."""
+    stated_sequence = sequence.strip() if sequence and sequence.strip() else None
+    return ReferenceForm(lat, lon, heading_deg, focal_length_35mm, stated_sequence, place)
+
+
+@router.post(
+    "/v1/maps/{map_id}/references",
+    response_model=ReferenceAccepted,
+    status_code=status.HTTP_202_ACCEPTED,
+    responses={
+        200: {"model": ReferenceAccepted, "description": "Already a reference of this map"},
+        **error_responses(404, 413, 415, 422),
+        **QUEUE_FULL_RESPONSE,
+    },
+    dependencies=[Depends(require_write), Depends(require_queue_capacity)],
+)
+async def upload_reference(
+    map_id: MapId,
+    image: Annotated[UploadFile, File(description=f"The photo ({ACCEPTED_NAMES}; checked by content)")],
+    form: Annotated[ReferenceForm, Depends(reference_form)],
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
@@ -99,8 +107,6 @@ async def upload_reference(
     distance), a ``place`` that is ambiguous (``ambiguous_place``, with candidates) or unknown
     (``unknown_place``), 429 while the job queue is full (retry after ``Retry-After`` seconds).
     """
-    stated_sequence = sequence.strip() if sequence and sequence.strip() else None
-    form = ReferenceForm(lat, lon, heading_deg, focal_length_35mm, stated_sequence, place)
     intake = ReferenceIntake(settings, store, publisher, form)
     accepted = await run_in_threadpool(intake.accept, map_id, image, caller.tenant)
     if intake.duplicate is not None:
