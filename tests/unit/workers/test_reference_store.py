@@ -109,7 +109,7 @@ def test_sbow_top_k_is_the_same_on_both_engines(tmp_path: Path, postgres_server:
 
 def test_positions_and_vocabulary_follow_the_database(tmp_path: Path) -> None:
     # Both are kept decoded per process; a re-labelled reference or a replaced vocabulary is read again.
-    from workers.method_handlers import vocabulary_for
+    from workers.handler_helpers import vocabulary_for
 
     db = connect(tmp_path / "geoloc.sqlite3")
     migrate(db)

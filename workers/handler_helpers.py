@@ -1,75 +1,42 @@
-"""The method's job handlers: label a reference, answer a query. Thin: all of the method is in ``geoloc``.
+"""What the method's job handlers share: their inputs, priors and the parts of their answers.
 
-Both compute first, build their answer as the API's models (:mod:`contracts.answers`, inside
-:func:`workers.handlers.answer_checked`: a malformed answer fails the job at once and nothing is stored), and
-then write everything in one transaction with replace semantics, so a job that runs again after a crash
-leaves the same state. A reference's arrays are stored in the format of :mod:`contracts.references`. Loaded
-maps and the segmentation session are cached per worker process.
-
-The method runs with the process's context (:func:`workers.context.worker_context`: the models folder and
-the job and network threads from the settings; its first call in a process also limits numpy's BLAS and
-OpenCV to ``GEOLOC_WORKER_THREADS`` threads). Importing this module only registers the handlers.
+The inputs: a map's loaded form and its places (cached per worker process), a stored photo, the map's visual
+vocabulary, its references for the query stage. The priors, in the map's local frame (East-North metres, yaw from
+the frame's north): a query's position and heading, a reference's GPS tag and heading. The answers' parts: the
+buildings seen (columns in the uploaded photo's pixels) and a query's answer in WGS84 and compass headings.
+Used by :mod:`workers.reference_handlers`, :mod:`workers.sequence_handlers`, :mod:`workers.query_handlers` and
+:mod:`workers.track_handlers`; the method runs with the process's context (:func:`workers.context.worker_context`).
 """
 
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
-from contracts.answers import (
-    BoundingBox,
-    BuildingInPhoto,
-    EstimatedPose,
-    Heatmap,
-    LatLon,
-    QueryResult,
-    RankedLocation,
-    ReferenceLabels,
-    ReferenceUsed,
-)
-from contracts.jobs import (
-    LABEL_REFERENCE,
-    LOCALIZE_QUERY,
-    PLACE_SEQUENCE,
-    LabelReferencePayload,
-    LabelReferenceResult,
-    LocalizeQueryPayload,
-    LocalizeQueryResult,
-    PlaceSequencePayload,
-)
+from contracts.answers import BoundingBox, BuildingInPhoto, Heatmap, LatLon, QueryResult, RankedLocation, ReferenceUsed
 from contracts.queries import PriorPosition, QueryParams
 from contracts.settings import data_dir, get_settings
 from db import Database, database_key, sbow, transaction
-from db import jobs as job_store
 from db import maps as map_store
-from db import queries as query_store
-from db import references as reference_store
 from db.files import open_store
 from db.rows import ReferenceRow
 from geoloc.core.geo import LocalFrame
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.labeling import stated_heading_prior
-from geoloc.localize.query import QueryAnswer, geolocate, preset_config
-from geoloc.localize.reference import LabelledReference, label_reference_photo
+from geoloc.localize.query import QueryAnswer
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
-from geoloc.localize.sequence.frames import FrameLabel, frame_arrays
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.maps.places import PlaceIndex, find_place, place_index
 from geoloc.photos.heading_prior import HeadingPrior, compass_heading_prior
 from geoloc.photos.photo import Photo, load_photo
-from geoloc.vision.evidence import analyze_photo
 from geoloc.vision.model_files import vocabulary_path
-from geoloc.vision.onnx_session import used_device
 from geoloc.vision.segmentation import ModelNotBuiltError
 from workers.context import worker_context
-from workers.handlers import PermanentJobError, answer_checked, register, treat_as_permanent
-from workers.metrics import observe_stages
+from workers.handlers import PermanentJobError, treat_as_permanent
 from workers.reference_store import DatabaseReferenceStore
 from workers.sbow_files import sbow_cache_dir
 
@@ -171,7 +138,7 @@ def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
     return vocabulary
 
 
-def _heading_prior(
+def heading_prior_at(
     frame: LocalFrame, heading_deg: float | None, accuracy_deg: float | None, east_m: float = 0.0, north_m: float = 0.0
 ) -> HeadingPrior | None:
     """The heading prior of a stored heading (deg from true north) at a local point (m) of ``frame``.
@@ -187,136 +154,29 @@ def _heading_prior(
     return compass_heading_prior(heading_deg, accuracy_deg, frame, east_m, north_m)
 
 
-@dataclass(frozen=True)
-class AloneLabel:
-    """A reference labelled alone: its photo, label, GPS tag (local m of its map) and compass prior."""
-
-    photo: Photo
-    labelled: LabelledReference
-    gps_xy: tuple[float, float]
-    heading_prior: HeadingPrior | None
-
-    @property
-    def column_scale(self) -> float:
-        """Uploaded photo's pixels per working-size pixel (:func:`reference_labels`)."""
-        return column_scale(self.photo.original_size, self.photo.intrinsics.width)
-
-    def walk_frame(self) -> dict[str, np.ndarray]:
-        """What the sequence job needs of this label (:func:`geoloc.localize.sequence.frames.frame_arrays`).
-
-        With the uploaded photo's (width, height) as ``original_size``, stored beside the labels.
-        """
-        frame = frame_arrays(FrameLabel.of(self.labelled, self.photo.intrinsics))
-        return frame | {"original_size": np.array(self.photo.original_size, np.int64)}
-
-
 def column_scale(original_size: tuple[int, int] | np.ndarray, working_width: int) -> float:
     """Uploaded photo's pixels per working-size pixel: (width, height) uploaded over the working width."""
     return float(original_size[0] / working_width)
 
 
 def reference_priors(city: CityMap, ref: ReferenceRow) -> tuple[tuple[float, float], HeadingPrior | None]:
-    """A stored reference's GPS tag (local m of ``city``) and heading prior (:func:`_heading_prior`)."""
+    """A stored reference's GPS tag (local m of ``city``) and heading prior (:func:`heading_prior_at`)."""
     frame = city.frame
     gps_x, gps_y = (float(v) for v in frame.to_local(ref["gps_lat"], ref["gps_lon"]))
-    prior = _heading_prior(frame, ref["prior_heading_deg"], ref["prior_heading_accuracy_deg"], gps_x, gps_y)
+    prior = heading_prior_at(frame, ref["prior_heading_deg"], ref["prior_heading_accuracy_deg"], gps_x, gps_y)
     return (gps_x, gps_y), prior
 
 
-def label_alone(city: CityMap, ref: ReferenceRow) -> AloneLabel:
-    """Label a stored reference with its map, alone (the label job's method, and a sequence's first step)."""
-    photo = stored_photo(ref["image_path"], ref["focal_length_35mm"])
-    gps_xy, prior = reference_priors(city, ref)
-    labelled = label_reference_photo(city, photo, gps_xy, heading_prior=prior, context=worker_context())
-    return AloneLabel(photo, labelled, gps_xy, prior)
+def query_priors(
+    db: Database, map_id: int, city: CityMap, params: QueryParams
+) -> tuple[PositionPrior | None, HeadingPrior | None]:
+    """A query's stored priors in the map's frame: position (:func:`position_prior_for`), heading."""
+    position_prior = None if params.prior is None else position_prior_for(db, map_id, city, params.prior)
+    heading = heading_prior_at(city.frame, params.prior_heading_deg, params.prior_heading_accuracy_deg)
+    return position_prior, heading
 
 
-def reference_labels(city: CityMap, scale: float, labelled: LabelledReference, total_ms: float) -> ReferenceLabels:
-    """A labelled reference's answer (pose in WGS84 and compass degrees, buildings seen, timings).
-
-    scale: uploaded photo's pixels per working-size pixel (:func:`column_scale`).
-    """
-    label, frame = labelled.label, city.frame
-    lat, lon = (float(v) for v in frame.to_wgs84(label.x_m, label.y_m))
-    heading = float(frame.bearing_to_heading(label.yaw_deg, label.x_m, label.y_m))
-    timings = {k: round(v, 1) for k, v in labelled.timings_ms.items()}
-    timings["total"] = round(total_ms, 1)
-    with answer_checked("reference labels"):
-        return ReferenceLabels(
-            estimated=EstimatedPose(lat=lat, lon=lon, heading_deg=round(heading, 2)),
-            buildings_seen=_describe_buildings(city, labelled.identity.building_extents(), scale),
-            timings=timings,
-        )
-
-
-def save_labels(
-    db: Database,
-    reference_id: int,
-    labelled: LabelledReference,
-    labels: ReferenceLabels,
-    placement: str,
-    walk_frame: dict[str, np.ndarray] | None = None,
-) -> None:
-    """Store a labelled reference's arrays and answer (inside the caller's transaction); it is ``done``.
-
-    placement: ``alone`` (its own label) or ``sequence`` (its walk's joint placement); walk_frame: its label
-    alone for the sequence job (:meth:`AloneLabel.walk_frame`), for a reference that may join a walk.
-    """
-    stored = labels.model_dump(mode="json")
-    estimated = labels.estimated
-    reference_store.save_labels(db, reference_id, labelled.label_arrays(), walk_frame)
-    reference_store.save_keypoints(db, reference_id, labelled.keypoints())
-    reference_store.update_reference_result(
-        db,
-        reference_id,
-        status="done",
-        estimated_lat=estimated.lat,
-        estimated_lon=estimated.lon,
-        estimated_heading_deg=estimated.heading_deg,
-        buildings_seen=stored["buildings_seen"],
-        timings=stored["timings"],
-    )
-    reference_store.set_reference_placement(db, reference_id, placement)
-
-
-@register(LABEL_REFERENCE, LabelReferencePayload)
-def label_reference(db: Database, payload: LabelReferencePayload) -> LabelReferenceResult:
-    """Label a reference with the map, extract and index its features, store its pose and identities.
-
-    A reference that may belong to a walk (:func:`db.references.may_join_walk`) then queues the map's sequence job
-    (:mod:`workers.sequence_handlers`) unless one already waits: it places each walk once all of it is labelled.
-    """
-    reference_id, map_id = payload.reference_id, payload.map_id
-    ref = reference_store.get_reference(db, reference_id)
-    if ref is None:
-        raise PermanentJobError(f"reference {reference_id} no longer exists")
-    city = city_map_for(db, map_id)
-    t0 = time.perf_counter()
-    alone = label_alone(city, ref)
-    labelled = alone.labelled
-    vocabulary = vocabulary_for(db, map_id)
-    words = vocabulary.words(labelled.cues.features.descriptors)
-    labels = reference_labels(city, alone.column_scale, labelled, 1e3 * (time.perf_counter() - t0))
-    observe_stages(LABEL_REFERENCE, labelled.timings_ms)
-    walker = reference_store.may_join_walk(ref)
-    with transaction(db):
-        if reference_store.get_reference(db, reference_id) is None:
-            raise PermanentJobError(f"reference {reference_id} was deleted while it was labelled")
-        save_labels(db, reference_id, labelled, labels, "alone", alone.walk_frame() if walker else None)
-        sbow.index_reference(db, map_id, reference_id, words, np.ones(len(words)))
-        if walker:
-            # One waiting sequence job per map is enough: it places every walk of the map that changed.
-            db.lock(f"geoloc:place-sequence:{map_id}")
-            if not job_store.has_queued_job(db, PLACE_SEQUENCE, map_id):
-                sequence_job = PlaceSequencePayload(reference_id=reference_id, map_id=map_id)
-                job_store.enqueue_job(db, PLACE_SEQUENCE, sequence_job, map_id=map_id)
-    assert labels.estimated is not None and labels.estimated.heading_deg is not None
-    return LabelReferenceResult(
-        reference_id=reference_id, heading_deg=labels.estimated.heading_deg, buildings=len(labels.buildings_seen)
-    )
-
-
-def _describe_buildings(
+def describe_buildings(
     city: CityMap, extents: Sequence[Mapping[str, Any]], column_scale: float
 ) -> list[BuildingInPhoto]:
     """Building extents with their OSM ids and names, columns in the uploaded photo's pixels."""
@@ -335,58 +195,6 @@ def _describe_buildings(
             )
         )
     return out
-
-
-def query_priors(
-    db: Database, map_id: int, city: CityMap, params: QueryParams
-) -> tuple[PositionPrior | None, HeadingPrior | None]:
-    """A query's stored priors in the map's frame: position (:func:`position_prior_for`), heading."""
-    position_prior = None if params.prior is None else position_prior_for(db, map_id, city, params.prior)
-    heading = _heading_prior(city.frame, params.prior_heading_deg, params.prior_heading_accuracy_deg)
-    return position_prior, heading
-
-
-@register(LOCALIZE_QUERY, LocalizeQueryPayload)
-def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQueryResult:
-    """Answer a query with the query stage (:func:`geoloc.localize.query.geolocate`); store the JSON answer."""
-    context = worker_context()
-    query_id, map_id = payload.query_id, payload.map_id
-    query = query_store.get_query(db, query_id)
-    if query is None:
-        raise PermanentJobError(f"query {query_id} no longer exists")
-    params = query["params"]
-    city = city_map_for(db, map_id)
-    t0 = time.perf_counter()
-    if query["image_path"] is None:
-        raise PermanentJobError(f"query {query_id} has no stored photo")
-    photo = stored_photo(query["image_path"], params.focal_length_35mm)
-    evidence = analyze_photo(photo, context=context)
-    position_prior, heading_prior = query_priors(db, map_id, city, params)
-    answer = geolocate(
-        city,
-        photo,
-        evidence,
-        reference_store_for(db, map_id),
-        vocabulary_for(db, map_id),
-        preset_config(params.preset_name, k=params.k),
-        position_prior=position_prior,
-        heading_prior=heading_prior,
-        top_n=params.top_n,
-        context=context,
-    )
-    answer.search["preset"] = params.preset_name  # beside search.config: which preset chose it
-    answer.search["device"] = used_device(context.device)  # where segmentation and ALIKED ran: cpu or cuda
-    timings_ms = {
-        **{k: round(v, 1) for k, v in answer.timings_ms.items()},
-        "total": round(1e3 * (time.perf_counter() - t0), 1),
-    }
-    observe_stages(LOCALIZE_QUERY, answer.timings_ms)
-    with answer_checked("query answer"):
-        result = query_result(city, photo, answer, timings_ms)
-    with transaction(db):
-        if not query_store.update_query_result(db, query_id, status="done", result=result.model_dump(mode="json")):
-            raise PermanentJobError(f"query {query_id} was deleted while it was answered")
-    return LocalizeQueryResult(query_id=query_id, locations=len(result.locations))
 
 
 def query_result(city: CityMap, photo: Photo, answer: QueryAnswer, timings_ms: dict[str, float]) -> QueryResult:
@@ -430,7 +238,7 @@ def query_result(city: CityMap, photo: Photo, answer: QueryAnswer, timings_ms: d
     return QueryResult(
         locations=locations,
         heatmap=heatmap,
-        buildings=_describe_buildings(city, answer.buildings, scale),
+        buildings=describe_buildings(city, answer.buildings, scale),
         references=[
             ReferenceUsed(reference_id=r["reference_id"], score=r["score"], matches=r["matches"], inliers=r["inliers"])
             for r in answer.references

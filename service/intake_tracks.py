@@ -1,7 +1,7 @@
 """The track-upload use-case: several photos (or earlier queries) stored as one track's frames with one job.
 
 A track's frames are query rows (:mod:`db.tracks`), so each uploaded frame goes through what a query upload
-checks (:class:`service.routes_queries.QueryIntake`: its form's bounds, its photo by content, its prior position
+checks (:class:`service.intake_queries.QueryIntake`: its form's bounds, its photo by content, its prior position
 inside the map) with its own priors; an error names the frame (``details.frame``, from 0 in the order sent).
 A frame that is not a photo is a 422 (not the 415 of a lone query: the request as a whole is well formed, one of
 its parts is not). All frames, their rows, the track and its one ``locate_track`` job are stored in one
@@ -35,7 +35,7 @@ from db.rows import MapRow, QueryRow
 from service.deps import open_db
 from service.errors import ApiError
 from service.images import validate_image
-from service.routes_queries import QueryForm, QueryIntake
+from service.intake_queries import QueryForm, QueryIntake
 from service.tenancy import require_query, require_ready_map
 from service.uploads import ReceivedFile, received_upload
 from workers.broker import JobPublisher
