@@ -48,8 +48,8 @@ import osmium
 from baseline import add_baseline_option, baseline_figures
 from local_service import LocalService, run_figures, status_mb
 
+from client import ApiError, calls
 from contracts.settings import shared_path
-from geoloc.client import ApiError, calls
 from geoloc.core.geo import frame_for_bbox
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 

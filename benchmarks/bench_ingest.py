@@ -5,7 +5,7 @@
 For each profile (``embedded``: SQLite and the built-in pool; ``distributed``: PostgreSQL and Celery
 workers on Redis) and each worker count, the benchmark starts a fresh deployment with ``geoloc serve
 --workers N`` on loopback (the distributed one on a private PostgreSQL cluster and ``redis-server`` it
-starts itself, as the tests do, with ``benchmarks/servers.py``), uploads the Helsinki map, labels ``N`` warm-up
+starts itself, as the tests do, with ``testbed/servers.py``), uploads the Helsinki map, labels ``N`` warm-up
 references (each worker process loads its models and the map once), then uploads ``--references``
 references at once and times them from the first upload to the last reference ``done`` through the API.
 The photos are the references of a simulated world (``--world``, else one generated here from the
@@ -30,11 +30,11 @@ from typing import Any
 import numpy as np
 from baseline import add_baseline_option, baseline_figures
 from local_service import LocalService
-from servers import PostgresServer, RedisServer
 
+from client import Client
 from contracts.settings import shared_path
-from geoloc.client import Client
 from geoloc.sim.world import WorldOptions, generate_world, load_world
+from testbed.servers import PostgresServer, RedisServer
 
 TARGET_RATIO = 0.8
 """Distributed throughput per worker must be at least this share of the embedded one."""

@@ -5,7 +5,7 @@
 
 Starts ``geoloc serve --workers 2`` (the README's first command) on a free loopback port with a fresh data
 folder (the built models linked from ``GEOLOC_DATA_DIR/cache/models``), uploads the Helsinki map, then runs
-``--clients`` asyncio clients (``geoloc.client.AsyncClient``, each request tried once: every answer counts)
+``--clients`` asyncio clients (``client.AsyncClient``, each request tried once: every answer counts)
 for ``--duration-s``. Each client repeats: think 0.5-1.5 s, then one action, drawn as
 
 - a read (70 %): ``GET /v1/maps/{id}``, ``/v1/maps``, ``/v1/references/{id}``, ``/v1/jobs/{id}`` or
@@ -43,9 +43,9 @@ import httpx
 import numpy as np
 from local_service import LocalService
 
+from client import ApiError, AsyncClient, Query, RetryPolicy, Sent, ServiceUnreachableError, calls
+from client.calls import Call
 from contracts.settings import shared_path
-from geoloc.client import ApiError, AsyncClient, Query, RetryPolicy, Sent, ServiceUnreachableError, calls
-from geoloc.client.calls import Call
 
 READ_SHARE, UPLOAD_SHARE = 0.70, 0.15
 """The rest (15 %) are queries."""

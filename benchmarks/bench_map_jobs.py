@@ -38,8 +38,8 @@ from bench_city_map import _make_world, ingest, upload_map, write_tiled_osm
 from local_service import LocalService, run_figures
 from map_jobs_checks import summarize, verdict
 
+from client import calls
 from contracts.settings import shared_path
-from geoloc.client import calls
 from geoloc.sim.world import load_world
 
 BOMB_INFLATED_BYTES = 3 * 1024**3

@@ -4,7 +4,7 @@
                                                  [--workers 2] [--rounds 1] [--workdir DIR] [--json presets.json]
 
 One ``geoloc serve --workers N`` on a fresh data folder (:class:`local_service.LocalService`), driven with the
-Python client (:class:`geoloc.client.Client`): the Helsinki map is uploaded, the world's first
+Python client (:class:`client.Client`): the Helsinki map is uploaded, the world's first
 ``--references`` references posted and labelled, then each of its first ``--queries`` query photos is posted
 once per preset (``preset=fast|balanced|accurate``, the order rotating by photo so that no preset always runs
 first), one at a time, waiting for the answer, ``--rounds`` times; one warm-up query per preset comes first.

@@ -24,7 +24,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.config_args import comparison_arguments, parse_config
+from config_args import comparison_arguments, parse_config
+
 from geoloc.evaluation.ground_truth import shown_by_references
 from geoloc.evaluation.queries import EvalRun, answer_run
 from geoloc.evaluation.references import analyze, label_references

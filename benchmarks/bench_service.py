@@ -58,8 +58,8 @@ from baseline import export_commit, service_checks
 from eval_agreement import query_agreement
 from local_service import REPO_ROOT, LocalService, status_mb
 
+from client import ApiError, Call, Sent, calls
 from contracts.settings import shared_path
-from geoloc.client import ApiError, Call, Sent, calls
 from geoloc.photos.photo import load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from geoloc.vision.segmentation import load_session, segment

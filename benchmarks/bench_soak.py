@@ -47,9 +47,9 @@ import httpx
 from local_service import LocalService
 from soak_checks import process_checks, sample, under_load, verdict
 
+from client import ApiError, AsyncClient, RetryPolicy, Sent, ServiceUnreachableError, calls
+from client.calls import Call
 from contracts.settings import shared_path
-from geoloc.client import ApiError, AsyncClient, RetryPolicy, Sent, ServiceUnreachableError, calls
-from geoloc.client.calls import Call
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from workers.retention import purge_interval_s
 
@@ -368,7 +368,7 @@ def main() -> int:
         servers: list[Any] = []
         database_url = None
         if args.profile == "distributed":
-            from servers import PostgresServer, RedisServer  # only this profile needs the servers
+            from testbed.servers import PostgresServer, RedisServer  # only this profile needs the servers
 
             servers = [PostgresServer().start(), RedisServer().start()]
             database_url = servers[0].new_database()

@@ -29,7 +29,7 @@ from eval_agreement import track_agreement
 from local_service import run_figures
 from track_checks import MUST_HOLD_S, track_summary, world_tracks
 
-from geoloc.client import calls
+from client import calls
 from geoloc.sim.world import load_world
 
 

@@ -36,7 +36,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from benchmarks.config_args import comparison_arguments, parse_config
+from config_args import comparison_arguments, parse_config
+
 from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.references import label_alone, relabelled_at_truth
 from geoloc.evaluation.summaries import reference_heading_summary, reference_position_summary

@@ -23,8 +23,8 @@ from pathlib import Path
 REPO_ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO_ROOT))
 
+from client import ApiError, Client, RetryPolicy, ServiceUnreachableError, calls  # noqa: E402
 from contracts.settings import cache_dir  # noqa: E402
-from geoloc.client import ApiError, Client, RetryPolicy, ServiceUnreachableError, calls  # noqa: E402
 from workers.context import model_problems  # noqa: E402
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")

@@ -1,7 +1,7 @@
 """Worker processes holding one map's SBoW index side by side, for ``bench_sbow.py --workers N``: their memory.
 
 Starts ``count`` processes at once, each one doing what a worker does before its first query's shortlist
-(``workers.reference_store.DatabaseReferenceStore(..., shared_dir=...)``, as ``workers.method_handlers`` builds
+(``workers.reference_store.DatabaseReferenceStore(..., shared_dir=...)``, as ``workers.handler_helpers`` builds
 it: the machine's shared base segment when ``shared_dir`` is given, the process's own index otherwise), then
 answering the same queries. Once all hold their index, each one's resident memory (``VmRSS``) and proportional
 set size (``Pss`` of ``/proc/PID/smaps_rollup``: a shared page counts 1/n in each of the n processes mapping it,

@@ -14,8 +14,8 @@ Exit codes: 0 nothing failed (rejected photos are not failures), 1 some photos f
 retries (or, with ``--wait``, failed labelling, a walk left unplaced or the wait timed out), 2 nothing could
 be done (service unreachable, bad API key, unknown map) or the command line is wrong.
 
-This module runs the steps; :mod:`cli.photo_files` picks the files, the client :mod:`geoloc.client`
-talks to the service (with :data:`~geoloc.client.retry.TRANSIENT_STATUSES` retried), :mod:`cli.ingest_wait`
+This module runs the steps; :mod:`cli.photo_files` picks the files, the client :mod:`client`
+talks to the service (with :data:`~client.retry.TRANSIENT_STATUSES` retried), :mod:`cli.ingest_wait`
 waits, :mod:`cli.ingest_report` prints the summary.
 """
 
@@ -45,8 +45,8 @@ from cli.ingest_wait import (
     wait_for_placement,
 )
 from cli.photo_files import Candidate, FileResult, path_order, scan_folder
-from geoloc.client import ApiError, Client, Map, RetryPolicy, ServiceUnreachableError, calls
-from geoloc.client.retry import TRANSIENT_STATUSES as RETRY_STATUSES
+from client import ApiError, Client, Map, RetryPolicy, ServiceUnreachableError, calls
+from client.retry import TRANSIENT_STATUSES as RETRY_STATUSES
 from geoloc.photos.geotag import GeotagError
 
 NOT_THE_PHOTOS_FAULT = frozenset({401, 403, 404})

@@ -29,7 +29,7 @@ from datetime import datetime
 from pathlib import Path
 
 from cli.photo_files import Candidate, FileResult
-from geoloc.client import ReferenceFields
+from client import ReferenceFields
 from geoloc.photos.capture import CaptureInfo, capture_of
 from geoloc.photos.exif import exif_info, load_exif
 from geoloc.photos.geotag import (

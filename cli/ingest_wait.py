@@ -23,8 +23,8 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from cli.photo_files import FileResult
-from geoloc.client import ApiError, Client, Reference, ReferenceList, ServiceUnreachableError
-from geoloc.client.retry import TRANSIENT_STATUSES as RETRY_STATUSES
+from client import ApiError, Client, Reference, ReferenceList, ServiceUnreachableError
+from client.retry import TRANSIENT_STATUSES as RETRY_STATUSES
 
 WaitFor = Literal["placed", "labelled"]
 WAIT_MODES: tuple[WaitFor, ...] = ("placed", "labelled")

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from geoloc.client import ReferenceFields
+from client import ReferenceFields
 from geoloc.photos.geotag import DESCRIPTION_FILE
 
 OUTCOMES: dict[str, str] = {

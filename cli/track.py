@@ -16,7 +16,7 @@ from pathlib import Path
 
 import typer
 
-from geoloc.client import Client, GeolocClientError, Track, WaitTimeoutError
+from client import Client, GeolocClientError, Track, WaitTimeoutError
 
 
 def _lines(track: Track) -> list[str]:

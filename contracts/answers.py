@@ -1,10 +1,11 @@
 """The answers that workers store and the API serves: one pydantic contract for both.
 
-The workers' handlers build these models directly (:mod:`workers.method_handlers`); a value that does not
+The workers' handlers build these models directly (:mod:`workers.query_handlers`,
+:mod:`workers.reference_labels`); a value that does not
 fit (a missing or unknown field, a wrong type, a NaN) raises pydantic's ``ValidationError`` while the answer
 is built, which :func:`workers.handlers.answer_checked` turns into a permanent job failure naming the field,
 so nothing malformed is stored. What is stored is the model's JSON form (``model_dump(mode="json")``),
-exactly what the API serves: the API's response models (:mod:`service.models`) embed the same classes.
+exactly what the API serves: the API's response models (:mod:`contracts.api`) embed the same classes.
 Only pydantic is imported here (contracts are the bottom layer).
 
 The models forbid unknown fields and non-finite numbers: a field added to an answer must be added

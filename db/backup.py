@@ -85,7 +85,7 @@ class BackupReport:
 def postgres_program(name: str) -> str:
     """Path of a PostgreSQL client program (``pg_dump``, ``pg_restore``).
 
-    On PATH, else the newest under ``/usr/lib/postgresql/*/bin`` (Debian's layout, as :mod:`benchmarks.servers`
+    On PATH, else the newest under ``/usr/lib/postgresql/*/bin`` (Debian's layout, as :mod:`testbed.servers`
     finds the server's).
     """
     found = shutil.which(name) or next(iter(sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"), reverse=True)), None)

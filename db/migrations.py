@@ -27,7 +27,7 @@ Storage decisions (see also the module docstrings of the access modules):
   profile; see :mod:`workers.broker`); the embedded pool claims from the table and never sets it.
 - ``reference_images.prior_heading_accuracy_deg`` (migration 5) is the accuracy (deg) of a heading prior
   that came from the photo's compass; NULL for a heading the uploader stated (and for every reference
-  stored before it), which the worker weights as before (:mod:`workers.method_handlers`).
+  stored before it), which the worker weights as before (:mod:`workers.handler_helpers`).
 - ``maps.attribution`` (migration 6) is the attribution the map upload stated (its data's licence requires it
   shown with everything derived from the map); NULL when the upload stated none, and for every map stored
   before it: the API then shows the default, "© OpenStreetMap contributors" (:mod:`contracts.licenses`).

@@ -23,6 +23,7 @@ from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from db.blobs import pack_arrays, unpack_arrays
 from db.connection import Database
 from db.jobs import cancel_queued_jobs
+from db.records import NewReference, ReferenceLabel
 from db.rows import ReferenceRow
 from db.sbow import log_change
 
@@ -36,33 +37,8 @@ def _decode(row: dict[str, Any]) -> ReferenceRow:
     return cast(ReferenceRow, row)
 
 
-def insert_reference(
-    db: Database,
-    *,
-    map_id: int,
-    image_path: str,
-    original_filename: str | None,
-    sha256: str,
-    size_bytes: int,
-    image_format: str,
-    width: int,
-    height: int,
-    gps_lat: float,
-    gps_lon: float,
-    position_source: str,
-    prior_heading_deg: float | None = None,
-    focal_length_35mm: float | None = None,
-    prior_heading_accuracy_deg: float | None = None,
-    sequence_id: str | None = None,
-    capture_time: str | None = None,
-    device: str | None = None,
-) -> int:
-    """Insert a queued reference; returns its id. Call inside a transaction.
-
-    prior_heading_accuracy_deg: the accuracy (deg) of a heading prior from the photo's compass; None for a
-    heading the uploader stated (the worker weights the two differently, see :mod:`workers.method_handlers`).
-    sequence_id, capture_time (ISO 8601), device: what groups it into a walk (:mod:`geoloc.localize.sequence`).
-    """
+def insert_reference(db: Database, reference: NewReference) -> int:
+    """Insert a queued reference (:class:`db.records.NewReference`); returns its id. Call inside a transaction."""
     now = time.time()
     return db.insert_returning_id(
         "INSERT INTO reference_images (map_id, image_path, original_filename, sha256, size_bytes,"
@@ -71,23 +47,23 @@ def insert_reference(
         " created_at, updated_at)"
         " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'queued', ?, ?)",
         (
-            map_id,
-            image_path,
-            original_filename,
-            sha256,
-            size_bytes,
-            image_format,
-            width,
-            height,
-            gps_lat,
-            gps_lon,
-            position_source,
-            prior_heading_deg,
-            prior_heading_accuracy_deg,
-            focal_length_35mm,
-            sequence_id,
-            capture_time,
-            device,
+            reference.map_id,
+            reference.image_path,
+            reference.original_filename,
+            reference.sha256,
+            reference.size_bytes,
+            reference.image_format,
+            reference.width,
+            reference.height,
+            reference.gps_lat,
+            reference.gps_lon,
+            reference.position_source,
+            reference.prior_heading_deg,
+            reference.prior_heading_accuracy_deg,
+            reference.focal_length_35mm,
+            reference.sequence_id,
+            reference.capture_time,
+            reference.device,
             now,
             now,
         ),
@@ -197,6 +173,30 @@ def update_reference_result(
         ),
     )
     return cursor.rowcount == 1
+
+
+def save_label(db: Database, label: ReferenceLabel) -> None:
+    """Store a labelled reference (:class:`db.records.ReferenceLabel`): its arrays, keypoints, answer, placement.
+
+    The reference is then ``done``. Its four writes are one unit: call inside a transaction (the caller's, which
+    may hold more: a label job's index postings, a walk's other references); raises ``RuntimeError`` outside one.
+    """
+    if not db.in_transaction:
+        raise RuntimeError("save_label writes four tables as one unit: call it inside a transaction")
+    reference_id = label.reference_id
+    save_labels(db, reference_id, label.arrays, label.walk_frame)
+    save_keypoints(db, reference_id, label.keypoints)
+    update_reference_result(
+        db,
+        reference_id,
+        status="done",
+        estimated_lat=label.estimated_lat,
+        estimated_lon=label.estimated_lon,
+        estimated_heading_deg=label.estimated_heading_deg,
+        buildings_seen=label.buildings_seen,
+        timings=label.timings,
+    )
+    set_reference_placement(db, reference_id, label.placement)
 
 
 def delete_reference(db: Database, reference_id: int) -> ReferenceRow | None:

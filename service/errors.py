@@ -16,55 +16,11 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from contracts.api import CODES_BY_STATUS
 from db.outages import is_database_unavailable, outage_reason
 from service.deps import app_settings
 
 log = logging.getLogger("geoloc.api")
-
-_CODES_BY_STATUS = {
-    400: "bad_request",
-    401: "unauthorized",
-    403: "forbidden",
-    404: "not_found",
-    405: "method_not_allowed",
-    409: "conflict",
-    413: "payload_too_large",
-    415: "unsupported_media_type",
-    422: "invalid_request",
-    500: "internal_error",
-    503: "unavailable",
-    507: "insufficient_storage",
-}
-
-ERROR_CODES: tuple[tuple[int, str], ...] = (
-    *sorted(_CODES_BY_STATUS.items()),
-    (400, "invalid_request_id"),
-    (408, "request_timeout"),
-    (409, "map_not_ready"),
-    (409, "not_ready"),
-    (413, "too_many_frames"),
-    (413, "too_many_pixels"),
-    (415, "not_an_image"),
-    (415, "unsupported_image_format"),
-    (422, "corrupt_image"),
-    (422, "empty_file"),
-    (422, "foreign_query"),
-    (422, "not_an_image"),
-    (422, "unsupported_image_format"),
-    (422, "image_too_small"),
-    (422, "ambiguous_place"),
-    (422, "invalid_map"),
-    (422, "no_position"),
-    (422, "outside_map"),
-    (422, "unknown_place"),
-    (422, "unsupported_projection"),
-    (429, "queue_full"),
-    (429, "rate_limited"),
-    (503, "database_unavailable"),
-    (503, "not_ready"),
-)
-"""Every (status, code) the service answers with; the OpenAPI schema of ``ErrorDetail.code`` lists them
-(``tests/unit/service/test_openapi_doc.py`` fails when a code is raised that is not here)."""
 
 
 class ApiError(Exception):
@@ -188,7 +144,7 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        code = _CODES_BY_STATUS.get(exc.status_code, "error")
+        code = CODES_BY_STATUS.get(exc.status_code, "error")
         message = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
         headers = dict(getattr(exc, "headers", None) or {})
         if exc.status_code == 405 and (methods := allowed_methods(request.app, request.url.path)):

@@ -28,7 +28,7 @@ from typing import Annotated, Any, Literal
 from fastapi import Query, Request
 from pyproj import Geod
 
-from service.models import QueryOut, ReferenceList, TrackOut
+from contracts.api import QueryOut, ReferenceList, TrackOut
 
 GEOJSON_MEDIA_TYPE = "application/geo+json"
 VIEW_CONE_LENGTH_M = 50.0

@@ -1,10 +1,12 @@
-"""What the routes share: the map lookup (its row, its loaded map), read errors, status, the photo-upload use-case.
+"""The photo-upload use-case that references and queries share (:class:`PhotoIntake`).
 
 A photo upload, a reference or a query, goes through :meth:`PhotoIntake.accept`: look the map up (404),
 check the form, receive the photo (413 over the size limit), check it by its content (415, 413, 422) and
 against the map, then store the photo, its row and its job in one transaction and hand the job to the
 workers once committed. What differs is a subclass's: the form checks, what is stored of the photo, the
-row, the job's kind and payload, and (references) the duplicate check.
+row, the job's kind and payload, and (references) the duplicate check: :mod:`service.intake_references`,
+:mod:`service.intake_queries` (and a track's frames, :mod:`service.intake_tracks`). Routes call the use-cases;
+no use-case imports a route module.
 
 Decision (sync or async routes): both upload routes are ``async`` and run this blocking use-case in a worker
 thread (``fastapi.concurrency.run_in_threadpool``) with its own database connection. The query route must be
@@ -15,61 +17,22 @@ database) runs on the event loop.
 
 from __future__ import annotations
 
-import json
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from functools import lru_cache
-from pathlib import Path
 
 from fastapi import UploadFile
 
-from contracts.jobs import JobPayload, WorkStatus, reported_status
+from contracts.jobs import JobPayload
 from contracts.settings import Settings
 from db import Database, transaction
 from db import jobs as job_store
 from db.files import FileStore
-from db.rows import JobRow, MapRow
-from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
+from db.rows import MapRow
 from service.deps import open_db
 from service.images import ImageInfo, validate_image
-from service.models import error_responses
-from service.tenancy import check_ready, require_ready_map
+from service.tenancy import require_ready_map
 from service.uploads import ReceivedFile, received_upload
 from workers.broker import JobPublisher
-
-READ_ERRORS = error_responses(404)
-"""Errors a read answers itself (the specification adds auth, rate-limit and validation statuses)."""
-
-
-@lru_cache(maxsize=2)
-def _cached_map(source: str, cache_dir: str, read_options: str, sha256: str) -> CityMap:
-    options = MapReadOptions.from_dict(json.loads(read_options))
-    return load_map_cached(source, Path(cache_dir), options, sha256=sha256)
-
-
-def loaded_map(settings: Settings, store: FileStore, row: MapRow) -> CityMap:
-    """The loaded map of a map row (streets, footprints in local metres), from the copy cached at upload.
-
-    Kept in memory for the last two maps asked (the heat map picture, the streets' GeoJSON). 409 while the
-    map is not done.
-    """
-    check_ready(row)
-    return _cached_map(
-        str(store.local_path(row["source_path"])),
-        str(map_cache_dir(settings.data_dir)),
-        json.dumps(row["read_options"], sort_keys=True),
-        row["sha256"],
-    )
-
-
-def work_status(status: str, error: str | None, job: JobRow | None) -> tuple[WorkStatus, str | None]:
-    """What to report for a reference or query with this status and error and this job (or none).
-
-    :func:`contracts.jobs.reported_status` on the job row's status, attempts and error.
-    """
-    if job is None:
-        return reported_status(status, error, None)
-    return reported_status(status, error, job["status"], job["attempts"], job["error"])
 
 
 @dataclass(frozen=True)

@@ -22,8 +22,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query
 from fastapi.concurrency import run_in_threadpool
-from pydantic import BaseModel, Field
 
+from contracts.api import PlaceList, PlaceOut
 from contracts.settings import Settings
 from db.files import open_store
 from db.rows import MapRow
@@ -33,33 +33,11 @@ from service.auth import Caller, request_caller, require_read
 from service.bounds import MapId
 from service.deps import app_settings, open_db
 from service.errors import ApiError
-from service.models import error_responses
+from service.responses import error_responses
 from service.tenancy import require_map
 
 router = APIRouter(tags=["maps"])
 MAX_PLACE_CHARS = 200
-
-
-class PlaceOut(BaseModel):
-    """A place of the map and the position prior it gives (WGS84 degrees; ``radius_m`` about 2 sigma)."""
-
-    name: str = Field(examples=["Mannerheimintie 5"])
-    kind: str = Field(description="address, building, street or landmark", examples=["address"])
-    lat: float = Field(examples=[60.1695])
-    lon: float = Field(examples=[24.94])
-    radius_m: float = Field(
-        description="The disc covering the place (m): the building plus a margin, the street's reach; the query's "
-        "prior follows the place's shape (docs/places.md)"
-    )
-    building_id: int | None = Field(default=None, description="The map's building (addresses and buildings)")
-    score: float = Field(description="How well the name matched the text (0-1, 1: exactly)")
-
-
-class PlaceList(BaseModel):
-    """Places matching a text, best first."""
-
-    query: str
-    places: list[PlaceOut]
 
 
 def place_out(place: Place) -> PlaceOut:

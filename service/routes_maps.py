@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, File, Form, Request, Response, UploadFile, status
@@ -18,7 +17,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
 from contracts.answers import BoundingBox, LatLon
-from contracts.jobs import LOAD_MAP, LoadMapPayload
+from contracts.api import MapList, MapOut, MapProgressOut
 from contracts.licenses import map_attribution
 from contracts.settings import Settings
 from db import Database, database_key, transaction
@@ -28,16 +27,14 @@ from db.files import FileStore
 from db.rows import MapRow
 from geoloc.maps import MapLoadError, MapReadOptions, map_cache_dir, remove_cached_map
 from geoloc.maps.crs import parse_crs
-from geoloc.maps.guard import DecompressedTooLargeError, check_decompressed_size, public_message, public_name
-from geoloc.maps.sniff import sniff_format
 from service.auth import Caller, request_caller, require_read, require_write
 from service.bounds import MapId
 from service.deps import app_settings, get_db, get_publisher, get_store, open_db
 from service.errors import ApiError
-from service.intake import loaded_map, work_status
-from service.models import MapList, MapOut, MapProgressOut, error_responses, timestamp
+from service.intake_maps import MapForm, MapUpload, accept_map
+from service.reads import loaded_map, work_status
+from service.responses import error_responses, timestamp
 from service.tenancy import require_map, require_ready_map
-from service.uploads import received_upload
 from service.waiting import JobWaiter
 from workers.broker import JobPublisher
 from workers.sbow_files import remove_shared_base, sbow_cache_dir
@@ -47,17 +44,6 @@ router = APIRouter(prefix="/v1/maps", tags=["maps"])
 
 MAX_MAP_WAIT_S = 600.0
 """The longest ``wait_s`` of a map upload."""
-SOURCE_EXTENSIONS = {
-    "osm": ".osm",
-    "osm.bz2": ".osm.bz2",
-    "osm.gz": ".osm.gz",
-    "pbf": ".osm.pbf",
-    "geojson": ".geojson",
-    "geojson.gz": ".geojson.gz",
-    "gpkg": ".gpkg",
-    "fgb": ".fgb",
-    "shapefile.zip": ".zip",
-}
 FILE_DESCRIPTION = (
     "The map, told by content: OSM XML (.osm, .osm.bz2, .osm.gz), .osm.pbf, GeoJSON (.geojson, .geojson.gz), "
     "GeoPackage (.gpkg), FlatGeobuf (.fgb) or a zipped Shapefile (.zip). GIS files in any CRS they declare "
@@ -66,7 +52,7 @@ FILE_DESCRIPTION = (
 
 
 def map_out(db: Database, row: MapRow, *, reference_count: int = 0, duplicate: bool = False) -> MapOut:
-    """A map row as its API model; its status through :func:`service.intake.work_status` (row and job)."""
+    """A map row as its API model; its status through :func:`service.reads.work_status` (row and job)."""
     job = job_store.get_job(db, row["job_id"]) if row["job_id"] is not None else None
     reported, error = work_status(row["status"], row["error"], job)
     return MapOut(
@@ -96,20 +82,7 @@ def map_out(db: Database, row: MapRow, *, reference_count: int = 0, duplicate: b
     )
 
 
-@router.post(
-    "",
-    response_model=MapOut,
-    status_code=status.HTTP_201_CREATED,
-    responses={
-        200: {"model": MapOut, "description": "The same file was already uploaded"},
-        202: {"model": MapOut, "description": "Stored and queued: poll GET /v1/maps/{id} until its status is done"},
-        **error_responses(413, 422),
-    },
-    dependencies=[Depends(require_write)],
-)
-async def upload_map(
-    request: Request,
-    file: Annotated[UploadFile, File(description=FILE_DESCRIPTION)],
+def map_form(
     name: Annotated[
         str, Form(min_length=1, max_length=200, pattern=r"\S", description="A name for the map (not blank)")
     ],
@@ -158,6 +131,26 @@ async def upload_map(
             "with the map done, or 422 with the reason the file cannot be read",
         ),
     ] = 0.0,
+) -> MapForm:
+    """The map upload's form fields (but the file), as the upload route reads them (a dependency)."""
+    return MapForm(name, layer, name_attribute, height_attribute, levels_attribute, crs, attribution, wait_s)
+
+
+@router.post(
+    "",
+    response_model=MapOut,
+    status_code=status.HTTP_201_CREATED,
+    responses={
+        200: {"model": MapOut, "description": "The same file was already uploaded"},
+        202: {"model": MapOut, "description": "Stored and queued: poll GET /v1/maps/{id} until its status is done"},
+        **error_responses(413, 422),
+    },
+    dependencies=[Depends(require_write)],
+)
+async def upload_map(
+    request: Request,
+    file: Annotated[UploadFile, File(description=FILE_DESCRIPTION)],
+    form: Annotated[MapForm, Depends(map_form)],
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
@@ -174,105 +167,29 @@ async def upload_map(
     422 at once when the file is not map data by its content, or names an unknown CRS. Attribute defaults:
     ``name``, ``height``, ``building:levels``. ``attribution`` is not part of the duplicate check.
     """
-    options = _read_options(layer, name_attribute, height_attribute, levels_attribute, crs)
+    options = form.read_options()
     if options.crs is not None:
         try:
             parse_crs(options.crs)
         except MapLoadError as exc:
             raise ApiError(422, "invalid_request", f"crs: {exc}") from exc
-    stated = attribution.strip() if attribution and attribution.strip() else None
-    accepted = await run_in_threadpool(
-        _accept_map, settings, store, publisher, file, name.strip(), options, stated, caller.tenant
-    )
+    stated = form.attribution.strip() if form.attribution and form.attribution.strip() else None
+    upload = MapUpload(file, form.name.strip(), options, stated, caller.tenant)
+    accepted = await run_in_threadpool(accept_map, settings, store, publisher, upload)
     if accepted.duplicate:
         out = await run_in_threadpool(_map_model, settings, accepted.map_id, True, caller.tenant)
         return JSONResponse(out.model_dump(mode="json"), status_code=200)
-    if accepted.job_id is not None and wait_s > 0:
+    if accepted.job_id is not None and form.wait_s > 0:
         waiter: JobWaiter = request.app.state.job_waiter
-        await waiter.wait(accepted.job_id, wait_s)
+        await waiter.wait(accepted.job_id, form.wait_s)
     out = await run_in_threadpool(_map_model, settings, accepted.map_id, False, caller.tenant)
     if out.status == "done":
         return JSONResponse(out.model_dump(mode="json"), status_code=201)
-    if out.status == "failed" and wait_s > 0:  # answered now: nothing is kept, as when nothing was stored
+    if out.status == "failed" and form.wait_s > 0:  # answered now: nothing is kept, as when nothing was stored
         code, details = out.error_code or "invalid_map", out.error_details
         await run_in_threadpool(_delete_map, settings, store, accepted.map_id)
         raise ApiError(422, code, out.error or "the map file cannot be read", details or None)
     return JSONResponse(out.model_dump(mode="json"), status_code=202)
-
-
-@dataclass(frozen=True)
-class AcceptedMap:
-    """What a map upload stored: the map's id, its job's (None for a duplicate), whether it was one."""
-
-    map_id: int
-    job_id: int | None
-    duplicate: bool
-
-
-def _accept_map(
-    settings: Settings,
-    store: FileStore,
-    publisher: JobPublisher,
-    file: UploadFile,
-    name: str,
-    options: MapReadOptions,
-    attribution: str | None,
-    tenant: str | None,
-) -> AcceptedMap:
-    """Receive the file (413), check what it inflates to (413) and what it is (422), store it with its job.
-
-    The map is ``tenant``'s (the duplicate check looks at its maps only).
-
-    Blocking: run in a worker thread. The parse itself is the job's (:mod:`workers.map_handlers`).
-    """
-    read_options = options.as_dict()
-    db = open_db(settings)
-    try:
-        with received_upload(file, store, settings.max_map_bytes, "the map file") as received:
-            shown_name = public_name(received.filename)
-            existing = map_store.find_map_by_sha256(db, received.sha256, read_options, tenant)
-            if existing is not None:
-                return AcceptedMap(existing["id"], None, duplicate=True)
-            try:
-                check_decompressed_size(received.path, settings.max_decompressed_bytes, shown_name)
-                source_format = sniff_format(received.path)
-            except DecompressedTooLargeError as exc:
-                raise ApiError(413, exc.code, str(exc), exc.details) from exc
-            except MapLoadError as exc:
-                raise ApiError(422, exc.code, public_message(str(exc), received.path, shown_name), exc.details) from exc
-            relative = f"maps/{received.sha256}{SOURCE_EXTENSIONS.get(source_format, '.map')}"
-            with transaction(db):  # the duplicate check, the row and its job are atomic
-                db.lock(f"geoloc:map:{received.sha256}")  # the same file sent twice at once
-                existing = map_store.find_map_by_sha256(db, received.sha256, read_options, tenant)
-                if existing is not None:
-                    return AcceptedMap(existing["id"], None, duplicate=True)
-                received.move_to(relative)
-                map_id = map_store.insert_pending_map(
-                    db,
-                    name=name,
-                    source_filename=received.filename or "upload",
-                    source_format=source_format,
-                    source_path=relative,
-                    sha256=received.sha256,
-                    size_bytes=received.size_bytes,
-                    read_options=read_options,
-                    attribution=attribution,
-                    tenant=tenant,
-                )
-                job_id = job_store.enqueue_job(
-                    db,
-                    LOAD_MAP,
-                    LoadMapPayload(map_id=map_id),
-                    max_attempts=settings.job_max_attempts,
-                    map_id=map_id,
-                    max_queued=settings.max_queued_jobs,
-                )
-                map_store.link_map_job(db, map_id, job_id)
-        publisher.publish(db, [job_id])
-        log.info("map %d stored, queued as job %d", map_id, job_id)
-        return AcceptedMap(map_id, job_id, duplicate=False)
-    finally:
-        db.close()
 
 
 def _map_model(settings: Settings, map_id: int, duplicate: bool, tenant: str | None) -> MapOut:
@@ -283,24 +200,6 @@ def _map_model(settings: Settings, map_id: int, duplicate: bool, tenant: str | N
         return map_out(db, row, reference_count=_reference_total(db, map_id), duplicate=duplicate)
     finally:
         db.close()
-
-
-def _read_options(
-    layer: str | None,
-    name_attribute: str | None,
-    height_attribute: str | None,
-    levels_attribute: str | None,
-    crs: str | None,
-) -> MapReadOptions:
-    """The form fields as ``MapReadOptions`` (blank fields mean the default)."""
-    given = {
-        "layer": layer,
-        "name_attribute": name_attribute,
-        "height_attribute": height_attribute,
-        "levels_attribute": levels_attribute,
-        "crs": crs,
-    }
-    return MapReadOptions(**{k: v.strip() for k, v in given.items() if v is not None and v.strip()})
 
 
 def _reference_total(db: Database, map_id: int) -> int:

@@ -13,7 +13,6 @@ thread for the few milliseconds it takes. While the job queue is full the reques
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from typing import Annotated, Any
@@ -23,18 +22,18 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
 from contracts.answers import QueryResult
-from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload
+from contracts.api import QueryOut
 from contracts.licenses import map_attribution
-from contracts.queries import DEFAULT_PRIOR_RADIUS_M, PriorPosition, QueryParams, QueryPreset, gps_prior_radius_m
+from contracts.queries import QueryPreset
 from contracts.settings import Settings
-from db import Database, transaction
+from db import Database
 from db import jobs as job_store
 from db import maps as map_store
 from db import queries as query_store
 from db.files import FileStore
-from db.rows import JobRow, MapRow, QueryRow
+from db.rows import JobRow, QueryRow
 from service.auth import Caller, request_caller, require_read, require_write
-from service.bounds import MapId, QueryId, bounded_form, check_bounds
+from service.bounds import MapId, QueryId, bounded_form
 from service.deps import app_settings, get_db, get_publisher, get_store, open_db
 from service.errors import ApiError
 from service.geojson import (
@@ -46,14 +45,14 @@ from service.geojson import (
     wants_geojson,
 )
 from service.heatmap_png import heatmap_png
-from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, ImageInfo, distance_outside_bbox_m, stored_photo_response
-from service.intake import READ_ERRORS, PhotoIntake, loaded_map, work_status
+from service.images import ACCEPTED_NAMES, STORED_MEDIA_TYPES, stored_photo_response
+from service.intake_queries import QueryForm, QueryIntake
 from service.limits import require_queue_capacity
-from service.models import QueryOut, error_responses, timestamp
-from service.places import resolve_form_place
+from service.photo_deletion import delete_with_photos
+from service.reads import READ_ERRORS, loaded_map, work_status
+from service.responses import error_responses, timestamp
 from service.spec import QUEUE_FULL_RESPONSE
 from service.tenancy import require_map, require_query
-from service.uploads import ReceivedFile
 from service.waiting import answered, long_poll
 from workers.broker import JobPublisher
 
@@ -81,108 +80,6 @@ def _load(db: Database, query_id: int, tenant: str | None) -> tuple[QueryRow, Jo
     row = require_query(db, query_id, tenant)
     job = job_store.get_job(db, row["job_id"]) if row["job_id"] else None
     return row, job
-
-
-@dataclass(frozen=True)
-class QueryForm:
-    """The form fields of a query (checked by :class:`QueryIntake`)."""
-
-    lat: float | None
-    lon: float | None
-    radius_m: float | None
-    heading_deg: float | None
-    use_exif_gps: bool
-    place: str | None
-    focal_length_35mm: float | None
-    top_n: int
-    k: int
-    wait_s: float
-    preset: QueryPreset | None = None
-
-
-class QueryIntake(PhotoIntake):
-    """A query upload: its prior position (request, else EXIF GPS unless turned off) inside the map."""
-
-    folder = "queries"
-    kind = LOCALIZE_QUERY
-
-    def __init__(self, settings: Settings, store: FileStore, publisher: JobPublisher, form: QueryForm) -> None:
-        super().__init__(settings, store, publisher)
-        self.form = form
-        self.prior: PriorPosition | None = None
-
-    def check_form(self) -> None:
-        """Check every number's bounds and that lat and lon come together."""
-        form = self.form
-        for name in ("lat", "lon", "radius_m", "heading_deg", "focal_length_35mm", "top_n", "k", "wait_s"):
-            check_bounds(name, getattr(form, name))
-        if (form.lat is None) != (form.lon is None):
-            raise ApiError(422, "invalid_request", "give both lat and lon for a prior position, or neither")
-        if form.lat is not None and form.place is not None:
-            raise ApiError(422, "invalid_request", "give lat/lon or a place for the prior position, not both")
-
-    def check_photo(self, map_row: MapRow, info: ImageInfo) -> None:
-        """The prior position, which must lie within the map's margin."""
-        form, prior = self.form, None
-        if form.lat is not None and form.lon is not None:
-            radius_m = form.radius_m or DEFAULT_PRIOR_RADIUS_M
-            prior = PriorPosition(lat=form.lat, lon=form.lon, radius_m=radius_m, source="request")
-        elif form.place is not None:  # a named place overrides EXIF GPS (service.places)
-            place = resolve_form_place(self.settings, map_row, form.place)
-            prior = PriorPosition(
-                lat=place.lat,
-                lon=place.lon,
-                radius_m=form.radius_m or place.radius_m,
-                source="place",
-                place=place.name,
-                place_kind=place.kind,
-            )
-        elif form.use_exif_gps and info.gps_lat is not None and info.gps_lon is not None:
-            radius_m = form.radius_m or gps_prior_radius_m(info.gps_accuracy_m)  # the fix's stated accuracy
-            fields: dict[str, Any] = {"lat": info.gps_lat, "lon": info.gps_lon, "radius_m": radius_m, "source": "exif"}
-            if not form.radius_m and info.gps_accuracy_m is not None:  # set only when it gave the radius
-                fields["gps_accuracy_m"] = info.gps_accuracy_m
-            prior = PriorPosition.model_validate(fields)
-        if prior is not None:
-            distance = distance_outside_bbox_m(prior.lat, prior.lon, map_row["bbox_wgs84"])
-            margin_m = self.settings.position_margin_m
-            if distance > margin_m:
-                raise ApiError(
-                    422,
-                    "outside_map",
-                    f"the prior position ({prior.lat:.6f}, {prior.lon:.6f}, from {prior.source}) is "
-                    f"{distance:.0f} m outside map {map_row['id']}'s bounding box; send use_exif_gps=false to "
-                    "ignore it",
-                    {"distance_m": round(distance, 1), "margin_m": margin_m},
-                )
-        self.prior = prior
-
-    def insert(self, db: Database, map_id: int, key: str, received: ReceivedFile, info: ImageInfo) -> int:
-        """Insert the queued query with its parameters (:meth:`params`)."""
-        params = self.params(received, info)
-        return query_store.insert_query(db, map_id=map_id, params=params, image_path=key, sha256=received.sha256)
-
-    def params(self, received: ReceivedFile, info: ImageInfo) -> QueryParams:
-        """The query's parameters from the form, the checked prior and the photo's EXIF (after :meth:`check_photo`)."""
-        form = self.form
-        return QueryParams(
-            top_n=form.top_n,
-            k=form.k,
-            prior=self.prior,
-            prior_heading_deg=form.heading_deg if form.heading_deg is not None else info.heading_deg,
-            prior_heading_accuracy_deg=None if form.heading_deg is not None else info.heading_accuracy_deg,
-            focal_length_35mm=form.focal_length_35mm,
-            original_filename=received.filename,
-            preset=form.preset or self.settings.query_preset,
-        )
-
-    def payload(self, subject_id: int, map_id: int) -> LocalizeQueryPayload:
-        """Answer this query."""
-        return LocalizeQueryPayload(query_id=subject_id, map_id=map_id)
-
-    def link(self, db: Database, subject_id: int, job_id: int) -> None:
-        """Link the query to its job."""
-        query_store.set_query_job(db, subject_id, job_id)
 
 
 def _attribution(db: Database, map_id: int) -> str:
@@ -216,20 +113,30 @@ def _query_model(settings: Settings, query_id: int, tenant: str | None) -> Query
     return out
 
 
-@router.post(
-    "/v1/maps/{map_id}/queries",
-    response_model=QueryOut,
-    responses={
-        202: {"model": QueryOut, "description": "Not answered within wait_s: poll the query"},
-        **error_responses(404, 413, 415, 422),
-        **QUEUE_FULL_RESPONSE,
-    },
-    dependencies=[Depends(require_read), Depends(require_queue_capacity)],
-)
-async def create_query(
-    request: Request,
-    map_id: MapId,
-    image: Annotated[UploadFile, File(description=f"The photo to geolocate ({ACCEPTED_NAMES}; checked by content)")],
+@dataclass(frozen=True)
+class AnswerFields:
+    """The form fields of a query that shape its answer and the wait for it (:func:`answer_fields`)."""
+
+    top_n: int
+    k: int
+    wait_s: float
+    preset: QueryPreset | None
+
+
+def answer_fields(
+    top_n: Annotated[int, bounded_form("top_n", "How many distinct locations to return")] = 10,
+    k: Annotated[int, bounded_form("k", "How many references to retrieve for identities")] = 4,
+    wait_s: Annotated[float, bounded_form("wait_s", "How long to wait for the answer before 202")] = 60.0,
+    preset: Annotated[
+        QueryPreset | None,
+        Form(description="Speed against accuracy: fast, balanced or accurate (default GEOLOC_QUERY_PRESET)"),
+    ] = None,
+) -> AnswerFields:
+    """The query form's answer fields, as the upload route reads them (a dependency: the form's second half)."""
+    return AnswerFields(top_n, k, wait_s, preset)
+
+
+def query_form(
     lat: Annotated[float | None, bounded_form("lat", "Prior position latitude (WGS84)")] = None,
     lon: Annotated[float | None, bounded_form("lon", "Prior position longitude (WGS84)")] = None,
     radius_m: Annotated[
@@ -254,13 +161,31 @@ async def create_query(
     focal_length_35mm: Annotated[
         float | None, bounded_form("focal_length_35mm", "35 mm-equivalent focal length")
     ] = None,
-    top_n: Annotated[int, bounded_form("top_n", "How many distinct locations to return")] = 10,
-    k: Annotated[int, bounded_form("k", "How many references to retrieve for identities")] = 4,
-    wait_s: Annotated[float, bounded_form("wait_s", "How long to wait for the answer before 202")] = 60.0,
-    preset: Annotated[
-        QueryPreset | None,
-        Form(description="Speed against accuracy: fast, balanced or accurate (default GEOLOC_QUERY_PRESET)"),
-    ] = None,
+    *,
+    answer: Annotated[AnswerFields, Depends(answer_fields)],
+) -> QueryForm:
+    """The query form, as the upload route reads it: the prior fields, then the answer's (the documented order)."""
+    return QueryForm(
+        lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm,
+        answer.top_n, answer.k, answer.wait_s, answer.preset,
+    )  # fmt: skip
+
+
+@router.post(
+    "/v1/maps/{map_id}/queries",
+    response_model=QueryOut,
+    responses={
+        202: {"model": QueryOut, "description": "Not answered within wait_s: poll the query"},
+        **error_responses(404, 413, 415, 422),
+        **QUEUE_FULL_RESPONSE,
+    },
+    dependencies=[Depends(require_read), Depends(require_queue_capacity)],
+)
+async def create_query(
+    request: Request,
+    map_id: MapId,
+    image: Annotated[UploadFile, File(description=f"The photo to geolocate ({ACCEPTED_NAMES}; checked by content)")],
+    form: Annotated[QueryForm, Depends(query_form)],
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
@@ -280,12 +205,11 @@ async def create_query(
     ``Retry-After`` seconds). A panorama is a 422 ``unsupported_projection`` (only perspective photos are
     supported).
     """
-    form = QueryForm(lat, lon, radius_m, heading_deg, use_exif_gps, place, focal_length_35mm, top_n, k, wait_s, preset)
     intake = QueryIntake(settings, store, publisher, form)
     accepted = await run_in_threadpool(intake.accept, map_id, image, caller.tenant)
     assert accepted.job_id is not None  # a query is never a duplicate
     return await answered(
-        request, accepted.job_id, wait_s, partial(_query_model, settings, accepted.subject_id, caller.tenant)
+        request, accepted.job_id, form.wait_s, partial(_query_model, settings, accepted.subject_id, caller.tenant)
     )
 
 
@@ -404,22 +328,6 @@ def delete_query(
         return None if deleted is None else [deleted["image_path"]]
 
     return delete_with_photos(db, store, f"query {query_id}", delete)
-
-
-def delete_with_photos(
-    db: Database, store: FileStore, what: str, delete: Callable[[Database], list[str | None] | None]
-) -> Response:
-    """Delete rows, then their photos that no query uses any more (the same photo asked again shares the file).
-
-    ``delete`` runs in a transaction and returns the rows' photo paths (None: nothing to delete: 404); 204.
-    """
-    with transaction(db):
-        paths = delete(db)
-    if paths is None:
-        raise ApiError(404, "not_found", f"{what} not found")
-    with transaction(db):
-        store.delete(*query_store.unreferenced_images(db, paths))
-    return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
 @router.get(

@@ -11,6 +11,7 @@ from typing import Literal
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 
+from contracts.api import About, ErrorResponse, Health, JobOut, Readiness
 from contracts.licenses import about_document
 from contracts.settings import Settings
 from db import LATEST_VERSION, Database, schema_version
@@ -21,7 +22,7 @@ from service.auth import Caller, request_caller, require_read
 from service.bounds import JobId
 from service.deps import app_settings, get_db, open_db
 from service.errors import error_body
-from service.models import About, ErrorResponse, Health, JobOut, Readiness, error_responses, timestamp
+from service.responses import error_responses, timestamp
 from service.tenancy import require_job
 from workers.broker import broker_problem
 from workers.context import model_problems, runs_method_jobs

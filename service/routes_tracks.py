@@ -1,7 +1,7 @@
 """Tracks: a walk of photos located together. Answered by the ``locate_track`` job in the worker pool (issue 20).
 
 ``POST /v1/maps/{id}/tracks`` takes the photos in one multipart request (the field ``images`` repeated, in frame
-order) or a JSON body naming earlier queries of the map (:class:`service.track_intake.TrackFromQueries`), stores
+order) or a JSON body naming earlier queries of the map (:class:`contracts.api.TrackFromQueries`), stores
 them as the track's frames (query rows: :mod:`db.tracks`) with one job, and waits up to ``wait_s`` for the answer
 as a query does (200 with the answer, 202 to poll ``GET /v1/tracks/{id}``, 429 while the queue is full).
 ``GET /v1/tracks/{id}`` serves the frames in order, each with its pose, and as GeoJSON the trajectory.
@@ -9,6 +9,7 @@ as a query does (200 with the answer, 202 to poll ``GET /v1/tracks/{id}``, 429 w
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 from typing import Annotated
 
@@ -18,6 +19,7 @@ from fastapi.responses import JSONResponse
 from pydantic import TypeAdapter, ValidationError
 
 from contracts.answers import TrackFrameResult, TrackResult
+from contracts.api import FramePrior, TrackFromQueries, TrackOut
 from contracts.licenses import map_attribution
 from contracts.queries import QueryPreset
 from contracts.settings import Settings
@@ -32,13 +34,13 @@ from service.deps import app_settings, get_db, get_publisher, get_store, open_db
 from service.errors import ApiError
 from service.geojson import GEOJSON_MEDIA_TYPE, GEOJSON_RESPONSE, GeoJsonFormat, track_collection, wants_geojson
 from service.images import ACCEPTED_NAMES
-from service.intake import work_status
+from service.intake_tracks import TrackForm, TrackIntake
 from service.limits import require_queue_capacity
-from service.models import TrackOut, error_responses, timestamp
-from service.routes_queries import delete_with_photos
+from service.photo_deletion import delete_with_photos
+from service.reads import work_status
+from service.responses import error_responses, timestamp
 from service.spec import QUEUE_FULL_RESPONSE
 from service.tenancy import require_track
-from service.track_intake import FramePrior, TrackForm, TrackFromQueries, TrackIntake
 from service.waiting import answered, long_poll
 from workers.broker import JobPublisher
 
@@ -121,6 +123,39 @@ _JSON_BODY = {
 }
 
 
+@dataclass(frozen=True)
+class TrackFields:
+    """The multipart track upload's form fields (but the photos), as sent: ``priors`` is the JSON text."""
+
+    priors: str | None
+    use_exif_gps: bool
+    by_capture_time: bool
+    top_n: int
+    k: int
+    wait_s: float
+    preset: QueryPreset | None
+
+
+def track_fields(
+    priors: Annotated[
+        str | None,
+        Form(
+            description='Per-frame priors: a JSON list with one entry per frame, each null or {"lat", "lon", '
+            '"radius_m", "heading_deg", "place"} as a query\'s fields',
+            max_length=200_000,
+        ),
+    ] = None,
+    use_exif_gps: Annotated[bool, Form(description="Use each photo's EXIF GPS as its prior position")] = True,
+    by_capture_time: Annotated[bool, Form(description="Order the frames by their EXIF capture time")] = False,
+    top_n: Annotated[int, bounded_form("top_n", "How many distinct locations each frame's answer holds")] = 10,
+    k: Annotated[int, bounded_form("k", "How many references to retrieve for identities")] = 4,
+    wait_s: Annotated[float, bounded_form("wait_s", "How long to wait for the answer before 202")] = 60.0,
+    preset: Annotated[QueryPreset | None, Form(description="fast, balanced or accurate")] = None,
+) -> TrackFields:
+    """The multipart track upload's form fields, as the upload route reads them (a dependency)."""
+    return TrackFields(priors, use_exif_gps, by_capture_time, top_n, k, wait_s, preset)
+
+
 @router.post(
     "/v1/maps/{map_id}/tracks",
     response_model=TrackOut,
@@ -139,20 +174,7 @@ async def create_track(
         list[UploadFile] | None,
         File(description=f"The frames' photos, the field repeated in frame order ({ACCEPTED_NAMES})"),
     ] = None,
-    priors: Annotated[
-        str | None,
-        Form(
-            description='Per-frame priors: a JSON list with one entry per frame, each null or {"lat", "lon", '
-            '"radius_m", "heading_deg", "place"} as a query\'s fields',
-            max_length=200_000,
-        ),
-    ] = None,
-    use_exif_gps: Annotated[bool, Form(description="Use each photo's EXIF GPS as its prior position")] = True,
-    by_capture_time: Annotated[bool, Form(description="Order the frames by their EXIF capture time")] = False,
-    top_n: Annotated[int, bounded_form("top_n", "How many distinct locations each frame's answer holds")] = 10,
-    k: Annotated[int, bounded_form("k", "How many references to retrieve for identities")] = 4,
-    wait_s: Annotated[float, bounded_form("wait_s", "How long to wait for the answer before 202")] = 60.0,
-    preset: Annotated[QueryPreset | None, Form(description="fast, balanced or accurate")] = None,
+    fields: TrackFields = Depends(track_fields),
     settings: Settings = Depends(app_settings),
     store: FileStore = Depends(get_store),
     publisher: JobPublisher = Depends(get_publisher),
@@ -173,9 +195,13 @@ async def create_track(
         wait_s = body.wait_s
         track_id, job_id = await run_in_threadpool(intake.accept_queries, map_id, body, caller.tenant)
     else:
-        for name, value in (("top_n", top_n), ("k", k), ("wait_s", wait_s)):
+        wait_s = fields.wait_s
+        for name, value in (("top_n", fields.top_n), ("k", fields.k), ("wait_s", wait_s)):
             check_bounds(name, value)
-        form = TrackForm(use_exif_gps, by_capture_time, top_n, k, wait_s, preset, _priors(priors))
+        form = TrackForm(
+            fields.use_exif_gps, fields.by_capture_time, fields.top_n, fields.k, wait_s, fields.preset,
+            _priors(fields.priors),
+        )  # fmt: skip
         track_id, job_id = await run_in_threadpool(intake.accept_uploads, map_id, form, images or [], caller.tenant)
     return await answered(request, job_id, wait_s, partial(load_track, settings, track_id, caller.tenant))
 

@@ -6,7 +6,7 @@ can happen and every status the service answers with is listed:
 - **Auth.** With API keys configured, each protected operation keeps its security requirement (the
   scope) and lists ``401`` and ``403``, and ``429`` ``rate_limited`` when a rate limit is set. With no
   keys, requests need no key: the requirements, the ``X-API-Key`` scheme and those answers are dropped.
-- **Errors.** ``422`` has the service's own body (:class:`service.models.ErrorResponse`), not FastAPI's
+- **Errors.** ``422`` has the service's own body (:class:`contracts.api.ErrorResponse`), not FastAPI's
   default; multipart uploads list ``400`` (a body that is not valid multipart); operations that write
   (POST, DELETE) list ``507`` (disk full).
 - **Forms.** An optional form field is simply left out; multipart has no ``null``, so the ``null``

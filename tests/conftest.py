@@ -8,7 +8,7 @@
   builds, the other waits and reuses;
 - ``profile``: the two deployment profiles, ``embedded`` (SQLite, built-in workers) and ``distributed``
   (PostgreSQL and Celery on Redis, real servers started once per session on loopback, see
-  :mod:`benchmarks.servers`). A test or module fixture that takes it runs once per profile; each deployment it
+  :mod:`testbed.servers`). A test or module fixture that takes it runs once per profile; each deployment it
   starts gets its own database from :meth:`Profile.new_env`.
 """
 
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.servers import PostgresServer, RedisServer
 from contracts.settings import reset_settings
+from testbed.servers import PostgresServer, RedisServer
 
 from .model_fixtures import data_dir_environment
 

@@ -16,8 +16,8 @@ from contracts.answers import QueryResult
 from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload, LocalizeQueryResult
 from db import Database, transaction
 from db import queries as query_store
+from workers.handler_helpers import city_map_for
 from workers.handlers import answer_checked, register
-from workers.method_handlers import city_map_for
 
 ToWgs84 = Callable[[float, float], tuple[Any, Any]]
 POSE_SOUTH_M = 25.0

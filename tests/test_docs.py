@@ -23,9 +23,21 @@ from geoloc.evaluation.suite.worlds import load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
-FOLDERS = ("contracts", "geoloc", "db", "workers", "service", "cli", "benchmarks", "tests", "docker", "docs", ".ci")
+PACKAGES = (
+    "contracts",
+    "client",
+    "geoloc",
+    "db",
+    "workers",
+    "service",
+    "cli",
+    "testbed",
+    "benchmarks",
+    "research",
+    "tests",
+)
+FOLDERS = (*PACKAGES, "docker", "docs", ".ci")
 """Top-level folders whose paths the docs name; a token starting with one of them is checked."""
-PACKAGES = ("contracts", "geoloc", "db", "workers", "service", "cli", "benchmarks", "tests")
 FENCE = re.compile(r"^```.*?^```", re.M | re.S)
 PATH = re.compile(r"(?<![\w./=-])((?:" + "|".join(re.escape(f) for f in FOLDERS) + r")/[\w./-]*[\w/])")
 PATH_NAME = re.compile(r"`((?:" + "|".join(PACKAGES) + r")/[\w/]+\.py): (\w+)")

@@ -142,7 +142,13 @@ def load_plugins(specs: tuple[str, ...] | list[str]) -> list[str]:
 
 def load_builtin_handlers() -> None:
     """Import the modules that register the shipped handlers (the method's, when present)."""
-    shipped = ("workers.method_handlers", "workers.sequence_handlers", "workers.track_handlers", "workers.map_handlers")
+    shipped = (
+        "workers.reference_handlers",
+        "workers.sequence_handlers",
+        "workers.query_handlers",
+        "workers.track_handlers",
+        "workers.map_handlers",
+    )
     for module in shipped:
         try:
             importlib.import_module(module)

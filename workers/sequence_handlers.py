@@ -1,6 +1,6 @@
 """The sequence job: a map's walks of references placed jointly on the map, in the background (issue 19).
 
-Each reference of a walk is labelled alone first (:func:`workers.method_handlers.label_reference`, which then queues
+Each reference of a walk is labelled alone first (:func:`workers.reference_handlers.label_reference`, which then queues
 this job for its map unless one already waits) and is served with that label meanwhile. The job groups the map's
 references into walks (:func:`geoloc.localize.sequence.group_sequences`) and, for each walk that is wholly labelled
 and not yet placed as it stands, reads back each reference's stored label alone (labelling it alone again, the same
@@ -29,16 +29,10 @@ from geoloc.localize.sequence import SequenceMember, group_sequences, place_labe
 from geoloc.localize.sequence.frames import frame_from_arrays
 from geoloc.localize.sequence.stage import LabelledFrame, PlacedSequence, capture_seconds
 from geoloc.maps import CityMap
+from workers.handler_helpers import city_map_for, column_scale, reference_priors
 from workers.handlers import register
-from workers.method_handlers import (
-    city_map_for,
-    column_scale,
-    label_alone,
-    reference_labels,
-    reference_priors,
-    save_labels,
-)
 from workers.metrics import observe_stage
+from workers.reference_labels import label_alone, label_record, reference_labels
 
 PENDING_STATUSES = ("queued", "processing")
 """Reference statuses of a reference still being labelled."""
@@ -97,7 +91,8 @@ def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> Placed
                 continue  # deleted (or re-queued) while the walk was placed: leave it be
             if row["id"] in moved:
                 ref, labels, stored = moved[row["id"]]
-                save_labels(db, row["id"], ref, labels, "sequence", stored)  # its label alone stays stored
+                # its label alone stays stored
+                reference_store.save_label(db, label_record(row["id"], ref, labels, "sequence", stored))
             else:
                 reference_store.set_reference_placement(db, row["id"], "sequence")
     return placed

@@ -1,9 +1,9 @@
 """The track job: a track's frames (query photos, in order) located together by the track stage (issue 20).
 
-Each frame's photo is loaded and analysed as a query's is (:func:`workers.method_handlers.stored_photo`,
+Each frame's photo is loaded and analysed as a query's is (:func:`workers.handler_helpers.stored_photo`,
 :func:`geoloc.vision.evidence.analyze_photo`), with its own stored priors
-(:func:`workers.method_handlers.query_priors`); :func:`geoloc.localize.track.locate_track` answers them together.
-Each frame's query row gets its whole answer (:func:`workers.method_handlers.query_result`, so
+(:func:`workers.handler_helpers.query_priors`); :func:`geoloc.localize.track.locate_track` answers them together.
+Each frame's query row gets its whole answer (:func:`workers.handler_helpers.query_result`, so
 ``GET /v1/queries/{id}`` serves it as any query's) and the track its :class:`contracts.answers.TrackResult`: per
 frame the rank-1 pose (its position, heading, 90 % radius, source), the ``outlier`` flag and the buildings; all
 in one transaction, so a job that runs again after a crash leaves the same state.
@@ -26,8 +26,7 @@ from geoloc.localize.track import TrackFrame, locate_track
 from geoloc.photos.photo import Photo
 from geoloc.vision.evidence import analyze_photo
 from workers.context import worker_context
-from workers.handlers import PermanentJobError, answer_checked, register
-from workers.method_handlers import (
+from workers.handler_helpers import (
     city_map_for,
     query_priors,
     query_result,
@@ -35,6 +34,7 @@ from workers.method_handlers import (
     stored_photo,
     vocabulary_for,
 )
+from workers.handlers import PermanentJobError, answer_checked, register
 
 
 def capture_seconds(value: str | None) -> float | None:

@@ -1,71 +1,22 @@
-"""A Python client of the service's HTTP API: :class:`Client` (sync) and :class:`AsyncClient` (asyncio), on httpx.
+"""Deprecated alias of the top-level :mod:`client` package, kept for one release (0.2); import ``client``.
 
-A tool package (docs/client.md): the method, the workers and the service never import it; the CLI's
-``geoloc ingest`` and the benchmarks talk to the service through it.
+``import geoloc.client`` warns ``DeprecationWarning`` and gives the :mod:`client` package itself, and
+``geoloc.client.<module>`` the same module objects as ``client.<module>`` (``sys.modules`` aliases), so
+classes and exceptions are the same objects under both names.
 """
 
-from geoloc.client.asynchronous import AsyncClient
-from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, TrackFields, Upload
-from geoloc.client.errors import (
-    ApiError,
-    AuthError,
-    ConflictError,
-    GeolocClientError,
-    InvalidRequestError,
-    NotFoundError,
-    RateLimitedError,
-    ServerError,
-    ServiceUnreachableError,
-    WaitTimeoutError,
-)
-from geoloc.client.models import (
-    About,
-    Feature,
-    FeatureCollection,
-    Health,
-    Job,
-    Map,
-    Query,
-    Readiness,
-    Reference,
-    ReferenceAccepted,
-    ReferenceList,
-    Track,
-)
-from geoloc.client.retry import RetryPolicy
-from geoloc.client.sync import Client
+import sys
+import warnings
 
-__all__ = [
-    "About",
-    "ApiError",
-    "AsyncClient",
-    "AuthError",
-    "Call",
-    "Client",
-    "ConflictError",
-    "Feature",
-    "FeatureCollection",
-    "GeolocClientError",
-    "Health",
-    "InvalidRequestError",
-    "Job",
-    "Map",
-    "MapFields",
-    "NotFoundError",
-    "Query",
-    "QueryFields",
-    "Track",
-    "TrackFields",
-    "RateLimitedError",
-    "Readiness",
-    "Reference",
-    "ReferenceAccepted",
-    "ReferenceFields",
-    "ReferenceList",
-    "RetryPolicy",
-    "Sent",
-    "ServerError",
-    "ServiceUnreachableError",
-    "Upload",
-    "WaitTimeoutError",
-]
+import client
+from client import *  # noqa: F403 (the alias exports what the package does, for type checkers)
+
+warnings.warn(
+    "geoloc.client is deprecated and will be removed in the next release: import client instead",
+    DeprecationWarning,
+    stacklevel=2,
+)
+for _name, _module in list(sys.modules.items()):
+    if _name.startswith("client."):
+        sys.modules[f"geoloc.{_name}"] = _module
+sys.modules[__name__] = client

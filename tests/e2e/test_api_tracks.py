@@ -18,8 +18,8 @@ from typing import Any
 
 import pytest
 
+from client import AsyncClient, Client
 from contracts.settings import shared_path
-from geoloc.client import AsyncClient, Client
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from tests.conftest import Profile
 from tests.service_fixtures import WRITE_KEY, geoloc_command, running_service, stored_files

@@ -1,4 +1,4 @@
-"""The client (:mod:`geoloc.client`) against a real ``geoloc serve`` on loopback (SQLite, API keys).
+"""The client (:mod:`client`) against a real ``geoloc serve`` on loopback (SQLite, API keys).
 
 Most tests run a service without workers and with a small rate limit: nothing is labelled or answered,
 which is what the waits' time-outs need, and a key soon runs out of requests. The last one runs the real
@@ -15,8 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from contracts.settings import shared_path
-from geoloc.client import (
+from client import (
     AsyncClient,
     AuthError,
     Client,
@@ -27,6 +26,7 @@ from geoloc.client import (
     ServerError,
     WaitTimeoutError,
 )
+from contracts.settings import shared_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from tests.service_fixtures import READ_KEY, WRITE_KEY, RunningProcess, jpeg_bytes, running_service
 

@@ -24,7 +24,7 @@ from typing import Any
 import httpx
 import pytest
 
-from benchmarks.servers import PostgresServer, RedisServer
+from testbed.servers import PostgresServer, RedisServer
 from tests import TESTS_DIR
 from tests.service_fixtures import (
     INSIDE_ONE_BUILDING,

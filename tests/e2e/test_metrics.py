@@ -21,9 +21,9 @@ from typing import Any
 import httpx
 import pytest
 
-from benchmarks.servers import PrometheusServer
 from contracts.settings import shared_path
 from geoloc.sim.world import WorldOptions, generate_world, load_world
+from testbed.servers import PrometheusServer
 from tests.conftest import Profile
 from tests.service_fixtures import read_rows, running_service, wait_for
 

@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from benchmarks.servers import PostgresServer
 from cli.main import app
 from contracts.jobs import JobPayload
 from db import LATEST_VERSION, connect, migrate
@@ -19,6 +18,7 @@ from db import jobs as job_store
 from db.backup import MANIFEST, BackupError, Deployment, create_backup
 from db.restore import restore_backup
 from db.stats import table_counts
+from testbed.servers import PostgresServer
 
 
 class AnyPayload(JobPayload):

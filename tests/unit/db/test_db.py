@@ -21,6 +21,7 @@ from db import LATEST_VERSION, Database, connect, migrate, migrations, sbow, sch
 from db import jobs as job_store
 from db import maps as map_store
 from db import references as reference_store
+from db.records import NewReference
 from db.stats import table_counts
 from tests.conftest import Profile
 
@@ -95,17 +96,19 @@ def add_reference(db, map_id: int, sha: str) -> int:
     with transaction(db):
         return reference_store.insert_reference(
             db,
-            map_id=map_id,
-            image_path=f"images/{map_id}/{sha}.jpg",
-            original_filename="a.jpg",
-            sha256=sha,
-            size_bytes=100,
-            image_format="JPEG",
-            width=640,
-            height=480,
-            gps_lat=60.17,
-            gps_lon=24.94,
-            position_source="request",
+            NewReference(
+                map_id=map_id,
+                image_path=f"images/{map_id}/{sha}.jpg",
+                original_filename="a.jpg",
+                sha256=sha,
+                size_bytes=100,
+                image_format="JPEG",
+                width=640,
+                height=480,
+                gps_lat=60.17,
+                gps_lon=24.94,
+                position_source="request",
+            ),
         )
 
 
@@ -178,19 +181,21 @@ def test_migration_5_adds_the_compass_accuracy_to_an_existing_database(
     with transaction(database):
         new_id = reference_store.insert_reference(
             database,
-            map_id=map_id,
-            image_path="images/new.jpg",
-            original_filename="new.jpg",
-            sha256="b" * 64,
-            size_bytes=10,
-            image_format="JPEG",
-            width=640,
-            height=480,
-            gps_lat=60.17,
-            gps_lon=24.94,
-            position_source="exif",
-            prior_heading_deg=123.5,
-            prior_heading_accuracy_deg=20.0,
+            NewReference(
+                map_id=map_id,
+                image_path="images/new.jpg",
+                original_filename="new.jpg",
+                sha256="b" * 64,
+                size_bytes=10,
+                image_format="JPEG",
+                width=640,
+                height=480,
+                gps_lat=60.17,
+                gps_lon=24.94,
+                position_source="exif",
+                prior_heading_deg=123.5,
+                prior_heading_accuracy_deg=20.0,
+            ),
         )
     new = reference_store.get_reference(database, new_id)
     assert new is not None and (new["prior_heading_deg"], new["prior_heading_accuracy_deg"]) == (123.5, 20.0)

@@ -26,6 +26,7 @@ from db import references as reference_store
 from db.doctor import DoctorError, examine, examine_deployment, requeue_or_fail
 from db.doctor_checks import StuckJob, process_running
 from db.files import DirectoryStore, open_store
+from db.records import NewReference
 from tests.conftest import Profile
 
 
@@ -79,9 +80,12 @@ def deployment(tmp_path: Path, profile: Profile) -> Iterator[Deployment]:
         db.execute("UPDATE maps SET job_id = ?, status = 'done' WHERE id = ?", (map_job, map_id))
         db.execute("UPDATE jobs SET status = 'done' WHERE id = ?", (map_job,))
         reference_id = reference_store.insert_reference(
-            db, map_id=map_id, image_path=f"images/{map_id}/r.jpg", original_filename="r.jpg", sha256="r" * 64,
-            size_bytes=5, image_format="jpeg", width=64, height=64, gps_lat=60.17, gps_lon=24.94,
-            position_source="request",
+            db,
+            NewReference(
+                map_id=map_id, image_path=f"images/{map_id}/r.jpg", original_filename="r.jpg", sha256="r" * 64,
+                size_bytes=5, image_format="jpeg", width=64, height=64, gps_lat=60.17, gps_lon=24.94,
+                position_source="request",
+            ),
         )  # fmt: skip
         payload = LabelReferencePayload(reference_id=reference_id, map_id=map_id)
         reference_job = job_store.enqueue_job(db, LABEL_REFERENCE, payload, map_id=map_id, reference_id=reference_id)

@@ -10,7 +10,6 @@ from pathlib import Path
 import psycopg
 import pytest
 
-from benchmarks.servers import PostgresServer
 from db import connect
 from db.outages import (
     DatabaseUnavailableError,
@@ -20,6 +19,7 @@ from db.outages import (
     outage_reason,
     until_available,
 )
+from testbed.servers import PostgresServer
 
 
 def _closed_port() -> int:

@@ -1,7 +1,7 @@
 """One photo loader: the API, the workers and ``geoloc analyze`` see the same pixels and the same EXIF.
 
 The API checks an upload (:func:`service.images.validate_image`) and stores it; a worker reads the stored file
-(:func:`workers.method_handlers.stored_photo`); ``geoloc analyze`` reads a file (:func:`cli.analyze.read_photo`).
+(:func:`workers.handler_helpers.stored_photo`); ``geoloc analyze`` reads a file (:func:`cli.analyze.read_photo`).
 All go through :func:`geoloc.photos.photo.load_photo` / :func:`geoloc.photos.exif.read_exif`.
 """
 
@@ -21,7 +21,7 @@ from db.files import open_store
 from geoloc.photos.exif import exif_bytes
 from geoloc.photos.photo import WORKING_MAX_SIDE, load_photo
 from service.images import validate_image
-from workers.method_handlers import stored_photo
+from workers.handler_helpers import stored_photo
 
 ORIENTATION_TAG = 0x0112
 

@@ -10,8 +10,8 @@ import pytest
 import shapely.geometry
 
 from contracts.answers import QueryResult
+from contracts.api import QueryOut, ReferenceList, ReferenceOut
 from service.geojson import query_collection, references_collection
-from service.models import QueryOut, ReferenceList, ReferenceOut
 from tests.answer_plugin import WELL_FORMED
 from tests.geojson_checks import check_query_collection
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from service.errors import ERROR_CODES
+from contracts.api import ERROR_CODES
 from service.openapi_doc import DEFAULT_JSON, DEFAULT_MARKDOWN, main, openapi_spec, render_markdown
 from tests import REPO_ROOT
 
@@ -54,7 +54,7 @@ def test_every_error_code_raised_in_the_service_is_documented() -> None:
         raised |= set(re.findall(r'ApiError\(\s*\d{3},\s*"(\w+)"', source))
         raised |= set(re.findall(r'error_body\(\s*"(\w+)"', source))
     assert raised, "the pattern finds the service's error codes"
-    assert raised <= documented, f"add to service.errors.ERROR_CODES: {sorted(raised - documented)}"
+    assert raised <= documented, f"add to contracts.api.errors.ERROR_CODES: {sorted(raised - documented)}"
 
 
 def test_check_reports_a_stale_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

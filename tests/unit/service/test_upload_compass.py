@@ -16,7 +16,7 @@ from geoloc.photos.capture import DECLINATION_BOUND_DEG
 from geoloc.photos.heading_prior import DEFAULT_SIGMA_DEG
 from geoloc.photos.photo import load_photo
 from service.images import ImageInfo, validate_image
-from service.routes_queries import QueryForm, QueryIntake
+from service.intake_queries import QueryForm, QueryIntake
 from tests.service_fixtures import jpeg_bytes
 from workers.broker import JobPublisher
 

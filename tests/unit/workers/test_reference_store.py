@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.servers import PostgresServer
 from contracts.references import UNKNOWN_POSITION_SIGMA_M, ReferenceKeypoints
 from db import Database, connect, migrate, sbow, transaction
 from db import references as reference_store
@@ -21,6 +20,7 @@ from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.retrieval import Vocabulary
 from geoloc.localize.store import StoredReference
 from geoloc.vision.features import Features
+from testbed.servers import PostgresServer
 from tests.conftest import Profile
 from tests.unit.db.test_db import add_map, add_reference
 from workers.reference_store import DatabaseReferenceStore
@@ -109,7 +109,7 @@ def test_sbow_top_k_is_the_same_on_both_engines(tmp_path: Path, postgres_server:
 
 def test_positions_and_vocabulary_follow_the_database(tmp_path: Path) -> None:
     # Both are kept decoded per process; a re-labelled reference or a replaced vocabulary is read again.
-    from workers.method_handlers import vocabulary_for
+    from workers.handler_helpers import vocabulary_for
 
     db = connect(tmp_path / "geoloc.sqlite3")
     migrate(db)

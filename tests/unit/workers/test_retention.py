@@ -17,6 +17,7 @@ from db import Database, connect, migrate, transaction
 from db import jobs as job_store
 from db import queries as query_store
 from db import references as reference_store
+from db.records import NewReference
 from tests import TESTS_DIR
 from tests.conftest import Profile
 from tests.service_fixtures import (
@@ -60,8 +61,11 @@ def test_purge_deletes_only_old_finished_queries_and_photos_no_one_uses(tmp_path
             " VALUES ('m', 'm', 'geojson', 'maps/m', 's', 1, 0, 0, 1, 1, 0, 0, 0, 0, 0)"
         )
         reference_id = reference_store.insert_reference(
-            db, map_id=1, image_path="images/1/r.jpg", original_filename=None, sha256="r", size_bytes=1,
-            image_format="JPEG", width=64, height=64, gps_lat=0.5, gps_lon=0.5, position_source="request",
+            db,
+            NewReference(
+                map_id=1, image_path="images/1/r.jpg", original_filename=None, sha256="r", size_bytes=1,
+                image_format="JPEG", width=64, height=64, gps_lat=0.5, gps_lon=0.5, position_source="request",
+            ),
         )  # fmt: skip
         db.execute("UPDATE reference_images SET created_at = 0 WHERE id = ?", (reference_id,))
     old_done = _query(db, tmp_path, 1, "queries/1/a.jpg", age_s=3 * DAY_S, finished=True)

@@ -1,52 +1,18 @@
-// The map: streets and building footprints (SVG in metres under one transform; street names in pixels), the probability heatmap (a canvas,
-// one texel per grid cell, drawn without smoothing so every cell keeps its value) and an overlay in
-// screen pixels (references, answers, prior and uncertainty circles) redrawn on every pan or zoom.
+// The map: streets and building footprints (SVG in metres under one transform; street names in pixels), the
+// probability heatmap (heatmap.js) and an overlay in screen pixels (references, the prior, the answer's ranked
+// locations and uncertainty circle: answer_markers.js) redrawn on every pan or zoom. Input (pan, zoom, clicks,
+// tooltips): map_input.js; more layers: streets.js, track.js; the SVG helpers they share: svg.js.
 
+import { addLocationMarkers, renderLocations } from "./answer_markers.js";
 import { LocalPlane, formatDistance, horizontalFovDeg, niceLength } from "./geo.js";
+import { drawHeat, heatImage } from "./heatmap.js";
+import { installMapInput } from "./map_input.js";
 import { StreetLayer } from "./streets.js";
+import { svg, wedgePath } from "./svg.js";
 
-const SVG_NS = "http://www.w3.org/2000/svg";
 const MAX_SCALE_PX_PER_M = 40;
-const DRAG_THRESHOLD_PX = 4;
 const REFERENCE_CONE_PX = 18;
 const SELECTED_REFERENCE_CONE_PX = 30;
-const TOP_CONE_PX = 48;
-const OTHER_CONE_PX = 30;
-const LABELLED_RANKS = 3;
-
-export function svg(tag, attrs = {}, parent = null) {
-  const el = document.createElementNS(SVG_NS, tag);
-  for (const [k, v] of Object.entries(attrs)) el.setAttribute(k, v);
-  if (parent) parent.appendChild(el);
-  return el;
-}
-
-/** Heatmap colour for t in (0, 1] (a magma-like ramp) and its opacity: faint where the probability is
- * small but never invisible, so every non-zero cell shows. */
-function heatColor(t) {
-  const stops = [
-    [0.0, [72, 18, 140]],
-    [0.35, [190, 40, 120]],
-    [0.7, [250, 125, 40]],
-    [1.0, [255, 232, 90]],
-  ];
-  let i = 1;
-  while (i < stops.length - 1 && t > stops[i][0]) i += 1;
-  const [t0, c0] = stops[i - 1];
-  const [t1, c1] = stops[i];
-  const f = Math.min(1, Math.max(0, (t - t0) / (t1 - t0)));
-  const rgb = c0.map((v, k) => Math.round(v + f * (c1[k] - v)));
-  return [...rgb, Math.round(255 * (0.3 + 0.55 * t))];
-}
-
-export function wedgePath(x, y, headingDeg, fovDeg, length) {
-  const a0 = ((headingDeg - fovDeg / 2) * Math.PI) / 180;
-  const a1 = ((headingDeg + fovDeg / 2) * Math.PI) / 180;
-  const p0 = [x + length * Math.sin(a0), y - length * Math.cos(a0)];
-  const p1 = [x + length * Math.sin(a1), y - length * Math.cos(a1)];
-  const f = (v) => v.toFixed(1);
-  return `M${f(x)},${f(y)} L${f(p0[0])},${f(p0[1])} A${length},${length} 0 0 1 ${f(p1[0])},${f(p1[1])} Z`;
-}
 
 function ringsPath(rings, plane) {
   return rings
@@ -98,7 +64,7 @@ export class MapView {
     this.poseGroup = svg("g", { class: "reference-pose" }, overlay);
     this.answerGroup = svg("g", { class: "answer-layer", role: "group", "aria-label": "Ranked locations" }, overlay);
 
-    this.installInteraction();
+    installMapInput(this);
     new ResizeObserver(() => this.requestRender()).observe(root);
   }
 
@@ -301,39 +267,8 @@ export class MapView {
     this.answerGroup.replaceChildren();
     this.heatImage = null;
     if (this.answer) {
-      this.heatImage = this.buildHeatImage(this.answer.result.heatmap);
-      const hfov = this.answer.result.camera?.hfov_deg || 60;
-      for (const loc of this.answer.result.locations) {
-        const pct = `${(100 * loc.probability).toFixed(1)}%`;
-        const el = svg("g", {
-          class: `location${loc.rank === 1 ? " top" : ""}`,
-          tabindex: "0",
-          role: "button",
-          "data-rank": loc.rank,
-          "data-lat": loc.lat,
-          "data-lon": loc.lon,
-          "data-heading": loc.heading_deg,
-          "data-probability": loc.probability,
-          "aria-label": `Location ${loc.rank}: probability ${pct}, heading ${Math.round(loc.heading_deg)} degrees`,
-          "data-tip": `#${loc.rank} · ${pct} · heading ${Math.round(loc.heading_deg)}°`,
-        });
-        el.dataset.hfov = hfov;
-        svg("path", { class: "cone" }, el);
-        svg("circle", { class: "loc-dot", r: loc.rank === 1 ? "6" : "4.5" }, el);
-        if (loc.rank <= LABELLED_RANKS) {
-          const text = svg("text", { class: "loc-label" }, el);
-          text.textContent = `${loc.rank} · ${pct}`;
-        }
-        const select = () => this.handlers.locationSelect(loc.rank);
-        el.addEventListener("click", select);
-        el.addEventListener("keydown", (event) => {
-          if (event.key === "Enter" || event.key === " ") {
-            event.preventDefault();
-            select();
-          }
-        });
-        this.answerGroup.insertBefore(el, this.answerGroup.firstChild); // rank 1 drawn last, on top
-      }
+      this.heatImage = heatImage(this.answer.result.heatmap, this.plane);
+      addLocationMarkers(this.answerGroup, this.answer.result, (rank) => this.handlers.locationSelect(rank));
     }
     this.requestRender();
   }
@@ -374,35 +309,6 @@ export class MapView {
     }
   }
 
-  buildHeatImage(heatmap) {
-    const [rows, cols] = heatmap.shape;
-    const values = heatmap.values;
-    let max = 0;
-    for (const row of values) for (const v of row) max = Math.max(max, v);
-    const canvas = document.createElement("canvas");
-    canvas.width = cols;
-    canvas.height = rows;
-    const ctx = canvas.getContext("2d");
-    const image = ctx.createImageData(cols, rows);
-    for (let r = 0; r < rows; r += 1) {
-      for (let c = 0; c < cols; c += 1) {
-        const v = values[r][c];
-        if (!(v > 0) || !(max > 0)) continue;
-        const [red, green, blue, alpha] = heatColor(Math.sqrt(v / max));
-        const i = 4 * ((rows - 1 - r) * cols + c); // row 0 of the grid is its southern edge
-        image.data[i] = red;
-        image.data[i + 1] = green;
-        image.data[i + 2] = blue;
-        image.data[i + 3] = alpha;
-      }
-    }
-    ctx.putImageData(image, 0, 0);
-    const [ox, oy] = this.plane.toLocal(heatmap.origin.lat, heatmap.origin.lon);
-    const cell = heatmap.cell_m;
-    // outer edges of the grid in local metres: cell (0, 0) is centred on the origin
-    return { canvas, left: ox - cell / 2, top: oy + (rows - 0.5) * cell, width: cols * cell, height: rows * cell };
-  }
-
   // --- drawing --------------------------------------------------------------------------------
 
   render() {
@@ -413,32 +319,12 @@ export class MapView {
     const transform = `matrix(${s} 0 0 ${-s} ${tx} ${ty})`;
     this.buildingGroup.setAttribute("transform", transform);
     this.streets.render(transform, (x, y) => this.toScreen(x, y), s);
-    this.renderHeat();
+    drawHeat(this.parts.heat, this.heatImage, this);
     this.renderPrior();
     this.renderReferences();
-    this.renderAnswer();
+    renderLocations(this);
     for (const layer of this.layers) layer.render();
     this.renderScaleBar();
-  }
-
-  renderHeat() {
-    const canvas = this.parts.heat;
-    const dpr = window.devicePixelRatio || 1;
-    const w = Math.round(this.width * dpr);
-    const h = Math.round(this.height * dpr);
-    if (canvas.width !== w || canvas.height !== h) {
-      canvas.width = w;
-      canvas.height = h;
-    }
-    const ctx = canvas.getContext("2d");
-    ctx.setTransform(1, 0, 0, 1, 0, 0);
-    ctx.clearRect(0, 0, w, h);
-    if (!this.heatImage) return;
-    const hm = this.heatImage;
-    const [x, y] = this.toScreen(hm.left, hm.top);
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    ctx.imageSmoothingEnabled = false;
-    ctx.drawImage(hm.canvas, x, y, hm.width * this.scale, hm.height * this.scale);
   }
 
   renderPrior() {
@@ -491,157 +377,9 @@ export class MapView {
     }
   }
 
-  renderAnswer() {
-    for (const el of this.answerGroup.querySelectorAll(".uncertainty")) el.remove();
-    if (!this.answer) return;
-    const labels = [];
-    for (const el of this.answerGroup.querySelectorAll(".location")) {
-      const rank = Number(el.dataset.rank);
-      const [x, y] = this.toScreen(...this.plane.toLocal(Number(el.dataset.lat), Number(el.dataset.lon)));
-      const heading = Number(el.dataset.heading);
-      const length = rank === 1 ? TOP_CONE_PX : OTHER_CONE_PX;
-      el.querySelector(".cone").setAttribute("d", wedgePath(x, y, heading, Number(el.dataset.hfov), length));
-      const dot = el.querySelector(".loc-dot");
-      dot.setAttribute("cx", x);
-      dot.setAttribute("cy", y);
-      const label = el.querySelector(".loc-label");
-      if (label) labels.push({ label, x, y, heading, rank });
-    }
-    this.placeLabels(labels);
-    const loc = this.answer.result.locations.find((l) => l.rank === this.selectedRank);
-    const radius = loc ? Number(loc.uncertainty_radius_m) : NaN;
-    if (loc && Number.isFinite(radius) && radius > 0) {
-      const [x, y] = this.toScreen(...this.plane.toLocal(loc.lat, loc.lon));
-      const circle = svg("circle", { class: "uncertainty", cx: x, cy: y, r: radius * this.scale });
-      circle.dataset.radiusM = radius;
-      circle.dataset.rank = loc.rank;
-      this.answerGroup.insertBefore(circle, this.answerGroup.firstChild);
-    }
-  }
-
-  /** Put each rank label beside its marker where it overlaps no better-ranked label, no location dot and
-   * not the best location's cone (behind the camera first, so it never covers its own cone); a label with
-   * no free place is hidden (the table and the marker's tooltip still give it). */
-  placeLabels(labels) {
-    // keep clear of the best location's view cone and of every location's dot
-    const placed = [...this.answerGroup.querySelectorAll(".location.top .cone, .loc-dot")].map((el) => el.getBBox());
-    labels.sort((a, b) => a.rank - b.rank);
-    for (const { label, x, y, heading } of labels) {
-      const back = ((heading + 180) * Math.PI) / 180;
-      const candidates = [
-        [16 * Math.sin(back), -16 * Math.cos(back)],
-        [12, -12],
-        [-12, -12],
-        [12, 16],
-        [-12, 16],
-      ];
-      label.removeAttribute("visibility");
-      let free = false;
-      for (const [dx, dy] of candidates) {
-        label.setAttribute("x", x + dx);
-        label.setAttribute("y", y + dy + 4);
-        label.setAttribute("text-anchor", dx < -4 ? "end" : dx > 4 ? "start" : "middle");
-        const box = label.getBBox();
-        if (!placed.some((p) => box.x < p.x + p.width && p.x < box.x + box.width && box.y < p.y + p.height && p.y < box.y + box.height)) {
-          placed.push(box);
-          free = true;
-          break;
-        }
-      }
-      if (!free) label.setAttribute("visibility", "hidden");
-    }
-  }
-
   renderScaleBar() {
     const metres = niceLength(110 / this.scale);
     this.parts.scaleLine.style.width = `${metres * this.scale}px`;
     this.parts.scaleLabel.textContent = formatDistance(metres);
-  }
-
-  // --- interaction ----------------------------------------------------------------------------
-
-  installInteraction() {
-    const root = this.root;
-    let drag = null;
-    root.addEventListener("pointerdown", (event) => {
-      if (event.button !== 0) return;
-      drag = { id: event.pointerId, x: event.clientX, y: event.clientY, moved: false };
-    });
-    root.addEventListener("pointermove", (event) => {
-      this.updateTooltip(event);
-      if (!drag || event.pointerId !== drag.id) return;
-      const dx = event.clientX - drag.x;
-      const dy = event.clientY - drag.y;
-      if (!drag.moved && Math.hypot(dx, dy) < DRAG_THRESHOLD_PX) return;
-      if (!drag.moved) {
-        drag.moved = true;
-        root.setPointerCapture(event.pointerId);
-        root.classList.add("dragging");
-      }
-      this.panBy(dx, dy);
-      drag.x = event.clientX;
-      drag.y = event.clientY;
-    });
-    const endDrag = (event) => {
-      if (!drag || event.pointerId !== drag.id) return;
-      const wasClick = !drag.moved;
-      if (drag.moved) root.releasePointerCapture(event.pointerId);
-      root.classList.remove("dragging");
-      drag = null;
-      if (wasClick && event.type === "pointerup" && this.plane && !event.target.closest(".reference, .location")) {
-        this.handlers.mapClick(...this.unproject(event.clientX, event.clientY));
-      }
-    };
-    root.addEventListener("pointerup", endDrag);
-    root.addEventListener("pointercancel", endDrag);
-    root.addEventListener("pointerleave", () => this.hideTooltip());
-    root.addEventListener(
-      "wheel",
-      (event) => {
-        event.preventDefault();
-        const rect = root.getBoundingClientRect();
-        const delta = event.deltaMode === 1 ? event.deltaY * 16 : event.deltaY;
-        this.zoomBy(Math.exp(-delta * 0.0015), [event.clientX - rect.left, event.clientY - rect.top]);
-      },
-      { passive: false },
-    );
-    root.addEventListener("keydown", (event) => {
-      if (event.target !== root) return; // markers handle their own keys
-      const step = event.shiftKey ? 240 : 80;
-      const actions = {
-        ArrowLeft: () => this.panBy(step, 0),
-        ArrowRight: () => this.panBy(-step, 0),
-        ArrowUp: () => this.panBy(0, step),
-        ArrowDown: () => this.panBy(0, -step),
-        "+": () => this.zoomBy(1.4),
-        "=": () => this.zoomBy(1.4),
-        "-": () => this.zoomBy(1 / 1.4),
-        0: () => this.fitMap(),
-      };
-      const action = actions[event.key];
-      if (action) {
-        event.preventDefault();
-        action();
-      }
-    });
-  }
-
-  updateTooltip(event) {
-    const tip = this.parts.tooltip;
-    const target = event.target.closest ? event.target.closest("[data-tip]") : null;
-    if (!target || (event.buttons & 1) === 1) {
-      this.hideTooltip();
-      return;
-    }
-    const rect = this.root.parentElement.getBoundingClientRect();
-    tip.textContent = target.dataset.tip;
-    tip.hidden = false;
-    const x = Math.min(event.clientX - rect.left + 14, rect.width - tip.offsetWidth - 8);
-    tip.style.left = `${x}px`;
-    tip.style.top = `${event.clientY - rect.top + 16}px`;
-  }
-
-  hideTooltip() {
-    this.parts.tooltip.hidden = true;
   }
 }

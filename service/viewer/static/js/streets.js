@@ -2,16 +2,10 @@
 // names (screen pixels, along the street, redrawn on every pan or zoom): one label per name, on the longest
 // piece of that street, shown only where the piece is long enough on screen to hold it.
 
-const SVG_NS = "http://www.w3.org/2000/svg";
+import { svg } from "./svg.js";
+
 const CHAR_PX = 6.5; // about the width of one character of a street name
 const LABEL_PAD_PX = 16;
-
-function svgEl(tag, attrs, parent) {
-  const el = document.createElementNS(SVG_NS, tag);
-  for (const [k, v] of Object.entries(attrs)) el.setAttribute(k, v);
-  parent.appendChild(el);
-  return el;
-}
 
 /** Length, the point halfway along and the direction there (deg, counter-clockwise from east) of a polyline. */
 function halfway(points) {
@@ -33,8 +27,8 @@ function halfway(points) {
 export class StreetLayer {
   /** @param {SVGSVGElement} root the footprints' SVG: the streets go first, so they lie under the footprints */
   constructor(root) {
-    this.lines = svgEl("g", { class: "streets" }, root);
-    this.names = svgEl("g", { class: "street-names" }, root);
+    this.lines = svg("g", { class: "streets" }, root);
+    this.names = svg("g", { class: "street-names" }, root);
     this.labels = [];
     this.count = 0;
   }
@@ -50,7 +44,7 @@ export class StreetLayer {
       const points = feature.geometry.coordinates.map(([lon, lat]) => plane.toLocal(lat, lon));
       if (points.length < 2) continue;
       const name = (feature.properties || {}).name;
-      svgEl(
+      svg(
         "path",
         { class: "street", d: "M" + points.map(([x, y]) => `${x.toFixed(2)},${y.toFixed(2)}`).join("L"), "data-name": name || "" },
         this.lines,
@@ -62,7 +56,7 @@ export class StreetLayer {
     }
     this.count = this.lines.childElementCount;
     for (const [name, where] of longest) {
-      const el = svgEl("text", { class: "street-name" }, this.names);
+      const el = svg("text", { class: "street-name" }, this.names);
       el.textContent = name;
       this.labels.push({ el, name, ...where });
     }

@@ -1,7 +1,7 @@
 // A track (GET /v1/tracks/{id}) on the map: its trajectory, each frame's view cone and uncertainty circle, and
 // a stepper through the frames (the selected frame emphasised, its facts in the panel).
 
-import { svg, wedgePath } from "./mapview.js";
+import { svg, wedgePath } from "./svg.js";
 
 const FRAME_CONE_PX = 34;
 const SELECTED_CONE_PX = 56;

@@ -1,4 +1,4 @@
-"""The evidence benchmark's boundary helpers: party walls from column ids, matching, the plainest detector."""
+"""The walk-evidence diagnostic's boundary helpers: party walls from column ids, matching, the plainest detector."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from benchmarks.bench_walk_map_evidence import column_colour_boundaries, matched_share, party_walls
+from research.walk_map_evidence import column_colour_boundaries, matched_share, party_walls
 
 
 def test_party_walls_are_where_one_building_meets_another() -> None:

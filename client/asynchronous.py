@@ -1,10 +1,10 @@
-"""``AsyncClient``: the same API as :class:`geoloc.client.sync.Client`, for asyncio (``httpx.AsyncClient``).
+"""``AsyncClient``: the same API as :class:`client.sync.Client`, for asyncio (``httpx.AsyncClient``).
 
     async with AsyncClient("http://127.0.0.1:8000", api_key="KEY") as client:
         query = await client.upload_query(map_id, "photo.jpg", wait_s=0)
         answer = await client.wait_for_query(query.id)
 
-The requests (:mod:`geoloc.client.calls`), the retry policy, the models and the errors are the sync
+The requests (:mod:`client.calls`), the retry policy, the models and the errors are the sync
 client's; only the sending and the sleeping are awaited.
 """
 
@@ -18,12 +18,12 @@ from typing import TypeVar, Unpack, cast
 
 import httpx
 
-import geoloc.client.calls as calls  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
-import geoloc.client.models as models  # noqa: PLR0402 (as above)
-from geoloc.client.base import ClientBase, ClientOptions, finish, is_final
-from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, TrackFields, Upload
-from geoloc.client.errors import RateLimitedError, ServiceUnreachableError
-from geoloc.client.retry import RetryPolicy, WaitLoop
+import client.calls as calls  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
+import client.models as models  # noqa: PLR0402 (as above)
+from client.base import ClientBase, ClientOptions, finish, is_final
+from client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, TrackFields, Upload
+from client.errors import RateLimitedError, ServiceUnreachableError
+from client.retry import RetryPolicy, WaitLoop
 
 T = TypeVar("T")
 
@@ -85,7 +85,7 @@ class AsyncClient(ClientBase):
         """Upload a map file (OSM, GeoJSON, GeoPackage, ...) with its read options and ``attribution``.
 
         Returns once the map is parsed: the service waits ``wait_s`` (default 60 s; a file it cannot read is
-        an :class:`~geoloc.client.errors.InvalidRequestError` then), and a map still queued after it is polled
+        an :class:`~client.errors.InvalidRequestError` then), and a map still queued after it is polled
         with backoff (:meth:`wait_for_map`, at most ``timeout_s``). The map is returned ``done`` or ``failed``.
         """
         uploaded = (await self.call(calls.upload_map(file, name, {"wait_s": 60.0, **fields}))).value
@@ -236,7 +236,7 @@ class AsyncClient(ClientBase):
         done: Callable[[T], bool] = is_final,
         what: str = "the job",
     ) -> T:
-        """As :meth:`geoloc.client.sync.Client.wait` (exponential backoff, long polls, 429s waited out), awaited."""
+        """As :meth:`client.sync.Client.wait` (exponential backoff, long polls, 429s waited out), awaited."""
         loop: WaitLoop[T] = WaitLoop(timeout_s, done, what, time.monotonic)
         while True:
             pause_s = loop.begin()

@@ -6,10 +6,10 @@ from typing import Any, TypedDict, TypeVar, Unpack
 
 import httpx
 
-from geoloc.client.calls import Call, Sent
-from geoloc.client.errors import api_error
-from geoloc.client.models import FINAL_STATUSES
-from geoloc.client.retry import RetryPolicy
+from client.calls import Call, Sent
+from client.errors import api_error
+from client.models import FINAL_STATUSES
+from client.retry import RetryPolicy
 
 T = TypeVar("T")
 DEFAULT_TIMEOUT_S = 120.0
@@ -63,7 +63,7 @@ class ClientBase:
 
 
 def finish(call: Call[T], response: httpx.Response, attempts: int) -> Sent[T]:
-    """The call's result, or its :class:`~geoloc.client.errors.ApiError` raised."""
+    """The call's result, or its :class:`~client.errors.ApiError` raised."""
     if not response.is_success:
         raise api_error(response, attempts)
     return Sent(call.read(response), response.status_code, attempts)

@@ -1,7 +1,7 @@
 """The track-upload use-case: several photos (or earlier queries) stored as one track's frames with one job.
 
 A track's frames are query rows (:mod:`db.tracks`), so each uploaded frame goes through what a query upload
-checks (:class:`service.routes_queries.QueryIntake`: its form's bounds, its photo by content, its prior position
+checks (:class:`service.intake_queries.QueryIntake`: its form's bounds, its photo by content, its prior position
 inside the map) with its own priors; an error names the frame (``details.frame``, from 0 in the order sent).
 A frame that is not a photo is a 422 (not the 415 of a lone query: the request as a whole is well formed, one of
 its parts is not). All frames, their rows, the track and its one ``locate_track`` job are stored in one
@@ -21,8 +21,8 @@ from datetime import UTC, datetime
 from typing import Any
 
 from fastapi import UploadFile
-from pydantic import BaseModel, ConfigDict, Field
 
+from contracts.api import FramePrior, TrackFromQueries
 from contracts.jobs import LOCATE_TRACK, LocateTrackPayload
 from contracts.queries import QueryParams, QueryPreset
 from contracts.settings import Settings
@@ -35,35 +35,10 @@ from db.rows import MapRow, QueryRow
 from service.deps import open_db
 from service.errors import ApiError
 from service.images import validate_image
-from service.routes_queries import QueryForm, QueryIntake
+from service.intake_queries import QueryForm, QueryIntake
 from service.tenancy import require_query, require_ready_map
 from service.uploads import ReceivedFile, received_upload
 from workers.broker import JobPublisher
-
-
-class FramePrior(BaseModel):
-    """One frame's priors, as a query's form fields (WGS84 degrees, metres, degrees from north)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    lat: float | None = None
-    lon: float | None = None
-    radius_m: float | None = None
-    heading_deg: float | None = None
-    place: str | None = Field(default=None, max_length=200)
-
-
-class TrackFromQueries(BaseModel):
-    """``POST /v1/maps/{id}/tracks`` with a JSON body: a track of earlier queries of the same map, in order."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    query_ids: list[int] = Field(min_length=1, description="The queries whose photos are the frames, in order")
-    by_capture_time: bool = Field(default=False, description="Order the frames by their photos' capture time")
-    top_n: int = Field(default=10, ge=1, le=50, description="How many distinct locations each frame's answer holds")
-    k: int = Field(default=4, ge=1, le=20, description="How many references to retrieve for identities")
-    preset: QueryPreset | None = Field(default=None, description="fast, balanced or accurate")
-    wait_s: float = Field(default=60.0, ge=0, le=300, description="How long to wait for the answer before 202")
 
 
 @dataclass(frozen=True)

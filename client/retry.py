@@ -14,7 +14,7 @@ from typing import Any, Generic, TypeVar
 
 import httpx
 
-from geoloc.client.errors import RateLimitedError, WaitTimeoutError, retry_after_s
+from client.errors import RateLimitedError, WaitTimeoutError, retry_after_s
 
 T = TypeVar("T")
 

@@ -6,10 +6,10 @@
         client.wait_for_reference(ref.id)
         answer = client.wait_for_query(client.upload_query(helsinki.id, "photo.jpg", wait_s=0).id)
 
-Every method returns a typed model (:mod:`geoloc.client.models`) and raises
-:class:`~geoloc.client.errors.ApiError` (a subclass per kind) on an error answer; 429 and 503 are retried
-after their ``Retry-After`` (:class:`~geoloc.client.retry.RetryPolicy`). ``call`` sends any
-:class:`~geoloc.client.calls.Call` and also says how many tries it took.
+Every method returns a typed model (:mod:`client.models`) and raises
+:class:`~client.errors.ApiError` (a subclass per kind) on an error answer; 429 and 503 are retried
+after their ``Retry-After`` (:class:`~client.retry.RetryPolicy`). ``call`` sends any
+:class:`~client.calls.Call` and also says how many tries it took.
 """
 
 from __future__ import annotations
@@ -21,12 +21,12 @@ from typing import TypeVar, Unpack, cast
 
 import httpx
 
-import geoloc.client.calls as calls  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
-import geoloc.client.models as models  # noqa: PLR0402 (as above)
-from geoloc.client.base import ClientBase, ClientOptions, finish, is_final
-from geoloc.client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, TrackFields, Upload
-from geoloc.client.errors import RateLimitedError, ServiceUnreachableError
-from geoloc.client.retry import RetryPolicy, WaitLoop
+import client.calls as calls  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
+import client.models as models  # noqa: PLR0402 (as above)
+from client.base import ClientBase, ClientOptions, finish, is_final
+from client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, TrackFields, Upload
+from client.errors import RateLimitedError, ServiceUnreachableError
+from client.retry import RetryPolicy, WaitLoop
 
 T = TypeVar("T")
 
@@ -86,7 +86,7 @@ class Client(ClientBase):
         """Upload a map file (OSM, GeoJSON, GeoPackage, ...) with its read options and ``attribution``.
 
         Returns once the map is parsed: the service waits ``wait_s`` (default 60 s; a file it cannot read is
-        an :class:`~geoloc.client.errors.InvalidRequestError` then), and a map still queued after it is polled
+        an :class:`~client.errors.InvalidRequestError` then), and a map still queued after it is polled
         with backoff (:meth:`wait_for_map`, at most ``timeout_s``). The map is returned ``done`` or ``failed``.
         """
         uploaded = (self.call(calls.upload_map(file, name, {"wait_s": 60.0, **fields}))).value
@@ -241,7 +241,7 @@ class Client(ClientBase):
 
         ``fetch`` may spend the pause itself (a long poll, as :meth:`wait_for_query` does); whatever it
         did not spend is slept. A 429 left after the retries is waited out (its ``Retry-After``);
-        :class:`~geoloc.client.errors.WaitTimeoutError` after ``timeout_s`` (s).
+        :class:`~client.errors.WaitTimeoutError` after ``timeout_s`` (s).
         """
         loop: WaitLoop[T] = WaitLoop(timeout_s, done, what, time.monotonic)
         while True:

@@ -17,7 +17,7 @@ from typing import Any, Generic, Literal, TypedDict, TypeVar
 import httpx
 from pydantic import BaseModel
 
-import geoloc.client.models as models  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
+import client.models as models  # noqa: PLR0402 (a from-import counts as importing the package: a circle)
 
 T = TypeVar("T")
 M = TypeVar("M", bound=BaseModel)

@@ -1,4 +1,4 @@
-"""Real PostgreSQL and Redis servers for the distributed profile's tests and benchmarks, on loopback in temp folders.
+"""Real PostgreSQL, Redis and Prometheus servers for the tests and benchmarks, on loopback in temp folders.
 
 ``PostgresServer`` runs a private cluster (``initdb`` + ``pg_ctl``, Debian's ``postgresql`` package) owned
 by the ``postgres`` system user when the tests run as root (``initdb`` refuses root), with ``fsync`` off
@@ -9,9 +9,11 @@ every test service gets its own logical database number. Both stop when the test
 Neither is mocked: the tests talk to the real servers over TCP. Where a binary is missing the fixtures
 fail with the package to install (``.ci/run`` installs them).
 
-The module lives in ``benchmarks/`` because both the tests (``tests/conftest.py`` and the distributed-profile
-tests, as ``benchmarks.servers``) and a benchmark (``benchmarks/bench_ingest.py``, as its sibling ``servers``)
-start these servers, and benchmarks sit below tests: a benchmark must not import the tests.
+The module lives in ``testbed/``, below both ``benchmarks/`` and ``tests/``, because both start these servers
+(the tests' fixtures in ``tests/conftest.py``; ``benchmarks/bench_ingest.py`` and ``bench_soak.py``'s distributed
+profile), and a benchmark never imports the tests (they sit above it: they import the benchmarks' pure parts).
+A benchmark run as a script reaches ``testbed`` through the checkout that ``benchmarks/local_service.py`` puts
+on ``sys.path``.
 """
 
 from __future__ import annotations

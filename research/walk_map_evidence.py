@@ -1,6 +1,6 @@
 """Diagnostic: whether the map knows where a placed walk's wrong references belong.
 
-    .venv/bin/python benchmarks/bench_walk_map_evidence.py --world /tmp/worlds/hw1 --world /tmp/worlds/bw1 \
+    .venv/bin/python research/walk_map_evidence.py --world /tmp/worlds/hw1 --world /tmp/worlds/bw1 \
         [--json evidence.json]
 
 Each world's references are labelled alone and their walks placed as ``bench_walk_placement.py`` does (the
