@@ -21,6 +21,7 @@ from contracts.settings import shared_path
 from geoloc.localize.query import PRESETS
 from geoloc.maps.places import VIEW_MARGIN_M, find_place, place_index
 from geoloc.sim.world import WorldOptions, generate_world, load_world
+from geoloc.vision.model_files import SEG_DEFAULT_SIZE
 from geoloc.vision.onnx_session import CUDA_PROVIDER, available_providers
 from tests.conftest import Profile
 from tests.geojson_checks import check_query_collection
@@ -112,6 +113,7 @@ def test_ingest_label_and_query_through_the_api(
             assert result["search"]["preset"] == answer["params"]["preset"] == "balanced"
             # GEOLOC_DEVICE=auto: the GPU only where onnxruntime has the CUDA provider.
             assert result["search"]["device"] == ("cuda" if CUDA_PROVIDER in available_providers() else "cpu")
+            assert result["search"]["segmentation"] == f"espnetv2_s2_city_{SEG_DEFAULT_SIZE[0]}x{SEG_DEFAULT_SIZE[1]}"
             heat = np.array(result["heatmap"]["values"])
             assert list(heat.shape) == result["heatmap"]["shape"] and heat.sum() == pytest.approx(1.0, abs=1e-3)
             # Identities come from references: judge the buildings (over 5 % of the photo) that one shows.
