@@ -5,8 +5,9 @@ From a split's report (:func:`geoloc.evaluation.suite.run.run_suite`) and its wo
 dev split also per world; with a baseline the paired differences), :func:`write_plots` (``SPLIT.error_cdf.png``:
 queries against their raw GPS, references against their own fixes, track frames against the same frames alone;
 ``SPLIT.calibration.png``: the share of truths inside k times the stated size, references' k sigma beside what a
-true 2D Gaussian gives, and the answers' radius) and :func:`readme_table` (the README's accuracy table: the test
-split's pooled figures of both capture kinds with the raw GPS beside them).
+true 2D Gaussian gives, and the answers' radius), :func:`readme_table` (the README's accuracy table: the test
+split's pooled figures of both capture kinds with the raw GPS beside them) and :func:`results_accuracy`
+(``docs/results.md``'s accuracy part: its command and method, the pooled figures and each capture kind's).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from geoloc.evaluation.figures import Axes, Series, line_chart
 from geoloc.evaluation.suite.figures import FIGURES
 from geoloc.evaluation.suite.worlds import CAPTURES
 
-__all__ = ["README_COMMAND", "markdown", "readme_table", "write_plots"]
+__all__ = ["README_COMMAND", "markdown", "readme_table", "results_accuracy", "write_plots"]
 
 README_COMMAND = "geoloc eval suite --split test --out docs/accuracy"
 """The command that makes the README's accuracy table (``docs/accuracy/test.json`` is its source)."""
@@ -127,6 +128,20 @@ def readme_table(report: dict[str, Any]) -> str:
             scattered = figures.get("capture:scattered", {}).get(key)
             other = figures.get("capture:walk", {}).get(beside) if beside else None
         lines.append(f"| {label} | {_cell(walk, share)} | {_cell(scattered, share)} | {_cell(other, share)} |")
+    return "\n".join(lines)
+
+
+def results_accuracy(report: dict[str, Any]) -> str:
+    """``docs/results.md``'s accuracy part: the command and method, then the pooled and per-capture figures."""
+    figures: dict[str, dict[str, Any]] = report["figures"]
+    captures = [f"capture:{c}" for c in CAPTURES if f"capture:{c}" in figures]
+    lines = [
+        f"Command: `{README_COMMAND}` (the method of `{report.get('commit')}`; {len(report['worlds'])} worlds of the "
+        f"{report['split']} split, suite version {report['suite_version']}; each figure with its 95 % interval from a "
+        "cluster bootstrap over the worlds).",
+        "",
+        *_table(figures, ["pooled", *captures]),
+    ]
     return "\n".join(lines)
 
 
