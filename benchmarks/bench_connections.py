@@ -5,7 +5,7 @@ They are held against ``geoloc serve`` while a normal client times ``/healthz`` 
 ``python benchmarks/bench_connections.py [--idle 1000 --slow-headers 50 --slow-bodies 20 --json out.json]``;
 the limits are set short so that the run is short (head 5 s, body stalled 5 s, whole body 10 s): the slow
 clients must be cut at those times and the normal client's p99 stay under 200 ms. The CI-sized version is
-``tests/e2e/test_connection_limits.py``; the figures are in docs/measurements.md.
+``tests/e2e/test_connection_limits.py``; the figures are in docs/measurements/faults.md.
 """
 
 from __future__ import annotations

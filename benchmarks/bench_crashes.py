@@ -9,7 +9,7 @@ each round, with nothing running: ``PRAGMA integrity_check``, the doctor's repai
 checks), and a second doctor pass that must find nothing. At the end the service runs until no job is left and every
 job must be ``done``, ``failed`` with a reason, or ``cancelled``. The issue's must-hold (issue 51): 200 kills,
 ``integrity_check`` ok every time, zero orphaned photos or rows after the doctor, every job ends. Exit code 1 when
-one of them fails. Figures: docs/measurements.md.
+one of them fails. Figures: docs/measurements/faults.md.
 """
 
 from __future__ import annotations

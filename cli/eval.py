@@ -185,7 +185,7 @@ def world(
     """Label a simulated world's references (via EXIF), answer its queries with the service's query stage.
 
     A world with query tracks: each track answered by the track stage, per prior (gps, none), per frame and per
-    track, beside the same frames answered one by one (docs/measurements.md, tracks).
+    track, beside the same frames answered one by one (docs/measurements/tracks.md).
 
     Prints reference labelling, the paper's Tables I/II, the raw-GPS baseline, and per run (prior, ablation)
     the error at N = 1 for all queries, for those whose buildings some reference shows and per query kind,

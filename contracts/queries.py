@@ -36,7 +36,7 @@ def gps_prior_radius_m(stated_accuracy_m: float | None) -> float:
     the radius of about 68 % confidence, 1.5 sigma per axis of a round Gaussian; the prior takes sigma as the
     stated accuracy itself (radius twice it, at least :data:`MIN_GPS_PRIOR_RADIUS_M`), wider than that reading
     because a fix beside tall buildings is off by more than its device says. Chosen on one track world
-    (docs/measurements.md, "The GPS's stated accuracy").
+    (docs/measurements/tracks.md, "The GPS's stated accuracy").
     """
     if stated_accuracy_m is None:
         return DEFAULT_PRIOR_RADIUS_M

@@ -4,7 +4,7 @@
 held open against ``geoloc serve`` with short limits (2 s for the head, a body stalled 2 s or slower than 5 s in
 all): a normal client's ``/healthz`` and ``GET /v1/maps`` keep their p99 under 200 ms, idle and slow-header
 connections are closed at the header deadline and slow bodies get ``408`` ``request_timeout``. The 1,000-idle
-version is ``benchmarks/bench_connections.py`` (docs/measurements.md).
+version is ``benchmarks/bench_connections.py`` (docs/measurements/faults.md).
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ and SIGKILLs, at random moments, the API or a worker (the supervisor restarts it
 database) and then every process at once. With nothing running: ``integrity_check`` is ``ok``, the doctor's repairs
 leave nothing for a second pass. After the last round the service runs until its workers have nothing left: every
 job ends ``done``, ``failed`` with a reason, or ``cancelled`` (a deleted reference's), and ``geoloc doctor`` finds
-nothing. The 200-kill version is ``benchmarks/bench_crashes.py`` (docs/measurements.md).
+nothing. The 200-kill version is ``benchmarks/bench_crashes.py`` (docs/measurements/faults.md).
 """
 
 from __future__ import annotations

@@ -100,7 +100,7 @@ PRESETS: dict[QueryPreset, QueryConfig] = {
 references for the PnP (6), 72 yaws (5 deg) on the grid (120, 3 deg), 1 likelihood pose refined (3).
 ``accurate`` spends more: 30 shortlisted references, 10 anchor references, 5 m cells (10 m), 180 yaws (2 deg),
 5 refined poses. Segmentation, facades and features (about half of a query's time) are the same in all three.
-The figures are in ``docs/measurements.md`` (Presets).
+The figures are in ``docs/measurements/speed.md`` (Query presets).
 """
 
 

@@ -62,7 +62,7 @@ GPS_ERROR_KEY = 1_000_000
 
 @dataclass(frozen=True)
 class PlacementOptions:
-    """The placement's tuning (defaults measured on Helsinki seed 1's walk world; docs/measurements.md).
+    """The placement's tuning (defaults measured on Helsinki seed 1's walk world; docs/measurements/accuracy.md).
 
     steps: edges join each frame to the frames this many further along the walk. ratio, min_anchored: the
     relative poses' matching (:func:`geoloc.localize.sequence.relative.relative_pose`); min_inliers,

@@ -132,7 +132,8 @@ def place_labelled_sequence(
 
 STEPS_OVERRULE_M = 3.0
 """A frame its steps alone join to its walk takes the walk's pose only when that lies farther than this (m) from its
-own label: three sigmas of a walker's step (docs/measurements.md, "The walk's pace": steps scatter about 1 m)."""
+own label: three sigmas of a walker's step (docs/measurements/accuracy.md, "The walk's pace": steps scatter about
+1 m)."""
 
 
 def keeps_own_label(pose: PlacedPose, label_x_m: float, label_y_m: float) -> bool:
@@ -141,7 +142,7 @@ def keeps_own_label(pose: PlacedPose, label_x_m: float, label_y_m: float) -> boo
     It does when nothing joined it to the walk (:attr:`PlacedPose.joined`), or when only its steps between capture
     times did and the walk places it within :data:`STEPS_OVERRULE_M` of its label: steps say how far a walker went,
     not where a label with the map's anchors was wrong by a metre or two, while a label the steps put farther off
-    is more often on the wrong stretch of the street than the walk is (docs/measurements.md, "Frames joined by
+    is more often on the wrong stretch of the street than the walk is (docs/measurements/accuracy.md, "Frames joined by
     their steps alone").
     """
     if not pose.joined:

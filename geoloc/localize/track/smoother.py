@@ -301,7 +301,7 @@ def place_track(
     yaws = start_headings(alone, [g.heading_prior for g in graph], motions) if options.motion_starts else None
     # The GPS enters once: a frame's own answer already weighed its prior (the query stage's), so a frame with an
     # answer gets no GPS factor, until its answer is set aside as an outlier's. Counted twice, fixes stated to
-    # 4-11 m pulled the frames off their answers (docs/measurements.md, "The GPS's stated accuracy").
+    # 4-11 m pulled the frames off their answers (docs/measurements/tracks.md, "The GPS's stated accuracy").
     answered = [g if a is None else replace(g, gps_sigma_m=LOOSE_SIGMA) for g, a in zip(graph, alone, strict=True)]
     try:
         poses = place_sequence(answered, options.placement, edges, motions, yaws)
