@@ -29,8 +29,8 @@
    each loading the map's index as a worker does and answering 20 of the queries, first each with its own
    index, then on the machine's shared base segment (``workers.sbow_share``: written once, memory-mapped by
    all), both started as separate processes (``GEOLOC_WORKER_START=spawn``), then forked on the shared base
-   by one warmed parent as the service's pool does (``fork``, :func:`workers.pool.fork_warmed`; the parent
-   counted); their resident memory (RSS) and proportional set size (PSS) together, and whether every process's
+   by one warmed parent as the service's pool does (``fork``, :func:`workers.pool.freeze_warmed` then
+   :func:`workers.pool.fork_child`; the parent counted); their resident memory (RSS) and proportional set size (PSS) together, and whether every process's
    shortlists are byte-identical to this process's. The target's ratio is the forked one (``GEOLOC_WORKER_START=fork``,
    opt-in: the default starts separate processes).
 
