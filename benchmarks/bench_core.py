@@ -39,8 +39,8 @@ from geoloc.localize.likelihood import (
     known_building_heights,
     pose_likelihood,
 )
-from geoloc.localize.posterior import make_grid
 from geoloc.localize.likelihood_reference import pose_likelihood_numpy
+from geoloc.localize.posterior import make_grid
 from geoloc.maps import load_map, raycast, raycast_reference
 from geoloc.vision.image_model import bin_offsets_deg
 

@@ -17,11 +17,11 @@ from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.ground_truth import gt_identity_map
 from geoloc.evaluation.references import LabelledWorld
 from geoloc.evaluation.summaries import TOP_N, mean_or_none, run_summary
+from geoloc.evaluation.walks import compass_prior_at
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.identity import identity_accuracy
 from geoloc.localize.query import QueryConfig, geolocate, retrieve, transfer
 from geoloc.localize.retrieval import Vocabulary
-from geoloc.localize.sequence.stage import compass_prior_at
 from geoloc.maps import CityMap
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.photos.photo import Photo

@@ -22,10 +22,10 @@ def pose_likelihood_numpy(
     building_height_m: np.ndarray | None = None,
     chunk_elements: int = 8_000_000,
 ) -> np.ndarray:
-    """:func:`geoloc.localize.likelihood.pose_likelihood` in plain vectorised numpy: (P, Y) arrays of every term, in chunks of positions.
+    """:func:`geoloc.localize.likelihood.pose_likelihood` in plain vectorised numpy: (P, Y) arrays of every term.
 
-    The specification of the compiled kernel (same arguments, results equal to float32 rounding); the
-    tests and the core benchmark compare the two.
+    In chunks of positions (``chunk_elements`` samples at a time). The specification of the compiled kernel
+    (same arguments, results equal to float32 rounding); the tests and the core benchmark compare the two.
     """
     terms = _terms(panoramas, image_model, yaws_deg, options, building_height_m)
     distance_sigma_log, height_sigma_log = options.distance_sigma_log, options.height_sigma_log

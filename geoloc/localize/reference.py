@@ -18,12 +18,20 @@ import numpy as np
 from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from geoloc.core.camera import Intrinsics
 from geoloc.core.context import MethodContext
+from geoloc.core.geo import LocalFrame
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.localize.identity import IdentityMap
-from geoloc.localize.labeling import KnownPose, LabelOptions, ReferenceLabel, label_known_pose, label_reference
+from geoloc.localize.labeling import (
+    KnownPose,
+    LabelOptions,
+    ReferenceLabel,
+    label_known_pose,
+    label_reference,
+    stated_heading_prior,
+)
 from geoloc.localize.store import StoredReference
 from geoloc.maps import CityMap
-from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.photos.heading_prior import HeadingPrior, compass_heading_prior
 from geoloc.photos.photo import Photo
 from geoloc.vision.evidence import PhotoEvidence, analyze_photo
 from geoloc.vision.features import Features
@@ -237,3 +245,22 @@ def stored_reference(reference_id: Hashable, labelled: LabelledReference) -> Sto
         np.array([labelled.label.x_m, labelled.label.y_m]),
         labelled.alternative_anchors,
     )
+
+
+def heading_prior_at(
+    frame: LocalFrame, heading_deg: float | None, accuracy_deg: float | None, east_m: float = 0.0, north_m: float = 0.0
+) -> HeadingPrior | None:
+    """The heading prior of a heading (deg from true north) at a local point (m) of ``frame``: the one way it is built.
+
+    The workers' (a stored reference's or query's heading) and the evaluation's (a photo's compass, its accuracy
+    :func:`geoloc.photos.heading_prior.compass_accuracy_deg`, as the service stores it).
+
+    No accuracy: a heading the uploader stated (or one stored before accuracies were), today's plain Gaussian
+    (:func:`geoloc.localize.labeling.stated_heading_prior`). With one: the photo's compass, the robust prior
+    (:func:`geoloc.photos.heading_prior.compass_heading_prior`: sigma floored, uniform outlier floor).
+    """
+    if heading_deg is None:
+        return None
+    if accuracy_deg is None:
+        return stated_heading_prior(float(frame.heading_to_bearing(heading_deg, east_m, north_m)))
+    return compass_heading_prior(heading_deg, accuracy_deg, frame, east_m, north_m)

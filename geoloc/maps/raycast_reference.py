@@ -1,4 +1,4 @@
-"""The specification of the ray-casting kernel: :func:`cast_tile_numpy`, :func:`geoloc.maps.raycast._cast_tile` in numpy.
+"""The specification of the ray-casting kernel: :func:`cast_tile_numpy`, ``geoloc.maps.raycast._cast_tile`` in numpy.
 
 Not used by the runtime: the tests check the compiled kernel against it (results identical) and
 ``benchmarks/bench_core.py`` times the two side by side.
@@ -21,7 +21,7 @@ def cast_tile_numpy(
     max_range_m: float,
     best: np.ndarray,
 ) -> None:
-    """:func:`geoloc.maps.raycast._cast_tile` in vectorised numpy (the specification; the tests check the kernel against it)."""
+    """:func:`geoloc.maps.raycast._cast_tile` in vectorised numpy (the specification the tests hold the kernel to)."""
     step = 360.0 / n_bearings
     origin = positions[members][:, None, :]  # (p, 1, 2)
     a = facades.start[near][None] - origin  # (p, f, 2) endpoints relative to the camera

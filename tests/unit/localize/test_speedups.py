@@ -23,8 +23,8 @@ from geoloc.localize.likelihood import (
     known_building_heights,
     pose_likelihood,
 )
-from geoloc.localize.posterior import grid_around
 from geoloc.localize.likelihood_reference import pose_likelihood_numpy
+from geoloc.localize.posterior import grid_around
 from geoloc.maps import CityMap, raycast, raycast_reference
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
