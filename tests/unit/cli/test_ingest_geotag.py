@@ -25,7 +25,7 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from cli import ingest as ingest_module
-from cli.ingest import ingest_folder
+from cli.ingest import IngestOptions, ingest_folder
 from cli.ingest_report import IngestReport, print_summary
 from cli.main import app
 from contracts.settings import shared_path
@@ -108,12 +108,9 @@ def run_ingest(folder: Path, **options: Any) -> tuple[IngestReport, dict[str, di
     report = ingest_folder(
         folder,
         1,
-        url="http://mock",
-        api_key=None,
-        retries=0,
+        IngestOptions(url="http://mock", api_key=None, retries=0, **options),
         transport=recording_transport(sent),
         console=Console(file=io.StringIO()),
-        **options,
     )
     return report, sent
 
@@ -251,9 +248,9 @@ def test_the_command_line_passes_the_track_and_the_offset(tmp_path: Path, monkey
     gpx = write_gpx(tmp_path / "walk.gpx", [(datetime(2024, 6, 1, tzinfo=UTC), 55.7, 13.19)])
     seen: dict[str, Any] = {}
 
-    def fake_ingest(folder: Path, map_id: int, **options: Any) -> IngestReport:
-        seen.update(options, folder=folder, map_id=map_id)
-        return IngestReport(url=options["url"], map_id=map_id, map_name="mock")
+    def fake_ingest(folder: Path, map_id: int, options: IngestOptions, **_: Any) -> IngestReport:
+        seen.update(vars(options), folder=folder, map_id=map_id)
+        return IngestReport(url=options.url, map_id=map_id, map_name="mock")
 
     monkeypatch.setattr(ingest_module, "ingest_folder", fake_ingest)
     args = ["ingest", str(tmp_path), "--map", "3", "--url", "http://mock", "--gpx", str(gpx), "--time-offset", "-7200"]

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from cli.ingest import IngestAbortError, ingest_folder
+from cli.ingest import IngestAbortError, IngestOptions, ingest_folder
 from geoloc.photos.exif import write_jpeg
 from tests.service_fixtures import WRITE_KEY
 
@@ -68,10 +68,7 @@ def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -
     report = ingest_folder(
         tmp_path,
         1,
-        url="http://mock",
-        api_key=WRITE_KEY,
-        retries=3,
-        backoff_s=0.0,
+        IngestOptions(url="http://mock", api_key=WRITE_KEY, retries=3, backoff_s=0.0),
         transport=httpx.MockTransport(handler),
         console=Console(file=io.StringIO()),
     )
@@ -85,5 +82,5 @@ def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -
         raise httpx.ConnectError("connection refused", request=request)
 
     with pytest.raises(IngestAbortError, match="cannot reach the service"):
-        ingest_folder(tmp_path, 1, url="http://mock", api_key=None, retries=1, backoff_s=0.0,
-                      transport=httpx.MockTransport(down), console=Console(file=io.StringIO()))  # fmt: skip
+        options = IngestOptions(url="http://mock", api_key=None, retries=1, backoff_s=0.0)
+        ingest_folder(tmp_path, 1, options, transport=httpx.MockTransport(down), console=Console(file=io.StringIO()))
