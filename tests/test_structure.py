@@ -346,10 +346,8 @@ PARAMETER_RULE_PACKAGES = (
 PARAMETERS_NOT_YET = {
     "geoloc.localize.reference.label_from_cues",
     "geoloc.localize.refinement.refine_pose",
-    "geoloc.localize.transfer.transfer_identities",
     "geoloc.localize.sequence.twoview.two_view_motion",
     "geoloc.localize.query.stage.geolocate",
-    "geoloc.vision.decomposition.decompose_facades",
     "geoloc.vision.features.extract_features",
     "geoloc.photos.exif.exif_bytes",
     "geoloc.photos.exif.write_jpeg",
