@@ -30,7 +30,7 @@ from cli.ingest_report import IngestReport, print_summary
 from cli.main import app
 from contracts.settings import shared_path
 from geoloc.photos.capture import read_capture
-from geoloc.photos.exif import read_exif, write_jpeg
+from geoloc.photos.exif import ExifFields, read_exif, write_jpeg
 from tests.unit.cli.test_ingest_retries import MOCK_MAP
 
 LUND = shared_path("data", "lund", "images")
@@ -231,7 +231,7 @@ def test_without_a_compass_the_heading_is_the_direction_of_travel(tmp_path: Path
     rgb = np.random.default_rng(1).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
     for i, seconds in enumerate((5, 13, 30)):
         local = (start + timedelta(hours=2, seconds=seconds)).replace(tzinfo=None)
-        write_jpeg(photos / f"p{i}.jpg", rgb + i, lat=None, lon=None, focal_35mm=28, taken=local)
+        write_jpeg(photos / f"p{i}.jpg", rgb + i, ExifFields(focal_35mm=28, taken=local))
     report, sent = run_ingest(photos, gpx=gpx, time_offset_s=-7200)
     assert report.counts()["accepted"] == 3
     for i, seconds in enumerate((5, 13, 30)):

@@ -14,7 +14,7 @@ import pytest
 from rich.console import Console
 
 from cli.ingest import IngestAbortError, IngestOptions, ingest_folder
-from geoloc.photos.exif import write_jpeg
+from geoloc.photos.exif import ExifFields, write_jpeg
 from tests.service_fixtures import WRITE_KEY
 
 MOCK_MAP = {
@@ -39,7 +39,7 @@ INSIDE_HELSINKI = [(60.1716, 24.9443), (60.1700, 24.9450), (60.1690, 24.9420)]
 def photo(path: Path, position: tuple[float, float], seed: int) -> Path:
     """A 320 x 240 noise JPEG at ``position`` (lat, lon) with a 28 mm focal length."""
     rgb = np.random.default_rng(seed).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
-    return write_jpeg(path, rgb, lat=position[0], lon=position[1], focal_35mm=28)
+    return write_jpeg(path, rgb, ExifFields(lat=position[0], lon=position[1], focal_35mm=28))
 
 
 def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -> None:
