@@ -344,9 +344,7 @@ PARAMETER_RULE_PACKAGES = (
     "contracts", "geoloc", "db", "workers", "service", "cli", "client", "testbed", "benchmarks", "research",
 )  # fmt: skip
 PARAMETERS_NOT_YET = {
-    "geoloc.localize.reference.label_from_cues",
     "geoloc.localize.refinement.refine_pose",
-    "geoloc.localize.sequence.twoview.two_view_motion",
     "geoloc.localize.query.stage.geolocate",
     "geoloc.vision.features.extract_features",
 }

@@ -27,6 +27,7 @@ from geoloc.localize.labeling import (
     ReferenceLabel,
     label_known_pose,
     label_reference,
+    resolve_heading_prior,
     stated_heading_prior,
 )
 from geoloc.localize.store import StoredReference
@@ -144,8 +145,7 @@ def label_reference_photo(
         LabelCues.of(evidence),
         evidence.timings_ms,
         gps_xy,
-        prior_yaw_deg=prior_yaw_deg,
-        heading_prior=heading_prior,
+        heading_prior=resolve_heading_prior(prior_yaw_deg, heading_prior),
         options=options,
         strategy=strategy,
         analysis=evidence,
@@ -159,7 +159,6 @@ def label_from_cues(
     timings_ms: dict[str, float],
     gps_xy: tuple[float, float],
     *,
-    prior_yaw_deg: float | None = None,
     heading_prior: HeadingPrior | None = None,
     options: LabelOptions | None = None,
     strategy: str = "marginalized",
@@ -170,8 +169,8 @@ def label_from_cues(
 
     :func:`label_reference_photo`'s labelling, also used on the cues a walk's placement reads back instead of the
     photo (a label done again with another prior). timings_ms: the analysis's or the earlier label's (copied,
-    ``timing_key`` added: the labelling's ms); analysis: kept on the result; the rest as
-    :func:`label_reference_photo`.
+    ``timing_key`` added: the labelling's ms); analysis: kept on the result; heading_prior: a stated heading too
+    (:func:`geoloc.localize.labeling.resolve_heading_prior`); the rest as :func:`label_reference_photo`.
     """
     t0 = time.perf_counter()
     label = label_reference(
@@ -180,7 +179,6 @@ def label_from_cues(
         cues.building_mask,
         intrinsics,
         gps_xy,
-        prior_yaw_deg=prior_yaw_deg,
         heading_prior=heading_prior,
         options=options or LabelOptions(),
     )
