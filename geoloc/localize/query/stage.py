@@ -33,7 +33,6 @@ def geolocate(
     config: QueryConfig = QueryConfig(),
     *,
     position_prior: PositionPrior | None = None,
-    prior_yaw_deg: float | None = None,
     heading_prior: HeadingPrior | None = None,
     top_n: int = 10,
     identity_override: IdentityMap | None = None,
@@ -41,9 +40,9 @@ def geolocate(
 ) -> QueryAnswer:
     """Geolocate a photo (its evidence already analysed) against the references of ``store``.
 
-    position_prior: optional Gaussian prior (e.g. the photo's GPS). prior_yaw_deg: optional stated heading
-    (local bearing, deg; today's Gaussian) or heading_prior: a :class:`HeadingPrior` (the compass's robust
-    one), not both. identity_override: use these identities instead of the transferred ones (evaluation
+    position_prior: optional Gaussian prior (e.g. the photo's GPS). heading_prior: a :class:`HeadingPrior` (the
+    compass's robust one, or a stated heading's Gaussian: :func:`geoloc.localize.reference.heading_prior_at`).
+    identity_override: use these identities instead of the transferred ones (evaluation
     ablation: ground-truth identities). context: the job threads (the matching and the PnP proposals run on
     them; the answer does not depend on their number). Positions are local metres of ``city_map.frame``.
 
@@ -78,7 +77,6 @@ def geolocate(
         likelihood,
         config.grid,
         position_prior=position_prior,
-        prior_yaw_deg=prior_yaw_deg,
         heading_prior=heading_prior,
         top_n=top_n + SPARE_POSES,
     )
