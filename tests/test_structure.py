@@ -344,7 +344,6 @@ PARAMETER_RULE_PACKAGES = (
     "contracts", "geoloc", "db", "workers", "service", "cli", "client", "testbed", "benchmarks", "research",
 )  # fmt: skip
 PARAMETERS_NOT_YET = {
-    "geoloc.localize.query.stage.geolocate",
     "geoloc.vision.features.extract_features",
 }
 """The method's functions over the limit still to be given an options object (their answers must stay
