@@ -6,8 +6,9 @@ sit on top: ``testbed`` (the servers tests and benchmarks start) <- ``benchmarks
 Inside ``geoloc`` the runtime stages (``core`` <- ``photos``, ``maps`` <- ``vision`` <- ``localize``) never
 import the simulator, the evaluation or the model export, and none of the method reads the settings; the
 runtime never imports the client. The API's models are defined once, in ``contracts.api``. No import circle
-anywhere; no module over 450 lines outside tests; a project module imported inside a function says why in a
-comment (on its line, or above the run of imports it belongs to).
+anywhere; no module over 450 lines outside tests; no public function outside tests over 10 parameters (Typer
+commands excepted); a project module imported inside a function says why in a comment (on its line, or above the
+run of imports it belongs to).
 """
 
 from __future__ import annotations
@@ -343,11 +344,6 @@ MAX_PUBLIC_PARAMETERS = 10
 PARAMETER_RULE_PACKAGES = (
     "contracts", "geoloc", "db", "workers", "service", "cli", "client", "testbed", "benchmarks", "research",
 )  # fmt: skip
-PARAMETERS_NOT_YET = {
-    "geoloc.vision.features.extract_features",
-}
-"""The method's functions over the limit still to be given an options object (their answers must stay
-bit-identical, checked by ``geoloc eval world``); none may be added, and one given its options leaves the list."""
 
 
 def _is_command_call(node: ast.expr) -> bool:
@@ -406,7 +402,7 @@ def test_no_public_function_takes_more_than_ten_parameters() -> None:
     (:class:`db.records.NewReference`, :class:`cli.ingest.IngestOptions`, a route's form read by a dependency).
     Excepted by rule: Typer commands (decorated ``@app.command(...)`` or registered ``app.command(...)(function)``;
     Typer declares one command-line option per parameter, and the command builds the options object it passes
-    on). Excepted by name: :data:`PARAMETERS_NOT_YET`, the method's functions still to be given one.
+    on).
     """
     commands = _cli_commands()
     over = [
@@ -414,15 +410,8 @@ def test_no_public_function_takes_more_than_ten_parameters() -> None:
         for module, path in modules().items()
         if module.split(".")[0] in PARAMETER_RULE_PACKAGES
         for name, line, count in _public_functions(path)
-        if count > MAX_PUBLIC_PARAMETERS and f"{module}.{name}" not in PARAMETERS_NOT_YET | commands
+        if count > MAX_PUBLIC_PARAMETERS and f"{module}.{name}" not in commands
     ]
-    over_by_name = {
-        f"{module}.{name}"
-        for module, path in modules().items()
-        for name, _, count in _public_functions(path)
-        if count > MAX_PUBLIC_PARAMETERS
-    }
-    assert over_by_name >= PARAMETERS_NOT_YET, "within the limit now: take it off PARAMETERS_NOT_YET"
     assert not over, "take a typed record or options object instead:\n" + "\n".join(over)
 
 
