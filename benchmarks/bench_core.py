@@ -7,8 +7,8 @@ Ray-casts a panorama (0.5 deg bearings) at every cell of a regular grid over the
 buildings excluded), then evaluates the pose likelihood for all cells x yaws with an image model taken from
 one true pose, geometry-only and identity-aware. Each is run with the compiled kernel
 (:func:`geoloc.maps.raycast.cast_panoramas`, :func:`geoloc.localize.likelihood.pose_likelihood`) and with the plain
-numpy formulation it replaced (``geoloc.maps.raycast._cast_tile_numpy``,
-:func:`geoloc.localize.likelihood.pose_likelihood_numpy`)
+numpy formulation it replaced (``geoloc.maps.raycast_reference.cast_tile_numpy``,
+:func:`geoloc.localize.likelihood_reference.pose_likelihood_numpy`)
 in the same run, alternating, ``--repeats`` times (the best time of each is reported: the machine is
 shared). The likelihood's rate is in column comparisons per second: positions x yaws x column bins
 evaluated per second. The results of the two must agree (identical panoramas; likelihoods within float32
@@ -38,10 +38,10 @@ from geoloc.localize.likelihood import (
     image_model_from_map,
     known_building_heights,
     pose_likelihood,
-    pose_likelihood_numpy,
 )
+from geoloc.localize.likelihood_reference import pose_likelihood_numpy
 from geoloc.localize.posterior import make_grid
-from geoloc.maps import load_map, raycast
+from geoloc.maps import load_map, raycast, raycast_reference
 from geoloc.vision.image_model import bin_offsets_deg
 
 
@@ -59,7 +59,7 @@ def best_of(repeats: int, *functions: Callable[[], Any]) -> tuple[list[float], l
 
 def numpy_cast(city: Any, positions: np.ndarray) -> raycast.Panoramas:
     kernel = raycast._cast_tile
-    raycast._cast_tile = raycast._cast_tile_numpy
+    raycast._cast_tile = raycast_reference.cast_tile_numpy
     try:
         return raycast.cast_panoramas(city, positions)
     finally:

@@ -6,9 +6,9 @@
     .venv/bin/python benchmarks/bench_walk_placement.py --world /tmp/worlds/hw2 --truth-share 0.25 --truth-share 0.5
 
 Each world's references are labelled alone once, as the workers' label job labels them (the evaluation's
-:func:`geoloc.evaluation.references.label_alone`, network segmentation, the compass as heading prior); then
-every walk is placed and its frames re-labelled by the workers' sequence stage
-(:func:`geoloc.localize.sequence.stage.place_photo_walks`, as ``geoloc eval world`` runs it) under each
+:func:`geoloc.evaluation.references.label_world_alone`, network segmentation, the compass as heading prior);
+then every walk is placed and its frames re-labelled by the workers' sequence stage
+(:func:`geoloc.evaluation.walks.place_photo_walks`, as ``geoloc eval world`` runs it) under each
 configuration, from the same labels alone. The first configuration is the default ``PlacementOptions()``; each
 ``--config NAME=FIELD:VALUE,...`` replaces fields of it (``benchmarks/config_args.py``). Printed per world and
 configuration: the references' position error (within 1 / 2 m, median) and heading error (within 2 / 5 deg)
@@ -39,11 +39,11 @@ from typing import Any
 from config_args import comparison_arguments, parse_config
 
 from geoloc.core.geo import angle_difference_deg
-from geoloc.evaluation.references import label_alone, relabelled_at_truth
+from geoloc.evaluation.references import label_world_alone, relabelled_at_truth
 from geoloc.evaluation.summaries import reference_heading_summary, reference_position_summary
+from geoloc.evaluation.walks import place_photo_walks
 from geoloc.localize.reference import LabelledReference
 from geoloc.localize.sequence import PlacementOptions
-from geoloc.localize.sequence.stage import place_photo_walks
 from geoloc.maps import CityMap
 from geoloc.photos.photo import Photo
 from geoloc.sim.world import World, load_world
@@ -110,7 +110,7 @@ def place_world(
     world = load_world(world_dir)
     city = world.load_map()
     started = time.perf_counter()
-    photos, alone = label_alone(world, city, "model", lambda _msg: None, method_context())
+    photos, alone = label_world_alone(world, city, "model", lambda _msg: None, method_context())
     say(f"{world_dir}: {len(alone)} references labelled alone in {time.perf_counter() - started:.0f} s")
     runs = [(name, options, alone) for name, options in configs.items()]
     truth = labels_at_truth(world, city, photos, alone) if at_truth or truth_shares else {}

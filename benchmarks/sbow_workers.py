@@ -6,8 +6,9 @@ it: the machine's shared base segment when ``shared_dir`` is given, the process'
 answering the same queries. Once all hold their index, each one's resident memory (``VmRSS``) and proportional
 set size (``Pss`` of ``/proc/PID/smaps_rollup``: a shared page counts 1/n in each of the n processes mapping it,
 so the processes' PSS add up to the memory they take together; RSS counts a shared page in every process) is
-read. With ``start="fork"`` the processes are forked by one parent through :func:`workers.pool.fork_warmed`, the
-service's pool's own code (``GEOLOC_WORKER_START=fork``), and the parent's memory counts in the sum. Each returns a
+read. With ``start="fork"`` the processes are forked by one parent as the service's pool forks its workers
+(``GEOLOC_WORKER_START=fork``: :func:`workers.pool.freeze_warmed` once, then :func:`workers.pool.fork_child`
+per child, the pool's own functions), and the parent's memory counts in the sum. Each returns a
 digest of its shortlists (ids and float scores), which must be the same in every process
 and mode.
 """
@@ -50,13 +51,14 @@ sys.stdin.readline()
 POOL = (
     ANSWER
     + """
-from workers.pool import fork_warmed
+from workers.pool import fork_child, freeze_warmed
 r, w = os.pipe()
 def child(_):
     os.write(w, (answer() + "\\n").encode())  # one line < PIPE_BUF: written at once
     sys.stdin.readline()
     return 0
-pids = fork_warmed(int(sys.argv[5]), child)
+freeze_warmed()
+pids = [fork_child(lambda i=i: child(i)) for i in range(int(sys.argv[5]))]
 os.close(w)
 with os.fdopen(r) as lines:
     for _ in pids:
@@ -66,8 +68,9 @@ for pid in pids:
     os.waitpid(pid, 0)
 """
 )
-"""The pool's way (``GEOLOC_WORKER_START=fork``): one parent warms and forks the children with
-:func:`workers.pool.fork_warmed`, the function the service's pool uses; it prints each child's line."""
+"""The pool's way (``GEOLOC_WORKER_START=fork``): one parent warms and freezes its heap
+(:func:`workers.pool.freeze_warmed`) and forks the children (:func:`workers.pool.fork_child`), as the service's
+pool does; it prints each child's line."""
 
 
 def shortlist_digest(lists: list[list[tuple[Any, float]]]) -> str:

@@ -28,6 +28,7 @@ import time
 from collections import Counter
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
@@ -163,41 +164,57 @@ def upload_all(
     return [results[i] for i in range(len(photos))]
 
 
-def ingest_folder(
-    folder: Path,
-    map_id: int,
-    *,
-    url: str,
-    api_key: str | None,
-    concurrency: int = 4,
-    recursive: bool = False,
-    wait: WaitFor | None = None,
-    wait_timeout_s: float = 0.0,
-    poll_s: float = 1.0,
-    retries: int = 5,
-    backoff_s: float = 0.5,
-    timeout_s: float = 120.0,
-    gpx: Path | None = None,
-    time_offset_s: float = 0.0,
-    console: Console | None = None,
-    transport: httpx.BaseTransport | None = None,
-) -> IngestReport:
-    """Scan, geotag, upload and (optionally) wait; raises :class:`IngestAbortError` when nothing can be done.
+@dataclass(frozen=True)
+class IngestOptions:
+    """How :func:`ingest_folder` reads the folder, uploads and waits (the ``geoloc ingest`` options).
 
-    wait: ``placed`` (until the new references are labelled and the map's walks placed: every pose final) or
-    ``labelled`` (labelling only), for at most ``wait_timeout_s`` in all (0: no limit); None: do not wait.
-
+    url, api_key: the service and a key with the write scope; concurrency: parallel uploads; recursive: photos in
+    subfolders too. wait: ``placed`` (until the new references are labelled and the map's walks placed: every
+    pose final) or ``labelled`` (labelling only), for at most ``wait_timeout_s`` in all (0: no limit), reading
+    every ``poll_s``; None: do not wait. retries, backoff_s: of transient errors; timeout_s: per HTTP request.
     gpx: a GPS track that places every photo by its capture time (+ ``time_offset_s`` seconds), see
     :mod:`cli.ingest_geotag`; a ``mapillary_image_description.json`` in the folder is read with or without it.
     """
+
+    url: str
+    api_key: str | None
+    concurrency: int = 4
+    recursive: bool = False
+    wait: WaitFor | None = None
+    wait_timeout_s: float = 0.0
+    poll_s: float = 1.0
+    retries: int = 5
+    backoff_s: float = 0.5
+    timeout_s: float = 120.0
+    gpx: Path | None = None
+    time_offset_s: float = 0.0
+
+
+def ingest_folder(
+    folder: Path,
+    map_id: int,
+    options: IngestOptions,
+    *,
+    console: Console | None = None,
+    transport: httpx.BaseTransport | None = None,
+) -> IngestReport:
+    """Scan, geotag, upload and (optionally) wait, as ``options`` say; raises :class:`IngestAbortError` when stuck.
+
+    Stuck: nothing can be done (bad track, service unreachable, key refused, no such map). console: where the
+    progress goes (stderr); transport: the HTTP transport (the tests mock it).
+    """
     console = console or Console(stderr=True)
+    url, recursive, wait, poll_s = options.url, options.recursive, options.wait, options.poll_s
+    gpx, time_offset_s, wait_timeout_s = options.gpx, options.time_offset_s, options.wait_timeout_s
     try:
         geotagging = load_geotagging(folder, gpx, time_offset_s, recursive=recursive)
     except GeotagError as exc:
         raise IngestAbortError(str(exc)) from exc
     stop = threading.Event()
-    policy = RetryPolicy(retries=retries, backoff_s=backoff_s, statuses=RETRY_STATUSES, stop=stop.is_set)
-    client = Client(url, api_key, timeout_s=timeout_s, retry=policy, transport=transport)
+    policy = RetryPolicy(
+        retries=options.retries, backoff_s=options.backoff_s, statuses=RETRY_STATUSES, stop=stop.is_set
+    )
+    client = Client(url, options.api_key, timeout_s=options.timeout_s, retry=policy, transport=transport)
     try:
         map_row = fetch_map(client, map_id)
         report = IngestReport(url=url, map_id=map_id, map_name=map_row.name)
@@ -210,7 +227,9 @@ def ingest_folder(
             f"map {map_id} ({map_row.name}) at {url}: {len(photos)} photo(s) to upload from {folder}"
             + (f", {len(others)} other file(s) not uploaded" if others else "")
         )
-        uploaded = upload_all(client, stop, map_id, photos, concurrency=concurrency, console=console) if photos else []
+        uploaded = []
+        if photos:
+            uploaded = upload_all(client, stop, map_id, photos, concurrency=options.concurrency, console=console)
         report.files = sorted([*uploaded, *others], key=lambda r: path_order(r.path))
         if wait is not None:
             report.wait_for = wait
@@ -303,9 +322,7 @@ def ingest(
     stdout = Console(width=None if sys.stdout.isatty() else 160)
     stderr = Console(stderr=True)
     try:
-        report = ingest_folder(
-            folder,
-            map_id,
+        options = IngestOptions(
             url=url,
             api_key=api_key,
             concurrency=concurrency,
@@ -316,8 +333,8 @@ def ingest(
             timeout_s=timeout,
             gpx=gpx,
             time_offset_s=time_offset,
-            console=stderr,
         )
+        report = ingest_folder(folder, map_id, options, console=stderr)
     except IngestAbortError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc

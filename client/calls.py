@@ -175,12 +175,6 @@ def list_references(map_id: int, after_id: int, limit: int) -> Call[models.Refer
     return Call("GET", f"/v1/maps/{map_id}/references", _model(models.ReferenceList), params=params)
 
 
-def references_geojson(map_id: int, after_id: int, limit: int) -> Call[models.FeatureCollection]:
-    """The same page as GeoJSON points (``format=geojson``)."""
-    params = {"after_id": after_id, "limit": limit, "format": "geojson"}
-    return Call("GET", f"/v1/maps/{map_id}/references", _model(models.FeatureCollection), params=params)
-
-
 def file_of(kind: Literal["references", "queries"], item_id: int, name: str) -> Call[bytes]:
     """A stored file's bytes: ``image`` (both), ``labels.png`` (references), ``heatmap.png`` (queries)."""
     return Call("GET", f"/v1/{kind}/{item_id}/{name}", _bytes)

@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from geoloc.evaluation.references import label_alone
+from geoloc.evaluation.references import label_world_alone
+from geoloc.evaluation.walks import place_photo_walks
 from geoloc.localize.labeling import LabelOptions
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.reference import LabelledReference
-from geoloc.localize.sequence.stage import place_photo_walks
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import cast_panoramas
 from geoloc.sim.world import World, WorldImage, load_world
@@ -213,7 +213,7 @@ def world_evidence(world_dir: Path, gain_limit: float) -> dict[str, Any]:
     """Every walk of a world, and how many of its wrong references the map cannot tell from their placed poses."""
     world = load_world(world_dir)
     city = world.load_map()
-    photos, labelled = label_alone(world, city, "model", lambda _: None, method_context())
+    photos, labelled = label_world_alone(world, city, "model", lambda _: None, method_context())
     place_photo_walks(city, photos, labelled)
     options = LabelOptions()
     walks: dict[str, list[Frame]] = {}

@@ -18,7 +18,7 @@ from PIL import Image, UnidentifiedImageError
 
 from geoloc.photos.capture import capture_of, photo_device
 from geoloc.photos.exif import ExifInfo, exif_info, load_exif
-from geoloc.photos.heading_prior import DEFAULT_SIGMA_DEG
+from geoloc.photos.heading_prior import compass_accuracy_deg
 from geoloc.photos.projection import photo_projection, read_head
 from service.errors import ApiError
 
@@ -45,7 +45,7 @@ class ImageInfo:
     heading_deg: float | None = None
     """The compass heading (deg clockwise from true north), None without a compass."""
     heading_accuracy_deg: float | None = None
-    """The compass's accuracy (deg): as stated (widened when magnetic), DEFAULT_SIGMA_DEG when it states none."""
+    """The compass's accuracy (deg): as stated (widened when magnetic) or the default (:func:`compass_accuracy_deg`)."""
     capture_time: str | None = None
     """When it was taken (ISO 8601: aware, or naive camera time), None when the photo does not say."""
     sequence_id: str | None = None
@@ -134,7 +134,7 @@ def _read_exif_into(path: Path, info: ImageInfo) -> ExifInfo:
     compass = capture.compass
     if compass is not None:
         info.heading_deg = compass.heading_deg
-        info.heading_accuracy_deg = DEFAULT_SIGMA_DEG if compass.accuracy_deg is None else compass.accuracy_deg
+        info.heading_accuracy_deg = compass_accuracy_deg(compass)
     return exif
 
 

@@ -24,14 +24,13 @@ from db import Database, database_key, sbow, transaction
 from db import maps as map_store
 from db.files import open_store
 from db.rows import ReferenceRow
-from geoloc.core.geo import LocalFrame
 from geoloc.localize.grid import PositionPrior
-from geoloc.localize.labeling import stated_heading_prior
 from geoloc.localize.query import QueryAnswer
+from geoloc.localize.reference import heading_prior_at
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
 from geoloc.maps import CityMap, MapReadOptions, load_map_cached, map_cache_dir
 from geoloc.maps.places import PlaceIndex, find_place, place_index
-from geoloc.photos.heading_prior import HeadingPrior, compass_heading_prior
+from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.vision.model_files import vocabulary_path
 from geoloc.vision.segmentation import ModelNotBuiltError
@@ -136,22 +135,6 @@ def vocabulary_for(db: Database, map_id: int) -> Vocabulary:
         if sbow.load_vocabulary(db, map_id) is None:
             sbow.save_vocabulary(db, map_id, {"centers": vocabulary.centroids})
     return vocabulary
-
-
-def heading_prior_at(
-    frame: LocalFrame, heading_deg: float | None, accuracy_deg: float | None, east_m: float = 0.0, north_m: float = 0.0
-) -> HeadingPrior | None:
-    """The heading prior of a stored heading (deg from true north) at a local point (m) of ``frame``.
-
-    No accuracy: a heading the uploader stated (or one stored before accuracies were), today's plain Gaussian
-    (:func:`geoloc.localize.labeling.stated_heading_prior`). With one: the photo's compass, the robust prior
-    (:func:`geoloc.photos.heading_prior.compass_heading_prior`: sigma floored, uniform outlier floor).
-    """
-    if heading_deg is None:
-        return None
-    if accuracy_deg is None:
-        return stated_heading_prior(float(frame.heading_to_bearing(heading_deg, east_m, north_m)))
-    return compass_heading_prior(heading_deg, accuracy_deg, frame, east_m, north_m)
 
 
 def column_scale(original_size: tuple[int, int] | np.ndarray, working_width: int) -> float:

@@ -91,15 +91,6 @@ def freeze_warmed() -> None:
     gc.freeze()
 
 
-def fork_warmed(count: int, target: Callable[[int], int]) -> list[int]:
-    """:func:`freeze_warmed`, then fork ``count`` children running ``target(i)``; their pids.
-
-    One implementation for the pool and ``benchmarks/sbow_workers.py``. The caller must not have started threads.
-    """
-    freeze_warmed()
-    return [fork_child(functools.partial(target, i)) for i in range(count)]
-
-
 @dataclass
 class _Slot:
     pid: int | None = None

@@ -66,11 +66,6 @@ class Intrinsics:
         """Column angle (deg, right of the optical axis) of pixel column(s) ``x`` (pixel centres at x)."""
         return np.degrees(np.arctan((np.asarray(x, dtype=float) - self.cx) / self.focal_px))
 
-    def column_of_angle(self, alpha_deg: np.ndarray | float) -> np.ndarray:
-        """Pixel column (float) seen at column angle ``alpha_deg``; inverse of ``column_angle_deg``."""
-        column: np.ndarray = self.cx + self.focal_px * np.tan(np.radians(np.asarray(alpha_deg, dtype=float)))
-        return column
-
     def scaled(self, width: int, height: int) -> Intrinsics:
         """The same camera for an image resized to ``width`` x ``height``."""
         sx, sy = width / self.width, height / self.height

@@ -12,8 +12,8 @@ import numpy as np
 from geoloc.core.context import MethodContext
 from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.summaries import mean_or_none
+from geoloc.evaluation.walks import compass_prior_at, place_photo_walks
 from geoloc.localize.reference import LabelledReference, label_reference_photo
-from geoloc.localize.sequence.stage import compass_prior_at, place_photo_walks
 from geoloc.maps import load_map
 from geoloc.photos.photo import Photo, load_photo
 
@@ -30,9 +30,9 @@ def evaluate_photos(
     """Label real geo-tagged photos on a map with their EXIF GPS (the service's reference labelling).
 
     compass_prior: weight the headings with the photo's compass (``Photo.capture.compass``) as the robust
-    prior the service uses (:func:`geoloc.photos.heading_prior.heading_prior_from_compass`); off by default,
+    prior the service uses (:func:`geoloc.evaluation.walks.compass_prior_at`); off by default,
     the map alone (as before). place_walks: then place the photos' walks jointly as the workers' sequence job
-    does (:func:`geoloc.localize.sequence.stage.place_photo_walks`; the service's labelling is both options).
+    does (:func:`geoloc.evaluation.walks.place_photo_walks`; the service's labelling is both options).
     context: the models and threads the labelling runs with.
 
     truth_csv: optional CSV with ``name`` and ``true_heading_deg`` columns (e.g. the phone's compass). Returns

@@ -17,15 +17,19 @@ from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.ground_truth import gt_identity_map
 from geoloc.evaluation.references import LabelledWorld
 from geoloc.evaluation.summaries import TOP_N, mean_or_none, run_summary
+from geoloc.evaluation.walks import compass_prior_at
 from geoloc.localize.grid import PositionPrior
-from geoloc.localize.identity import identity_accuracy
+from geoloc.localize.identity import IdentityMap, identity_accuracy
 from geoloc.localize.query import QueryConfig, geolocate, retrieve, transfer
+from geoloc.localize.query.answer import QueryAnswer
+from geoloc.localize.query.stage import IdentityUse, locate, retrieve_and_transfer
 from geoloc.localize.retrieval import Vocabulary
-from geoloc.localize.sequence.stage import compass_prior_at
+from geoloc.localize.store import ReferenceStore
 from geoloc.maps import CityMap
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.photos.photo import Photo
 from geoloc.sim.world import World
+from geoloc.vision.evidence import PhotoEvidence
 
 KS = (1, 4, 8)
 IDENTITY_LOSS_PARTS = ("outside_mask", "no_identity", "building_shown", "building_not_shown", "right")
@@ -142,6 +146,29 @@ def photo_priors(photo: Photo, city: CityMap, prior: str) -> tuple[PositionPrior
     return PositionPrior.from_radius(x, y, radius_m), compass_prior_at(photo, city, (x, y))
 
 
+def geolocate_with_identities(
+    city: CityMap,
+    photo: Photo,
+    evidence: PhotoEvidence,
+    store: ReferenceStore,
+    vocabulary: Vocabulary,
+    identity: IdentityMap,
+    config: QueryConfig,
+    position_prior: PositionPrior | None,
+    heading_prior: HeadingPrior | None,
+    context: MethodContext,
+) -> QueryAnswer:
+    """:func:`geolocate` with these identities (ground truth: the ablation's ceiling) in place of the transferred.
+
+    The stage's own steps (:func:`geoloc.localize.query.stage.retrieve_and_transfer`, then
+    :func:`geoloc.localize.query.stage.locate`); the identities are trusted fully and not read again at a trusted
+    anchored pose. The answer's ``transferred`` is still what the retrieval transferred.
+    """
+    retrieved = retrieve_and_transfer(evidence, store, vocabulary, config, position_prior, context)
+    use = IdentityUse(identity, 1.0, read_at_trusted_pose=False)
+    return locate(city, photo, evidence, retrieved, use, config, position_prior, heading_prior, TOP_N, context)
+
+
 def answer_run(
     world: World,
     city: CityMap,
@@ -167,23 +194,25 @@ def answer_run(
         if run.prior == "given" and given_priors and image.name in given_priors:
             prior = given_priors[image.name]  # the compass still counts: the service reads it without GPS
             heading_prior = compass_prior_at(photo, city, (prior.x_m, prior.y_m))
-        override = None
-        if run.identities == "gt":
-            override = gt_identity_map(gt["building_id"], evidence.building_mask)
+        truth = gt_identity_map(gt["building_id"], evidence.building_mask) if run.identities == "gt" else None
         t0 = time.perf_counter()
-        answer = geolocate(
-            city,
-            photo,
-            evidence,
-            labelled.store,
-            vocabulary,
-            run.config,
-            position_prior=prior,
-            heading_prior=heading_prior,
-            top_n=TOP_N,
-            identity_override=override,
-            context=context,
-        )
+        if truth is not None:
+            answer = geolocate_with_identities(
+                city, photo, evidence, labelled.store, vocabulary, truth, run.config, prior, heading_prior, context
+            )
+        else:
+            answer = geolocate(
+                city,
+                photo,
+                evidence,
+                labelled.store,
+                vocabulary,
+                run.config,
+                position_prior=prior,
+                heading_prior=heading_prior,
+                top_n=TOP_N,
+                context=context,
+            )
         timings["total"].append(1e3 * (time.perf_counter() - t0))
         for key, value in answer.timings_ms.items():
             timings[key].append(value)

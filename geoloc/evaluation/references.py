@@ -23,11 +23,11 @@ from geoloc.evaluation.summaries import (
     reference_heading_summary,
     reference_position_summary,
 )
+from geoloc.evaluation.walks import compass_prior_at, place_photo_walks
 from geoloc.localize.identity import identity_accuracy
 from geoloc.localize.labeling import KnownPose
 from geoloc.localize.reference import LabelledReference, label_at_pose, label_reference_photo, stored_reference
 from geoloc.localize.retrieval import Vocabulary
-from geoloc.localize.sequence.stage import compass_prior_at, place_photo_walks
 from geoloc.maps import CityMap
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.sim.world import World
@@ -52,10 +52,13 @@ def analyze(path: Path, labels: np.ndarray | None, context: MethodContext) -> tu
     return photo, analyze_photo(photo, labels, context=context)
 
 
-def label_alone(
+def label_world_alone(
     world: World, city: CityMap, segmentation: str, say: Callable[[str], None], context: MethodContext
 ) -> tuple[dict[str, Photo], dict[str, LabelledReference]]:
     """Every reference of ``world`` labelled alone, as the workers' label job does (its compass the heading prior).
+
+    The world's counterpart of the workers' :func:`workers.reference_labels.label_alone` (one stored row): both
+    are :func:`geoloc.localize.reference.label_reference_photo` with the photo's GPS and compass prior.
 
     segmentation: "model" (the network) or "gt" (ground-truth labels). Returns the photos and their labels, by
     name in the world's order (a walk's frames are placed afterwards: :func:`place_photo_walks`).
@@ -91,7 +94,7 @@ def label_references(
     heading_errors, position_errors, radius_held, orientation = [], [], [], []
     walk_ids: list[int | None] = []  # each reference's walk (walk worlds; None in a scattered one)
     timings: dict[str, list[float]] = defaultdict(list)
-    photos, labelled = label_alone(world, city, segmentation, say, context)
+    photos, labelled = label_world_alone(world, city, segmentation, say, context)
     walks = place_photo_walks(city, photos, labelled)  # the workers' sequence job, on the same photos
     for walk in walks:
         say(f"walk of {len(walk.references)} references placed ({walk.n_edges} relative poses)")

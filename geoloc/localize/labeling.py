@@ -26,7 +26,7 @@ from geoloc.localize.identity import IdentityMap
 from geoloc.localize.likelihood import DEFAULT_SIGMA_M, LikelihoodOptions, default_yaws_deg
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.posterior import DEFAULT_SHARPNESS, grid_around, sharpened_likelihood
-from geoloc.localize.refinement import RefinedPose, refine_pose
+from geoloc.localize.refinement import RefinedPose, RefineOptions, refine_pose
 from geoloc.maps import CityMap
 from geoloc.maps.raycast import Panoramas, panorama_window
 from geoloc.photos.heading_prior import HeadingPrior
@@ -324,7 +324,7 @@ def label_reference(
             float(yaws[y_index]),
             prior_xy=gps_xy if gps_sigma_m else None,
             prior_sigma_m=gps_sigma_m,
-            sharpness=sharpness,
+            options=RefineOptions(sharpness=sharpness),
         )
         score = refined.posterior * (1.0 if prior is None else float(prior.weights(refined.yaw_deg)))
         refined_modes.append((float(score), refined))

@@ -18,12 +18,21 @@ import numpy as np
 from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from geoloc.core.camera import Intrinsics
 from geoloc.core.context import MethodContext
+from geoloc.core.geo import LocalFrame
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.localize.identity import IdentityMap
-from geoloc.localize.labeling import KnownPose, LabelOptions, ReferenceLabel, label_known_pose, label_reference
+from geoloc.localize.labeling import (
+    KnownPose,
+    LabelOptions,
+    ReferenceLabel,
+    label_known_pose,
+    label_reference,
+    resolve_heading_prior,
+    stated_heading_prior,
+)
 from geoloc.localize.store import StoredReference
 from geoloc.maps import CityMap
-from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.photos.heading_prior import HeadingPrior, compass_heading_prior
 from geoloc.photos.photo import Photo
 from geoloc.vision.evidence import PhotoEvidence, analyze_photo
 from geoloc.vision.features import Features
@@ -136,8 +145,7 @@ def label_reference_photo(
         LabelCues.of(evidence),
         evidence.timings_ms,
         gps_xy,
-        prior_yaw_deg=prior_yaw_deg,
-        heading_prior=heading_prior,
+        heading_prior=resolve_heading_prior(prior_yaw_deg, heading_prior),
         options=options,
         strategy=strategy,
         analysis=evidence,
@@ -151,7 +159,6 @@ def label_from_cues(
     timings_ms: dict[str, float],
     gps_xy: tuple[float, float],
     *,
-    prior_yaw_deg: float | None = None,
     heading_prior: HeadingPrior | None = None,
     options: LabelOptions | None = None,
     strategy: str = "marginalized",
@@ -162,8 +169,8 @@ def label_from_cues(
 
     :func:`label_reference_photo`'s labelling, also used on the cues a walk's placement reads back instead of the
     photo (a label done again with another prior). timings_ms: the analysis's or the earlier label's (copied,
-    ``timing_key`` added: the labelling's ms); analysis: kept on the result; the rest as
-    :func:`label_reference_photo`.
+    ``timing_key`` added: the labelling's ms); analysis: kept on the result; heading_prior: a stated heading too
+    (:func:`geoloc.localize.labeling.resolve_heading_prior`); the rest as :func:`label_reference_photo`.
     """
     t0 = time.perf_counter()
     label = label_reference(
@@ -172,7 +179,6 @@ def label_from_cues(
         cues.building_mask,
         intrinsics,
         gps_xy,
-        prior_yaw_deg=prior_yaw_deg,
         heading_prior=heading_prior,
         options=options or LabelOptions(),
     )
@@ -237,3 +243,22 @@ def stored_reference(reference_id: Hashable, labelled: LabelledReference) -> Sto
         np.array([labelled.label.x_m, labelled.label.y_m]),
         labelled.alternative_anchors,
     )
+
+
+def heading_prior_at(
+    frame: LocalFrame, heading_deg: float | None, accuracy_deg: float | None, east_m: float = 0.0, north_m: float = 0.0
+) -> HeadingPrior | None:
+    """The heading prior of a heading (deg from true north) at a local point (m) of ``frame``: the one way it is built.
+
+    The workers' (a stored reference's or query's heading) and the evaluation's (a photo's compass, its accuracy
+    :func:`geoloc.photos.heading_prior.compass_accuracy_deg`, as the service stores it).
+
+    No accuracy: a heading the uploader stated (or one stored before accuracies were), today's plain Gaussian
+    (:func:`geoloc.localize.labeling.stated_heading_prior`). With one: the photo's compass, the robust prior
+    (:func:`geoloc.photos.heading_prior.compass_heading_prior`: sigma floored, uniform outlier floor).
+    """
+    if heading_deg is None:
+        return None
+    if accuracy_deg is None:
+        return stated_heading_prior(float(frame.heading_to_bearing(heading_deg, east_m, north_m)))
+    return compass_heading_prior(heading_deg, accuracy_deg, frame, east_m, north_m)

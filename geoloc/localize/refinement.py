@@ -118,6 +118,22 @@ def position_spread(positions: np.ndarray, weights: np.ndarray, cell_m: float) -
     return spread
 
 
+@dataclass(frozen=True)
+class RefineOptions:
+    """The search of :func:`refine_pose`.
+
+    A square of ``half_size_m`` (m) in cells of ``cell_m`` around the pose, these yaw offsets (deg) around its
+    yaw, the likelihood sharpened by ``sharpness``, and the yaw fixed by the vanishing points before and after
+    (``use_vanishing_points``).
+    """
+
+    half_size_m: float = 6.0
+    cell_m: float = 1.0
+    yaw_offsets_deg: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)
+    sharpness: float = DEFAULT_SHARPNESS
+    use_vanishing_points: bool = True
+
+
 def refine_pose(
     likelihood: MapLikelihood,
     x_m: float,
@@ -127,19 +143,17 @@ def refine_pose(
     prior_xy: tuple[float, float] | None = None,
     prior_sigma_m: float | None = None,
     prior_weights: Callable[[np.ndarray], np.ndarray] | None = None,
-    half_size_m: float = 6.0,
-    cell_m: float = 1.0,
-    yaw_offsets_deg: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0),
-    sharpness: float = DEFAULT_SHARPNESS,
-    use_vanishing_points: bool = True,
+    options: RefineOptions = RefineOptions(),
 ) -> RefinedPose:
     """Refine a pose: vanishing-point yaw, then the best of a fine grid of positions x yaws around it.
 
     likelihood: the photo's map likelihood (identity-aware when its options ask for it and its image model
     carries identities). prior_xy, prior_sigma_m: optional Gaussian position prior (e.g. the GPS tag);
     prior_weights: or any position prior, as its weights of (P, 2) positions (e.g. ``PositionPrior.weights``).
-    Positions inside buildings are skipped.
+    Positions inside buildings are skipped; options: the search (:class:`RefineOptions`).
     """
+    half_size_m, cell_m, yaw_offsets_deg = options.half_size_m, options.cell_m, options.yaw_offsets_deg
+    sharpness, use_vanishing_points = options.sharpness, options.use_vanishing_points
     city_map, image_model = likelihood.city_map, likelihood.image_model
     yaw, vp_bins = (
         vanishing_point_yaw(city_map, image_model, x_m, y_m, yaw_deg) if use_vanishing_points else (yaw_deg, 0)

@@ -247,26 +247,10 @@ def _regions(ids: np.ndarray, prob: np.ndarray, evidence: np.ndarray, min_width:
     return sorted(out, key=lambda r: (-(r["x_end"] - r["x_start"]), r["x_start"]))
 
 
-def transfer_identities(
-    query_features: Features,
-    query_building_mask: np.ndarray,
-    references: Sequence[ReferenceEvidence],
-    *,
-    ratio: float = DEFAULT_RATIO,
-    threshold_px: float = DEFAULT_THRESHOLD_PX,
-    min_inliers: int = DEFAULT_MIN_INLIERS,
-    min_relative_inliers: float = 0.5,
-    sigma_frac: float = 0.02,
-    min_evidence: float = 2.0,
-    fill_frac: float = 0.15,
-    region_min_probability: float = 0.3,
-    region_min_width_frac: float = 0.01,
-    work_width: int = 1024,
-) -> QueryIdentity:
-    """Building identities of the query's columns from its matches with retrieved references (module docstring).
+@dataclass(frozen=True)
+class TransferOptions:
+    """The knobs of :func:`transfer_identities`.
 
-    query_features: the query's :class:`Features`. query_building_mask: (H, W) bool building pixels of the
-    query (any resolution; the result's columns are its columns). references: the k retrieved references.
     ratio, threshold_px, min_inliers: matching and RANSAC (see :func:`match_and_verify`).
     min_relative_inliers: a reference votes only with at least this share of the best reference's inliers.
     sigma_frac: Gaussian width of the local vote evidence along the columns, as a share of the image width.
@@ -274,8 +258,37 @@ def transfer_identities(
     weights) / min_evidence).
     region_min_probability, region_min_width_frac: a building region needs this column probability and width.
     work_width: the spreading runs at most at this many columns (then is resampled to the mask's width).
+    """
+
+    ratio: float = DEFAULT_RATIO
+    threshold_px: float = DEFAULT_THRESHOLD_PX
+    min_inliers: int = DEFAULT_MIN_INLIERS
+    min_relative_inliers: float = 0.5
+    sigma_frac: float = 0.02
+    min_evidence: float = 2.0
+    fill_frac: float = 0.15
+    region_min_probability: float = 0.3
+    region_min_width_frac: float = 0.01
+    work_width: int = 1024
+
+
+def transfer_identities(
+    query_features: Features,
+    query_building_mask: np.ndarray,
+    references: Sequence[ReferenceEvidence],
+    options: TransferOptions = TransferOptions(),
+) -> QueryIdentity:
+    """Building identities of the query's columns from its matches with retrieved references (module docstring).
+
+    query_features: the query's :class:`Features`. query_building_mask: (H, W) bool building pixels of the
+    query (any resolution; the result's columns are its columns). references: the k retrieved references.
+    options: :class:`TransferOptions`.
     Returns a :class:`QueryIdentity`.
     """
+    ratio, threshold_px, min_inliers = options.ratio, options.threshold_px, options.min_inliers
+    sigma_frac, min_evidence, fill_frac = options.sigma_frac, options.min_evidence, options.fill_frac
+    min_relative_inliers, work_width = options.min_relative_inliers, options.work_width
+    region_min_probability, region_min_width_frac = options.region_min_probability, options.region_min_width_frac
     mask = np.asarray(query_building_mask).astype(bool)
     full_h, full_w = mask.shape
     ids_union = np.unique(np.concatenate([r.building_ids for r in references])) if references else np.zeros(0, np.int64)

@@ -204,30 +204,40 @@ def _to_dms(deg: float) -> tuple[tuple[int, int], tuple[int, int], tuple[int, in
     return (d, 1), (m, 1), (micro, 1_000_000)
 
 
-def exif_bytes(
-    *,
-    width: int,
-    height: int,
-    lat: float | None = None,
-    lon: float | None = None,
-    altitude: float | None = None,
-    focal_35mm: float | None = None,
-    focal_mm: float | None = None,
-    heading_deg: float | None = None,
-    make: str = "GeolocSim",
-    model: str = "StreetCam 1",
-    taken: datetime | None = None,
-    subsec_time: str | None = None,
-    description: str | None = None,
-    gps_accuracy_m: float | None = None,
-) -> bytes:
-    """The EXIF block (APP1 payload) for the given fields (see :func:`write_jpeg`).
+@dataclass(frozen=True)
+class ExifFields:
+    """What :func:`write_jpeg` and :func:`exif_bytes` write into a photo's EXIF.
 
-    The optional fields are written only when given, so that a block without them is byte-for-byte what
-    it was before they existed: ``subsec_time`` (digits, e.g. ``"250"``: SubSecTimeOriginal and
-    SubSecTime), ``description`` (ImageDescription, e.g. a Mapillary-style JSON carrying the compass's
-    stated accuracy, for which EXIF has no tag), ``gps_accuracy_m`` (GPSHPositioningError, metres).
+    lat, lon: WGS84 degrees, or None for a photo without GPS; altitude: m. focal_35mm: 35 mm-equivalent focal
+    length (EXIF stores it as an integer number of mm); focal_mm: the physical focal length. heading_deg:
+    written as GPSImgDirection (true north) when given; phones often do not. make, model: the camera.
+    taken: DateTimeOriginal (local time, whole seconds). The optional fields below are written only when
+    given, so that a block without them is byte-for-byte what it was before they existed: ``subsec_time``
+    (digits, e.g. ``"250"``: SubSecTimeOriginal and SubSecTime), ``description`` (ImageDescription, e.g. a
+    Mapillary-style JSON carrying the compass's stated accuracy, for which EXIF has no tag),
+    ``gps_accuracy_m`` (GPSHPositioningError, metres).
     """
+
+    lat: float | None = None
+    lon: float | None = None
+    focal_35mm: float | None = None
+    focal_mm: float | None = None
+    altitude: float | None = None
+    heading_deg: float | None = None
+    make: str = "GeolocSim"
+    model: str = "StreetCam 1"
+    taken: datetime | None = None
+    subsec_time: str | None = None
+    description: str | None = None
+    gps_accuracy_m: float | None = None
+
+
+def exif_bytes(width: int, height: int, fields: ExifFields) -> bytes:
+    """The EXIF block (APP1 payload) of an image ``width`` x ``height`` with ``fields`` (:class:`ExifFields`)."""
+    lat, lon, altitude, gps_accuracy_m = fields.lat, fields.lon, fields.altitude, fields.gps_accuracy_m
+    focal_35mm, focal_mm, heading_deg = fields.focal_35mm, fields.focal_mm, fields.heading_deg
+    make, model, taken = fields.make, fields.model, fields.taken
+    subsec_time, description = fields.subsec_time, fields.description
     stamp = (taken or datetime(2024, 6, 1, 12, 0, 0)).strftime("%Y:%m:%d %H:%M:%S").encode()
     zeroth = {
         piexif.ImageIFD.Make: make.encode(),
@@ -269,50 +279,11 @@ def exif_bytes(
     return block
 
 
-def write_jpeg(
-    path: str | Path,
-    rgb: np.ndarray,
-    *,
-    lat: float | None,
-    lon: float | None,
-    focal_35mm: float | None,
-    focal_mm: float | None = None,
-    quality: int = 90,
-    altitude: float | None = None,
-    heading_deg: float | None = None,
-    make: str = "GeolocSim",
-    model: str = "StreetCam 1",
-    taken: datetime | None = None,
-    subsec_time: str | None = None,
-    description: str | None = None,
-    gps_accuracy_m: float | None = None,
-) -> Path:
-    """Write (H, W, 3) uint8 RGB as a JPEG with EXIF; returns the path.
-
-    lat, lon: WGS84 degrees, or None for a photo without GPS. focal_35mm: 35 mm-equivalent focal
-    length (EXIF stores it as an integer number of mm). focal_mm: the physical focal length.
-    heading_deg: written as GPSImgDirection (true north) when given; phones often do not.
-    taken: DateTimeOriginal (local time, whole seconds); subsec_time, description, gps_accuracy_m: see
-    :func:`exif_bytes`.
-    """
+def write_jpeg(path: str | Path, rgb: np.ndarray, fields: ExifFields, quality: int = 90) -> Path:
+    """Write (H, W, 3) uint8 RGB as a JPEG with EXIF ``fields`` (:class:`ExifFields`); returns the path."""
     path = Path(path)
     rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
     h, w = rgb.shape[:2]
-    block = exif_bytes(
-        width=w,
-        height=h,
-        lat=lat,
-        lon=lon,
-        altitude=altitude,
-        heading_deg=heading_deg,  # where
-        focal_35mm=focal_35mm,
-        focal_mm=focal_mm,
-        make=make,
-        model=model,
-        taken=taken,  # the camera
-        subsec_time=subsec_time,
-        description=description,
-        gps_accuracy_m=gps_accuracy_m,  # what phones add
-    )
+    block = exif_bytes(w, h, fields)
     Image.fromarray(rgb, "RGB").save(path, "JPEG", quality=int(quality), exif=block)
     return path

@@ -58,11 +58,13 @@ class HeadingPrior:
         return out
 
 
-def heading_prior_from_compass(
-    reading: CompassReading, frame: LocalFrame, east_m: float = 0.0, north_m: float = 0.0
-) -> HeadingPrior:
-    """:func:`compass_heading_prior` of a compass reading at a local point (m) of ``frame``."""
-    return compass_heading_prior(reading.heading_deg, reading.accuracy_deg, frame, east_m, north_m)
+def compass_accuracy_deg(reading: CompassReading) -> float:
+    """A compass reading's accuracy as stored and weighed (deg): its own, or :data:`DEFAULT_SIGMA_DEG` unstated.
+
+    The service stores this with the heading; a stored heading without an accuracy is one the uploader stated
+    (:func:`geoloc.localize.reference.heading_prior_at`).
+    """
+    return DEFAULT_SIGMA_DEG if reading.accuracy_deg is None else reading.accuracy_deg
 
 
 def compass_heading_prior(

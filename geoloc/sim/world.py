@@ -47,7 +47,7 @@ import numpy as np
 
 from geoloc.core.camera import Intrinsics
 from geoloc.maps import CityMap, load_map
-from geoloc.photos.exif import write_jpeg
+from geoloc.photos.exif import ExifFields, write_jpeg
 from geoloc.sim.contact_sheet import contact_sheet
 from geoloc.sim.options import WorldOptions, camera_for
 from geoloc.sim.phone import query_photo, walk_photo
@@ -307,17 +307,9 @@ def _write(
 ) -> None:
     """Write one photo and its ground truth; ``extra``: more :func:`write_jpeg` fields (they win)."""
     fields: dict[str, Any] = {"taken": _taken(index), **(extra or {})}
-    write_jpeg(
-        out / folder / f"{name}.jpg",
-        r.rgb,
-        lat=gps["lat"] if gps else None,
-        lon=gps["lon"] if gps else None,
-        focal_35mm=f35,
-        focal_mm=fmm,
-        quality=opts.jpeg_quality,
-        altitude=12.0 if gps else None,
-        **fields,
-    )
+    position = {"lat": gps["lat"], "lon": gps["lon"], "altitude": 12.0} if gps else {}
+    exif = ExifFields(focal_35mm=f35, focal_mm=fmm, **position, **fields)
+    write_jpeg(out / folder / f"{name}.jpg", r.rgb, exif, quality=opts.jpeg_quality)
     _save_gt(out / "gt" / f"{name}.npz", r)
 
 

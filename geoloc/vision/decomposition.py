@@ -187,32 +187,48 @@ def _merge_short_runs(label: np.ndarray, min_width: int) -> np.ndarray:
     return label
 
 
+@dataclass(frozen=True)
+class DecompositionOptions:
+    """The knobs of :func:`decompose_facades`.
+
+    building_class: the label code of buildings; min_overlap: the share of a segment's samples
+    (``n_samples``) on one component that assigns it there. *_frac fields are relative to the image width
+    (``mask_dilation_frac``: to the diagonal; ``min_component_frac``: to the image area).
+    component_prior: weight of each VP's mean support over the component added to its local support before
+    the per-column argmax (0 = the paper's purely local vote). min_coverage_frac, full_coverage_frac: a
+    piece's labelled share below which its columns count nothing, and from which they count fully.
+    """
+
+    building_class: int = BUILDING
+    min_overlap: float = 0.5
+    mask_dilation_frac: float = 0.004
+    min_component_frac: float = 0.002
+    smooth_frac: float = 0.02
+    min_piece_frac: float = 0.02
+    component_prior: float = 0.25
+    min_coverage_frac: float = 0.02
+    full_coverage_frac: float = 0.15
+    n_samples: int = 16
+
+
 def decompose_facades(
     labels: np.ndarray,
     segments: np.ndarray,
     vanishing_points: VanishingPoints,
     intrinsics: Intrinsics,
-    building_class: int = BUILDING,
-    min_overlap: float = 0.5,
-    mask_dilation_frac: float = 0.004,
-    min_component_frac: float = 0.002,
-    smooth_frac: float = 0.02,
-    min_piece_frac: float = 0.02,
-    component_prior: float = 0.25,
-    min_coverage_frac: float = 0.02,
-    full_coverage_frac: float = 0.15,
-    n_samples: int = 16,
+    options: DecompositionOptions = DecompositionOptions(),
 ) -> FacadeDecomposition:
     """Decompose the building regions of an image into planar facade pieces (module docstring).
 
     labels: (H, W) class codes (:mod:`geoloc.core.labels`), same size as the image of the segments.
     segments: (N, 4) ``x1, y1, x2, y2`` px; vanishing_points: their VPs and assignment;
-    intrinsics: of the image (to place the VPs).
-    *_frac parameters are relative to the image width (dilation: to the diagonal; component area:
-    to the image area). component_prior: weight of each VP's mean support over the component
-    added to its local support before the per-column argmax (0 = the paper's purely local vote).
+    intrinsics: of the image (to place the VPs); options: :class:`DecompositionOptions`.
     Returns :class:`FacadeDecomposition`.
     """
+    building_class, min_overlap, n_samples = options.building_class, options.min_overlap, options.n_samples
+    mask_dilation_frac, min_component_frac = options.mask_dilation_frac, options.min_component_frac
+    smooth_frac, min_piece_frac, component_prior = options.smooth_frac, options.min_piece_frac, options.component_prior
+    min_coverage_frac, full_coverage_frac = options.min_coverage_frac, options.full_coverage_frac
     import cv2
 
     lab = np.asarray(labels)

@@ -15,7 +15,7 @@ import numpy as np
 
 from geoloc.core.camera import Intrinsics
 from geoloc.vision.clutter import estimate_scene_vanishing_points
-from geoloc.vision.decomposition import FacadeDecomposition, decompose_facades
+from geoloc.vision.decomposition import DecompositionOptions, FacadeDecomposition, decompose_facades
 from geoloc.vision.image_model import DEFAULT_BIN_DEG, ImageModel, image_model_from_columns
 from geoloc.vision.lines import detect_line_segments
 from geoloc.vision.vanishing import VanishingPoints
@@ -72,15 +72,16 @@ def facade_image_model(
     intrinsics: Intrinsics,
     vanishing_points: VanishingPoints | None = None,
     bin_deg: float = DEFAULT_BIN_DEG,
-    **decompose_kwargs: Any,
+    decomposition: DecompositionOptions = DecompositionOptions(),
 ) -> tuple[ImageModel, FacadeDecomposition]:
     """Per-column facade image model of an image.
 
     labels: (H, W) class codes; segments_or_image: (N, 4) float segments (px) or the image itself
     ((H, W) / (H, W, 3), segments are then detected); intrinsics: of that image (width/height must
     match ``labels``); vanishing_points: reuse already estimated VPs for these segments (default:
-    :func:`estimate_scene_vanishing_points`, i.e. without segments on trees, cars and sky).
-    Returns the binned :class:`ImageModel` (``bin_deg`` wide angular bins) and the decomposition.
+    :func:`estimate_scene_vanishing_points`, i.e. without segments on trees, cars and sky); decomposition: the
+    options of :func:`decompose_facades`. Returns the binned :class:`ImageModel` (``bin_deg`` wide angular bins)
+    and the decomposition.
     """
     lab = np.asarray(labels)
     if lab.shape != (intrinsics.height, intrinsics.width):
@@ -89,7 +90,7 @@ def facade_image_model(
     vps = vanishing_points
     if vps is None:
         vps = estimate_scene_vanishing_points(lab, segments, intrinsics)
-    deco = decompose_facades(lab, segments, vps, intrinsics, **decompose_kwargs)
+    deco = decompose_facades(lab, segments, vps, intrinsics, decomposition)
     model = image_model_from_columns(
         intrinsics, deco.column_present, np.nan_to_num(deco.column_theta_deg), bin_deg=bin_deg
     )
@@ -110,14 +111,14 @@ def analyze_image(
     intrinsics: Intrinsics,
     bin_deg: float = DEFAULT_BIN_DEG,
     segments: np.ndarray | None = None,
-    **decompose_kwargs: Any,
+    decomposition: DecompositionOptions = DecompositionOptions(),
 ) -> ImageAnalysis:
     """Full image side of the method: segments, VPs, facade decomposition and image model.
 
     image_rgb: (H, W, 3) uint8 RGB (or gray); labels: (H, W) class codes (resized with nearest
     neighbour if their size differs); intrinsics: of the image (rescaled if its size differs);
     segments: ``detect_line_segments(image_rgb)`` when already detected (they need no labels: e.g. beside the
-    segmentation network), else detected here; decompose_kwargs: passed to :func:`decompose_facades`.
+    segmentation network), else detected here; decomposition: the options of :func:`decompose_facades`.
     """
     import cv2
 
@@ -136,7 +137,7 @@ def analyze_image(
     vps = estimate_scene_vanishing_points(lab, segments, intrinsics)
     t2 = time.perf_counter()
     model, deco = facade_image_model(
-        lab, segments, intrinsics, vanishing_points=vps, bin_deg=bin_deg, **decompose_kwargs
+        lab, segments, intrinsics, vanishing_points=vps, bin_deg=bin_deg, decomposition=decomposition
     )
     t3 = time.perf_counter()
     timings.update({"lines": t1 - t0, "vanishing_points": t2 - t1, "facades": t3 - t2})

@@ -277,6 +277,14 @@ def _working_image(image_rgb: np.ndarray, method: str, max_side: int) -> tuple[n
     return cv2.resize(image, size_wh, interpolation=cv2.INTER_AREA), scale, size_wh[0] / w, size_wh[1] / h
 
 
+@dataclass(frozen=True)
+class SiftThresholds:
+    """OpenCV SIFT's detector thresholds (RootSIFT only): ``contrastThreshold`` and ``edgeThreshold``."""
+
+    contrast: float = 0.02
+    edge: float = 10.0
+
+
 def _sift_parameters(
     max_features: int, max_side: int, contrast_threshold: float, edge_threshold: float
 ) -> tuple[int, int, float, float]:
@@ -289,14 +297,14 @@ def sift_candidates(
     max_features: int = DEFAULT_MAX_FEATURES,
     *,
     max_side: int = DEFAULT_MAX_SIDE,
-    contrast_threshold: float = 0.02,
-    edge_threshold: float = 10.0,
+    sift: SiftThresholds = SiftThresholds(),
 ) -> SiftCandidates:
     """SIFT on the whole working-size image (:class:`SiftCandidates`); parameters as :func:`extract_features`.
 
     It costs the masked SIFT's time plus the descriptors of the keypoints off the building (about 13 % more CPU
     on 640 x 480 street photos): worth it only where it runs beside something else (the network).
     """
+    contrast_threshold, edge_threshold = sift.contrast, sift.edge
     gray, _, _, _ = _working_image(image_rgb, "rootsift", max_side)
     found = _sift(gray, None, max_features, contrast_threshold, edge_threshold)
     if found is None:
@@ -304,9 +312,9 @@ def sift_candidates(
         found = np.zeros((0, 2), np.float32), np.zeros((0, DESCRIPTOR_DIM), np.float32), z, z, z
     image_shape = (int(np.shape(image_rgb)[0]), int(np.shape(image_rgb)[1]))
     parameters = _sift_parameters(max_features, max_side, contrast_threshold, edge_threshold)
-    xy_work, sift, sizes, angles, responses = found
+    xy_work, descriptors, sizes, angles, responses = found
     size_wh = (gray.shape[1], gray.shape[0])
-    return SiftCandidates(xy_work, sift, sizes, angles, responses, image_shape, size_wh, parameters)
+    return SiftCandidates(xy_work, descriptors, sizes, angles, responses, image_shape, size_wh, parameters)
 
 
 def extract_features(
@@ -317,8 +325,7 @@ def extract_features(
     method: str | None = None,
     max_side: int = DEFAULT_MAX_SIDE,
     dilate_px: int = 4,
-    contrast_threshold: float = 0.02,
-    edge_threshold: float = 10.0,
+    sift: SiftThresholds = SiftThresholds(),
     aliked_scales: tuple[float, ...] = DEFAULT_ALIKED_SCALES,
     context: MethodContext | None = None,
     candidates: SiftCandidates | None = None,
@@ -330,7 +337,7 @@ def extract_features(
     max_features: keep at most this many keypoints (the strongest).
     method: "rootsift", "aliked-n16" (alias "aliked") or "aliked-t16"; None is the default.
     max_side: working resolution (longer side, pixels); dilate_px: mask dilation in working pixels.
-    contrast_threshold, edge_threshold: OpenCV SIFT detector thresholds (RootSIFT only).
+    sift: OpenCV SIFT's detector thresholds (:class:`SiftThresholds`; RootSIFT only).
     aliked_scales: ALIKED's image pyramid, as factors of the working size (ALIKED only; see
     :func:`geoloc.vision.aliked.aliked_keypoints`).
     context: where the built models are and the networks' threads (ALIKED only: RootSIFT needs no model).
@@ -342,6 +349,7 @@ def extract_features(
     computed with other parameters, on another image size or for ALIKED.
     """
     method = canonical_method(method)
+    contrast_threshold, edge_threshold = sift.contrast, sift.edge
     h, w = np.shape(image_rgb)[:2]
     if candidates is not None:
         parameters = _sift_parameters(max_features, max_side, contrast_threshold, edge_threshold)

@@ -25,7 +25,7 @@ import pytest
 from PIL import Image
 
 from contracts.settings import shared_path
-from geoloc.photos.exif import write_jpeg
+from geoloc.photos.exif import ExifFields, write_jpeg
 from tests.conftest import Profile
 from tests.service_fixtures import (
     READ_KEY,
@@ -200,7 +200,7 @@ def test_a_gpx_track_places_photos_without_gps_and_skips_one_outside_it(
     rgb = np.random.default_rng(21).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
     for name, seconds in (("a.jpg", 10), ("b.jpg", 31), ("late.jpg", 600)):
         local = (start + timedelta(hours=2, seconds=seconds)).replace(tzinfo=None)
-        write_jpeg(folder / name, rgb + seconds % 7, lat=None, lon=None, focal_35mm=28, taken=local)
+        write_jpeg(folder / name, rgb + seconds % 7, ExifFields(focal_35mm=28, taken=local))
     out = tmp_path / "gpx.json"
     result = run_ingest(
         service, str(folder), "--map", str(helsinki_id), "--gpx", str(gpx), "--time-offset", "-7200", "--json", str(out)

@@ -2,7 +2,8 @@
 
 This is the one retrieval / re-rank / transfer / localise stage; the workers' query job and
 ``geoloc eval world`` both call :func:`geolocate` (its one entry, :mod:`.stage`) with a :class:`QueryConfig`
-(:mod:`.config`), and only the source of the stored references differs
+(:mod:`.config`; the evaluation's ground-truth identity ablation calls its two steps, ``retrieve_and_transfer``
+and ``locate``, with its own identities), and only the source of the stored references differs
 (:class:`geoloc.localize.store.ReferenceStore`: the database for the service, memory for the evaluation,
 :class:`geoloc.evaluation.store.InMemoryReferenceStore`; both rank with
 :class:`geoloc.localize.sbow_index.SbowIndex`'s scores, :func:`geoloc.localize.retrieval.tfidf_scores`).

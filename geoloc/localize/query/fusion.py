@@ -16,7 +16,7 @@ from geoloc.localize.grid import Localization, PositionPrior
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.query.answer import AnswerPose
 from geoloc.localize.query.config import CHI2_2D_90, QueryConfig
-from geoloc.localize.refinement import refine_pose
+from geoloc.localize.refinement import RefineOptions, refine_pose
 from geoloc.localize.store import StoredReference
 
 
@@ -45,8 +45,7 @@ def anchored_answer(
         pose.yaw_deg,
         prior_xy=(pose.x_m, pose.y_m),
         prior_sigma_m=sigma,
-        half_size_m=min(6.0, 2.0 * sigma),
-        sharpness=config.sharpness,
+        options=RefineOptions(half_size_m=min(6.0, 2.0 * sigma), sharpness=config.sharpness),
     )
     radius = math.sqrt(CHI2_2D_90 * float(np.linalg.eigvalsh(refined.position_covariance).max()))
     return AnswerPose(
@@ -89,8 +88,7 @@ def likelihood_answers(
                 y,
                 yaw,
                 prior_weights=None if position_prior is None else position_prior.weights,
-                half_size_m=config.cell_m / 2.0 + 1.0,
-                sharpness=config.sharpness,
+                options=RefineOptions(half_size_m=config.cell_m / 2.0 + 1.0, sharpness=config.sharpness),
             )
             x, y, yaw, lik = refined.x_m, refined.y_m, refined.yaw_deg, refined.likelihood
         radius = mass_radius(positions, heat, np.array([x, y]), 0.9, config.cell_m)

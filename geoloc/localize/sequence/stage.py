@@ -1,7 +1,9 @@
 """The sequence stage's entry: frames labelled alone in, the same frames placed jointly and re-labelled out.
 
-Used by the workers' sequence job and by ``geoloc eval world``: each frame was labelled alone first
-(:func:`geoloc.localize.reference.label_reference_photo`, as every reference is); the walk's frames are then placed
+Used by the workers' sequence job and by ``geoloc eval world`` (through
+:func:`geoloc.evaluation.walks.place_photo_walks`, which groups a world's photos as the workers group their
+rows): each frame was labelled alone first (:func:`geoloc.localize.reference.label_reference_photo`, as every
+reference is); the walk's frames are then placed
 in one pose graph (:func:`geoloc.localize.sequence.placement.place_sequence`) and each is re-labelled at its
 placed pose (:func:`geoloc.localize.reference.label_at_pose`: identities and anchors from there). A frame that
 no relative pose joins to the others keeps its own label unchanged (its label already weighed its GPS and
@@ -27,7 +29,6 @@ from geoloc.core.geo import angle_difference_deg
 from geoloc.localize.labeling import KnownPose
 from geoloc.localize.reference import LabelledReference, label_at_pose, label_from_cues
 from geoloc.localize.sequence.frames import FrameLabel, map_position_covariance
-from geoloc.localize.sequence.grouping import SequenceMember, group_sequences
 from geoloc.localize.sequence.placement import (
     DEFAULT_GPS_SIGMA_M,
     PlacedPose,
@@ -38,9 +39,7 @@ from geoloc.localize.sequence.placement import (
 )
 from geoloc.localize.sequence.relative import RelativePose
 from geoloc.maps import CityMap
-from geoloc.photos.capture import photo_device
-from geoloc.photos.heading_prior import HeadingPrior, heading_prior_from_compass
-from geoloc.photos.photo import Photo
+from geoloc.photos.heading_prior import HeadingPrior
 
 
 @dataclass(frozen=True)
@@ -215,54 +214,6 @@ def compass_relabelled(
     return relabelled
 
 
-def compass_prior_at(photo: Photo, city_map: CityMap, xy: tuple[float, float]) -> HeadingPrior | None:
-    """The photo's compass as the service's robust prior at a local point (m), None without a compass."""
-    compass = photo.capture.compass
-    return None if compass is None else heading_prior_from_compass(compass, city_map.frame, xy[0], xy[1])
-
-
-def place_photo_walks(
-    city_map: CityMap,
-    photos: dict[str, Photo],
-    labelled: dict[str, LabelledReference],
-    options: PlacementOptions = PlacementOptions(),
-) -> list[PlacedSequence]:
-    """Group geo-tagged photos labelled alone into walks by what they carry and place each walk, as the workers do.
-
-    photos, labelled: by name, in upload order (the grouping's tie-breaker), every photo with EXIF GPS.
-    ``labelled`` is updated in place with each walk's re-labelled frames; returns the placed walks. options: the
-    placement's (the workers use the default; ``benchmarks/bench_walk_placement.py`` compares others).
-    """
-    xy_of = {name: _local_gps(city_map, photo) for name, photo in photos.items()}
-    members = [
-        SequenceMember(
-            name,
-            photo.capture.sequence_id,
-            photo.capture.time,
-            photo_device(photo.exif.make, photo.exif.model),
-            xy_of[name],
-            order,
-        )
-        for order, (name, photo) in enumerate(photos.items())
-    ]
-    walks = []
-    for group in group_sequences(members):
-        names = [str(name) for name in group]
-        frames = [
-            LabelledFrame(
-                FrameLabel.of(labelled[name], photos[name].intrinsics),
-                xy_of[name],
-                heading_prior=compass_prior_at(photos[name], city_map, xy_of[name]),
-                capture_time_s=capture_seconds(photos[name].capture.time),
-            )
-            for name in names
-        ]
-        placed = place_labelled_sequence(city_map, frames, options)
-        labelled.update((name, ref) for name, ref in zip(names, placed.references, strict=True) if ref is not None)
-        walks.append(placed)
-    return walks
-
-
 def capture_seconds(taken: datetime | None) -> float | None:
     """A capture time as POSIX seconds for a walk's steps, None when unknown.
 
@@ -271,11 +222,3 @@ def capture_seconds(taken: datetime | None) -> float | None:
     if taken is None:
         return None
     return (taken if taken.tzinfo is not None else taken.replace(tzinfo=UTC)).timestamp()
-
-
-def _local_gps(city_map: CityMap, photo: Photo) -> tuple[float, float]:
-    """A photo's EXIF GPS in the map's local metres (ValueError without one)."""
-    if photo.gps is None:
-        raise ValueError("a photo of a walk needs its EXIF GPS")
-    x, y = (float(v) for v in city_map.frame.to_local(*photo.gps))
-    return x, y

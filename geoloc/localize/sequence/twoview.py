@@ -55,24 +55,28 @@ def _rays(features: Features, intrinsics: Intrinsics, index: np.ndarray) -> np.n
     )
 
 
+@dataclass(frozen=True)
+class TwoViewFrame:
+    """One frame of a two-view motion: its index, local features, camera and (3, 3) ``rotation_upright_from_cam``."""
+
+    index: int
+    features: Features
+    intrinsics: Intrinsics
+    upright: np.ndarray
+
+
 def two_view_motion(
-    source: int,
-    target: int,
-    source_features: Features,
-    target_features: Features,
-    source_intrinsics: Intrinsics,
-    target_intrinsics: Intrinsics,
-    source_upright: np.ndarray,
-    target_upright: np.ndarray,
+    source_frame: TwoViewFrame,
+    target_frame: TwoViewFrame,
     *,
     ratio: float = DEFAULT_RATIO,
     threshold_px: float = DEFAULT_THRESHOLD_PX,
     min_inliers: int = DEFAULT_MIN_INLIERS,
 ) -> TwoViewMotion | None:
-    """The target's motion relative to the source (module docstring), or None with too few inliers.
-
-    source_upright, target_upright: each frame's (3, 3) ``rotation_upright_from_cam``.
-    """
+    """The target's motion relative to the source (module docstring), or None with too few inliers."""
+    source, source_features, source_intrinsics = source_frame.index, source_frame.features, source_frame.intrinsics
+    target, target_features, target_intrinsics = target_frame.index, target_frame.features, target_frame.intrinsics
+    source_upright, target_upright = source_frame.upright, target_frame.upright
     pairs = match_features(target_features, source_features, ratio)
     if len(pairs) < min_inliers:
         return None

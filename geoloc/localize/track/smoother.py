@@ -46,7 +46,7 @@ from geoloc.localize.sequence.placement import (
     relative_poses,
 )
 from geoloc.localize.sequence.relative import RelativePose
-from geoloc.localize.sequence.twoview import MotionFactor, motion_factor, two_view_motion
+from geoloc.localize.sequence.twoview import MotionFactor, TwoViewFrame, motion_factor, two_view_motion
 from geoloc.localize.track.starts import start_headings
 from geoloc.maps import CityMap
 from geoloc.photos.heading_prior import HeadingPrior
@@ -267,14 +267,18 @@ def track_motions(frames: Sequence[FrameEvidence], options: TrackOptions = Track
                 continue
             a, b = frames[i], frames[i + step]
             motion = two_view_motion(
-                i,
-                i + step,
-                a.evidence.features,
-                b.evidence.features,
-                a.photo.intrinsics,
-                b.photo.intrinsics,
-                a.evidence.analysis.vanishing_points.rotation_upright_from_cam,
-                b.evidence.analysis.vanishing_points.rotation_upright_from_cam,
+                TwoViewFrame(
+                    i,
+                    a.evidence.features,
+                    a.photo.intrinsics,
+                    a.evidence.analysis.vanishing_points.rotation_upright_from_cam,
+                ),
+                TwoViewFrame(
+                    i + step,
+                    b.evidence.features,
+                    b.photo.intrinsics,
+                    b.evidence.analysis.vanishing_points.rotation_upright_from_cam,
+                ),
             )
             if motion is not None:
                 across, turn = options.motion_sigmas_deg

@@ -11,7 +11,7 @@ import pytest
 
 from benchmarks.bench_walk_placement import labels_at_truth, labels_partly_at_truth
 from contracts.settings import shared_path
-from geoloc.evaluation.references import label_alone
+from geoloc.evaluation.references import label_world_alone
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from workers.context import method_context
 
@@ -28,7 +28,7 @@ def test_labels_at_truth_sit_at_the_manifest_poses_with_their_anchors_cast_from_
     )
     world = load_world(out)
     city = world.load_map()
-    photos, alone = label_alone(world, city, "gt", lambda _msg: None, method_context())
+    photos, alone = label_world_alone(world, city, "gt", lambda _msg: None, method_context())
     at_truth = labels_at_truth(world, city, photos, alone)
     assert list(at_truth) == [image.name for image in world.references]
     moved = 0

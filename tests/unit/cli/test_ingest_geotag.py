@@ -25,12 +25,12 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from cli import ingest as ingest_module
-from cli.ingest import ingest_folder
+from cli.ingest import IngestOptions, ingest_folder
 from cli.ingest_report import IngestReport, print_summary
 from cli.main import app
 from contracts.settings import shared_path
 from geoloc.photos.capture import read_capture
-from geoloc.photos.exif import read_exif, write_jpeg
+from geoloc.photos.exif import ExifFields, read_exif, write_jpeg
 from tests.unit.cli.test_ingest_retries import MOCK_MAP
 
 LUND = shared_path("data", "lund", "images")
@@ -108,12 +108,9 @@ def run_ingest(folder: Path, **options: Any) -> tuple[IngestReport, dict[str, di
     report = ingest_folder(
         folder,
         1,
-        url="http://mock",
-        api_key=None,
-        retries=0,
+        IngestOptions(url="http://mock", api_key=None, retries=0, **options),
         transport=recording_transport(sent),
         console=Console(file=io.StringIO()),
-        **options,
     )
     return report, sent
 
@@ -234,7 +231,7 @@ def test_without_a_compass_the_heading_is_the_direction_of_travel(tmp_path: Path
     rgb = np.random.default_rng(1).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
     for i, seconds in enumerate((5, 13, 30)):
         local = (start + timedelta(hours=2, seconds=seconds)).replace(tzinfo=None)
-        write_jpeg(photos / f"p{i}.jpg", rgb + i, lat=None, lon=None, focal_35mm=28, taken=local)
+        write_jpeg(photos / f"p{i}.jpg", rgb + i, ExifFields(focal_35mm=28, taken=local))
     report, sent = run_ingest(photos, gpx=gpx, time_offset_s=-7200)
     assert report.counts()["accepted"] == 3
     for i, seconds in enumerate((5, 13, 30)):
@@ -251,9 +248,9 @@ def test_the_command_line_passes_the_track_and_the_offset(tmp_path: Path, monkey
     gpx = write_gpx(tmp_path / "walk.gpx", [(datetime(2024, 6, 1, tzinfo=UTC), 55.7, 13.19)])
     seen: dict[str, Any] = {}
 
-    def fake_ingest(folder: Path, map_id: int, **options: Any) -> IngestReport:
-        seen.update(options, folder=folder, map_id=map_id)
-        return IngestReport(url=options["url"], map_id=map_id, map_name="mock")
+    def fake_ingest(folder: Path, map_id: int, options: IngestOptions, **_: Any) -> IngestReport:
+        seen.update(vars(options), folder=folder, map_id=map_id)
+        return IngestReport(url=options.url, map_id=map_id, map_name="mock")
 
     monkeypatch.setattr(ingest_module, "ingest_folder", fake_ingest)
     args = ["ingest", str(tmp_path), "--map", "3", "--url", "http://mock", "--gpx", str(gpx), "--time-offset", "-7200"]

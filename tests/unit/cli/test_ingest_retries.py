@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from cli.ingest import IngestAbortError, ingest_folder
-from geoloc.photos.exif import write_jpeg
+from cli.ingest import IngestAbortError, IngestOptions, ingest_folder
+from geoloc.photos.exif import ExifFields, write_jpeg
 from tests.service_fixtures import WRITE_KEY
 
 MOCK_MAP = {
@@ -39,7 +39,7 @@ INSIDE_HELSINKI = [(60.1716, 24.9443), (60.1700, 24.9450), (60.1690, 24.9420)]
 def photo(path: Path, position: tuple[float, float], seed: int) -> Path:
     """A 320 x 240 noise JPEG at ``position`` (lat, lon) with a 28 mm focal length."""
     rgb = np.random.default_rng(seed).integers(0, 255, size=(240, 320, 3), dtype=np.uint8)
-    return write_jpeg(path, rgb, lat=position[0], lon=position[1], focal_35mm=28)
+    return write_jpeg(path, rgb, ExifFields(lat=position[0], lon=position[1], focal_35mm=28))
 
 
 def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -> None:
@@ -68,10 +68,7 @@ def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -
     report = ingest_folder(
         tmp_path,
         1,
-        url="http://mock",
-        api_key=WRITE_KEY,
-        retries=3,
-        backoff_s=0.0,
+        IngestOptions(url="http://mock", api_key=WRITE_KEY, retries=3, backoff_s=0.0),
         transport=httpx.MockTransport(handler),
         console=Console(file=io.StringIO()),
     )
@@ -85,5 +82,5 @@ def test_transient_errors_are_retried_and_give_up_at_the_limit(tmp_path: Path) -
         raise httpx.ConnectError("connection refused", request=request)
 
     with pytest.raises(IngestAbortError, match="cannot reach the service"):
-        ingest_folder(tmp_path, 1, url="http://mock", api_key=None, retries=1, backoff_s=0.0,
-                      transport=httpx.MockTransport(down), console=Console(file=io.StringIO()))  # fmt: skip
+        options = IngestOptions(url="http://mock", api_key=None, retries=1, backoff_s=0.0)
+        ingest_folder(tmp_path, 1, options, transport=httpx.MockTransport(down), console=Console(file=io.StringIO()))

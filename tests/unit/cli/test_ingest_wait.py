@@ -16,7 +16,7 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from cli import ingest as ingest_module
-from cli.ingest import ingest_folder
+from cli.ingest import IngestOptions, ingest_folder
 from cli.ingest_report import IngestReport, print_summary
 from cli.ingest_wait import WaitFor
 from cli.main import app
@@ -100,13 +100,9 @@ def _ingest(folder: Path, service: MockService, wait: WaitFor, poll_s: float = 0
     return ingest_folder(
         folder,
         1,
-        url="http://mock",
-        api_key=None,
-        wait=wait,
-        poll_s=poll_s,
+        IngestOptions(url="http://mock", api_key=None, wait=wait, poll_s=poll_s, **options),
         transport=httpx.MockTransport(service),
         console=Console(file=io.StringIO()),
-        **options,
     )
 
 
@@ -158,9 +154,9 @@ def test_the_command_line_reads_the_wait_mode(
 ) -> None:
     seen: dict[str, Any] = {}
 
-    def fake_ingest(folder: Path, map_id: int, **options: Any) -> IngestReport:
-        seen.update(options)
-        return IngestReport(url=options["url"], map_id=map_id, map_name="mock")
+    def fake_ingest(folder: Path, map_id: int, options: IngestOptions, **_: Any) -> IngestReport:
+        seen.update(vars(options))
+        return IngestReport(url=options.url, map_id=map_id, map_name="mock")
 
     monkeypatch.setattr(ingest_module, "ingest_folder", fake_ingest)
     result = CliRunner().invoke(app, ["ingest", str(tmp_path), "--map", "1", *args, "--url", "http://mock"])

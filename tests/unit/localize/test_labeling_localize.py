@@ -11,7 +11,7 @@ from geoloc.localize.likelihood import LikelihoodOptions, image_model_from_map
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.posterior import sharpened_likelihood
 from geoloc.localize.reference import LabelOptions as ReferenceLabelOptions
-from geoloc.localize.refinement import refine_pose, vanishing_point_yaw
+from geoloc.localize.refinement import RefineOptions, refine_pose, vanishing_point_yaw
 from geoloc.localize.sequence.frames import MAP_SPREAD_HALF_SIZE_M, map_position_covariance
 from geoloc.maps.raycast import cast_panoramas
 from geoloc.photos.heading_prior import HeadingPrior
@@ -96,7 +96,9 @@ def test_localize_uses_position_prior_and_refinement_reaches_the_true_pose() -> 
     assert found.search["region"] == "position_prior" and found.search["position_prior"]
     best = found.poses[0]
     assert np.hypot(best.x_m - true_xy[0], best.y_m - true_xy[1]) < 7.5 and abs(best.yaw_deg - true_yaw) <= 3.0
-    refined = refine_pose(geometry, best.x_m, best.y_m, best.yaw_deg, half_size_m=6.0, cell_m=0.5)
+    refined = refine_pose(
+        geometry, best.x_m, best.y_m, best.yaw_deg, options=RefineOptions(half_size_m=6.0, cell_m=0.5)
+    )
     # The perfect model's facade orientations fix the yaw, its distances and extents the position.
     assert abs((refined.yaw_deg - true_yaw + 180) % 360 - 180) < 0.3
     assert np.hypot(refined.x_m - true_xy[0], refined.y_m - true_xy[1]) < 1.0

@@ -22,10 +22,10 @@ from geoloc.localize.likelihood import (
     image_model_from_map,
     known_building_heights,
     pose_likelihood,
-    pose_likelihood_numpy,
 )
+from geoloc.localize.likelihood_reference import pose_likelihood_numpy
 from geoloc.localize.posterior import grid_around
-from geoloc.maps import CityMap, raycast
+from geoloc.maps import CityMap, raycast, raycast_reference
 from geoloc.photos.photo import Photo, load_photo
 from geoloc.sim.world import WorldOptions, generate_world, load_world
 from geoloc.vision.evidence import PhotoEvidence, analyze_photo
@@ -61,7 +61,7 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Scene:
 
 def _numpy_cast(city: CityMap, positions: np.ndarray, step: float) -> raycast.Panoramas:
     kernel = raycast._cast_tile
-    raycast._cast_tile = raycast._cast_tile_numpy
+    raycast._cast_tile = raycast_reference.cast_tile_numpy
     try:
         return raycast.cast_panoramas(city, positions, bearing_step_deg=step)
     finally:

@@ -10,7 +10,7 @@ from geoloc.core.camera import Intrinsics
 from geoloc.localize.anchors import CameraPose
 from geoloc.localize.query.answer import AnswerPose
 from geoloc.localize.sequence.relative import pose_in_frame
-from geoloc.localize.sequence.twoview import TwoViewMotion, motion_factor, two_view_motion
+from geoloc.localize.sequence.twoview import TwoViewFrame, TwoViewMotion, motion_factor, two_view_motion
 from geoloc.localize.track.smoother import place_track
 from geoloc.localize.track.starts import start_headings
 from geoloc.vision.features import Features
@@ -52,7 +52,9 @@ def test_the_motion_of_a_pitched_camera_is_its_direction_and_turn() -> None:
     a = CameraPose(0.0, 0.0, 10.0, rotation_upright_from_cam=upright_a)
     b = CameraPose(1.0, 4.0, 25.0, rotation_upright_from_cam=upright_b)
     d = _descriptors(len(POINTS))
-    motion = two_view_motion(0, 1, _features(a, d, 0.3, 4), _features(b, d, 0.3, 5), K, K, upright_a, upright_b)
+    motion = two_view_motion(
+        TwoViewFrame(0, _features(a, d, 0.3, 4), K, upright_a), TwoViewFrame(1, _features(b, d, 0.3, 5), K, upright_b)
+    )
     assert motion is not None
     forward, left, turn = pose_in_frame((0.0, 0.0), 10.0, (1.0, 4.0), 25.0)
     bearing = math.degrees(math.atan2(motion.left, motion.forward))
@@ -64,7 +66,7 @@ def test_frames_with_too_few_matches_give_no_motion() -> None:
     a, b = CameraPose(0.0, 0.0, 0.0), CameraPose(0.0, 4.0, 0.0)
     d = _descriptors(len(POINTS))
     features_a, features_b = _features(a, d, 0.3, 4), _features(b, _descriptors(len(POINTS))[::-1].copy(), 0.3, 5)
-    assert two_view_motion(0, 1, features_a, features_b, K, K, np.eye(3), np.eye(3)) is None
+    assert two_view_motion(TwoViewFrame(0, features_a, K, np.eye(3)), TwoViewFrame(1, features_b, K, np.eye(3))) is None
 
 
 def test_the_factor_is_loose_along_the_direction_and_tight_across() -> None:

@@ -10,6 +10,7 @@ import pytest
 from contracts.settings import shared_path
 from db.blobs import pack_arrays, unpack_arrays
 from geoloc.core.geo import angle_difference_deg
+from geoloc.evaluation.walks import compass_prior_at
 from geoloc.localize.reference import LabelledReference, label_reference_photo
 from geoloc.localize.sequence.frames import FrameLabel, frame_arrays, frame_from_arrays
 from geoloc.localize.sequence.relative import RelativePose
@@ -17,7 +18,6 @@ from geoloc.localize.sequence.stage import (
     COMPASS_AGREES_DEG,
     LabelledFrame,
     capture_seconds,
-    compass_prior_at,
     compass_relabelled,
     place_labelled_sequence,
 )

@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from contracts.settings import shared_dir
-from geoloc.photos.exif import read_exif, write_jpeg
+from geoloc.photos.exif import ExifFields, read_exif, write_jpeg
 
 LUND = shared_dir() / "data" / "lund"
 
@@ -22,18 +22,10 @@ def _rgb(h: int = 48, w: int = 64) -> np.ndarray:
 
 @pytest.mark.parametrize(("lat", "lon"), [(60.1699123, 24.9384456), (-33.8688197, -151.2092955), (0.5, -0.25)])
 def test_round_trip(tmp_path: Path, lat: float, lon: float) -> None:
-    path = write_jpeg(
-        tmp_path / "a.jpg",
-        _rgb(),
-        lat=lat,
-        lon=lon,
-        focal_35mm=31,
-        focal_mm=4.43,
-        altitude=-3.5,
-        heading_deg=123.45,
-        make="Acme",
-        model="Phone 9",
+    fields = ExifFields(
+        lat=lat, lon=lon, focal_35mm=31, focal_mm=4.43, altitude=-3.5, heading_deg=123.45, make="Acme", model="Phone 9"
     )
+    path = write_jpeg(tmp_path / "a.jpg", _rgb(), fields)
     info = read_exif(path)
     assert info.lat == pytest.approx(lat, abs=1e-9)
     assert info.lon == pytest.approx(lon, abs=1e-9)
@@ -47,7 +39,7 @@ def test_round_trip(tmp_path: Path, lat: float, lon: float) -> None:
 
 
 def test_missing_gps_is_none(tmp_path: Path) -> None:
-    info = read_exif(write_jpeg(tmp_path / "b.jpg", _rgb(), lat=None, lon=None, focal_35mm=26))
+    info = read_exif(write_jpeg(tmp_path / "b.jpg", _rgb(), ExifFields(focal_35mm=26)))
     assert info.lat is None and info.lon is None and not info.has_gps
     assert info.focal_35mm == 26
     buf = io.BytesIO()
@@ -63,7 +55,7 @@ def test_malformed_never_raises(data: bytes) -> None:
 
 
 def test_truncated_and_corrupted(tmp_path: Path) -> None:
-    data = write_jpeg(tmp_path / "c.jpg", _rgb(), lat=60.0, lon=25.0, focal_35mm=31).read_bytes()
+    data = write_jpeg(tmp_path / "c.jpg", _rgb(), ExifFields(lat=60.0, lon=25.0, focal_35mm=31)).read_bytes()
     for cut in (20, 200, len(data) // 2):
         read_exif(data[:cut])  # must not raise
     corrupted = bytearray(data)

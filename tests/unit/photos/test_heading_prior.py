@@ -11,10 +11,18 @@ from geoloc.photos.heading_prior import (
     DEFAULT_SIGMA_DEG,
     OUTLIER_PROBABILITY,
     SIGMA_FLOOR_DEG,
-    heading_prior_from_compass,
+    HeadingPrior,
+    compass_heading_prior,
 )
 
 FRAME = LocalFrame(55.7, 13.19)
+
+
+def heading_prior_from_compass(
+    reading: CompassReading, frame: LocalFrame, east_m: float = 0.0, north_m: float = 0.0
+) -> HeadingPrior:
+    """The robust prior of a compass reading at a local point (m) of ``frame``."""
+    return compass_heading_prior(reading.heading_deg, reading.accuracy_deg, frame, east_m, north_m)
 
 
 def test_sigma_from_accuracy_with_a_floor() -> None:

@@ -18,7 +18,7 @@ from PIL import Image
 from cli.analyze import read_photo
 from contracts.settings import get_settings, reset_settings
 from db.files import open_store
-from geoloc.photos.exif import exif_bytes
+from geoloc.photos.exif import ExifFields, exif_bytes
 from geoloc.photos.photo import WORKING_MAX_SIDE, load_photo
 from service.images import validate_image
 from workers.handler_helpers import stored_photo
@@ -43,7 +43,7 @@ def store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
 
 def _jpeg_rotated_with_gps(path: Path) -> Path:
     """A 1600 x 1200 JPEG stored sideways (EXIF orientation 6), with GPS, heading and focal length."""
-    block = exif_bytes(width=1600, height=1200, lat=60.1699, lon=24.9384, focal_35mm=28.0, heading_deg=123.5)
+    block = exif_bytes(1600, 1200, ExifFields(lat=60.1699, lon=24.9384, focal_35mm=28.0, heading_deg=123.5))
     exif = Image.Exif()
     exif.load(block)
     exif[ORIENTATION_TAG] = 6

@@ -1,4 +1,4 @@
-"""How the worker weights a stored heading prior (:func:`workers.handler_helpers.heading_prior_at`)."""
+"""How the worker weights a stored heading prior (:func:`geoloc.localize.reference.heading_prior_at`)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import pytest
 
 from geoloc.core.geo import LocalFrame
 from geoloc.localize.labeling import HEADING_PRIOR_SIGMA_DEG
+from geoloc.localize.reference import heading_prior_at
 from geoloc.photos.heading_prior import OUTLIER_PROBABILITY, SIGMA_FLOOR_DEG
-from workers.handler_helpers import heading_prior_at
 
 FRAME = LocalFrame(55.7, 13.19)
 
