@@ -35,15 +35,19 @@ def _rgb(path: Path) -> np.ndarray:
     return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    """A temporary GEOLOC_DATA_DIR holding the ONNX export for the whole session."""
+    """A temporary GEOLOC_DATA_DIR holding the ONNX export for this module's tests.
+
+    Module-scoped: the variable is restored after them, so the tests a worker runs later see their own data
+    folder (with the session's scope, evaluation tests after these found no vocabulary here).
+    """
     _shared_or_skip("models", model_files.SEG_WEIGHTS)
     with data_dir_environment(tmp_path_factory.mktemp("geoloc_data")) as folder:
         yield folder
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def onnx_path(data_dir: Path) -> Path:
     pytest.importorskip("torch", reason="exporting needs the export extra (torch)")
     return models.build_segmentation_model()
