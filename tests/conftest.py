@@ -5,7 +5,7 @@
 - ``built_models``: the models ``geoloc models build`` makes, built once into pytest's cache folder and
   reused while current (service data folders link to it with :func:`tests.model_fixtures.link_models`); the
   suite runs on three pytest-xdist workers (the README's ``-n 3``), so the build holds a file lock: one worker
-  builds, the other waits and reuses;
+  builds, the others wait and reuse it;
 - ``profile``: the two deployment profiles, ``embedded`` (SQLite, built-in workers) and ``distributed``
   (PostgreSQL and Celery on Redis, real servers started once per session on loopback, see
   :mod:`testbed.servers`). A test or module fixture that takes it runs once per profile; each deployment it
