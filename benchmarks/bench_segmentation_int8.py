@@ -28,18 +28,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from cli.eval import CAMVID_TO_OURS, REPORTED, confusion_matrix, scores
-from contracts.settings import models_dir, shared_path
+from cli.eval import CAMVID_TO_OURS, REPORTED, camvid_images, confusion_matrix, scores
+from contracts.settings import models_dir
 from geoloc.core.labels import CLASS_NAMES
 from geoloc.vision.model_files import SEG_DEFAULT_SIZE, segmentation_files
 from geoloc.vision.onnx_session import onnx_session
 from geoloc.vision.segmentation import _prepare, segment
-
-
-def camvid_images(split: str, stride: int) -> list[Path]:
-    """Every ``stride``-th CamVid image of ``split`` (sorted by name)."""
-    root = shared_path("data", "camvid", split, "images")
-    return sorted([*root.glob("*.png"), *root.glob("*.jpg")])[::stride]
 
 
 def read_rgb(path: Path) -> np.ndarray:

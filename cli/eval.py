@@ -54,6 +54,14 @@ def scores(conf: Any) -> dict[str, Any]:
     return {"per_class": per_class, "pixel_accuracy": round(float(tp.sum() / max(conf.sum(), 1)), 4)}
 
 
+def camvid_images(split: str, stride: int = 1) -> list[Path]:
+    """Every ``stride``-th CamVid image of ``split`` (train, val, test), sorted by name (PNG or JPEG)."""
+    from contracts import settings as config  # lazy: CLI start-up
+
+    folder = config.shared_path("data", "camvid", split) / "images"
+    return sorted([*folder.glob("*.png"), *folder.glob("*.jpg")])[::stride]
+
+
 def evaluate_camvid(
     split: str, limit: int | None, size: tuple[int, int] | None, stride: int, threads: int | None
 ) -> dict[str, Any]:
@@ -71,8 +79,7 @@ def evaluate_camvid(
     from workers.context import method_context
 
     root = config.shared_path("data", "camvid", split)
-    images = sorted((root / "images").glob("*.png")) + sorted((root / "images").glob("*.jpg"))
-    images = sorted(images)[::stride][:limit]
+    images = camvid_images(split, stride)[:limit]
     if not images:
         raise FileNotFoundError(f"no images under {root / 'images'}")
     context = method_context()
