@@ -24,8 +24,11 @@ environment), and each ``--variant`` one more service of this checkout with othe
    (``/proc/PID/clear_refs``), while answering queries.
 5. Answers: each query's ranked locations on every other service next to this checkout's (rank 1 position
    and heading, the number of locations), which must agree: the speed-ups do not change what the method
-   computes. With ``--compare-eval EVAL.json`` (``geoloc eval world``'s JSON of ``--world``), this checkout's
-   answers of the first round are also compared with the evaluation's ``ours/gps`` (:mod:`eval_agreement`).
+   computes. Each other service's latency is also paired query by query with this checkout's: a geometric mean
+   ratio with a 95 % bootstrap interval (:func:`paired_latency`), which resolves differences of a few per cent
+   that the medians' noise hides. With ``--compare-eval EVAL.json`` (``geoloc eval world``'s JSON of
+   ``--world``), this checkout's answers of the first round are also compared with the evaluation's
+   ``ours/gps`` (:mod:`eval_agreement`).
 6. The floor (issue 23): the segmentation network's own CPU per query photo, measured in this process after
    the queries (:func:`segmentation_cpu`: the workers' session and threads, the median per photo); each
    service's worker CPU per query over it, and each stage's median over the service's segmentation stage.
@@ -252,6 +255,24 @@ def compare_answers(other: list[dict[str, Any]], current: list[dict[str, Any]]) 
     }
 
 
+def paired_latency(other: list[dict[str, Any]], current: list[dict[str, Any]], seed: int = 0) -> dict[str, Any]:
+    """Each query's latency on ``other`` over the same query's on ``current``, paired.
+
+    The pairs are the same photo in the same round, posted back to back; the result is their geometric mean ratio
+    with a 95 % bootstrap interval, which resolves what a ratio of two medians cannot when the run-to-run noise is
+    as large as the difference sought.
+    """
+    log_ratios = np.log([a["wall_ms"] / b["wall_ms"] for a, b in zip(other, current, strict=True)])
+    rng = np.random.default_rng(seed)
+    boot = log_ratios[rng.integers(0, len(log_ratios), (10_000, len(log_ratios)))].mean(axis=1)
+    low, high = np.exp(np.percentile(boot, [2.5, 97.5]))
+    return {
+        "pairs": len(log_ratios),
+        "ratio": round(float(np.exp(log_ratios.mean())), 4),
+        "ratio_95": [round(float(low), 4), round(float(high), 4)],
+    }
+
+
 def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
     walls = [r["wall_ms"] for r in runs]
     stages = sorted({stage for r in runs for stage in r["timings_ms"]}, key=list(runs[0]["timings_ms"]).index)
@@ -370,6 +391,7 @@ def main() -> None:
             row["speedup_p50"] = round(
                 figures["queries"][name]["wall_ms_p50"] / figures["queries"]["current"]["wall_ms_p50"], 2
             )
+            row["paired_latency"] = paired_latency(runs[name], runs["current"])
     finally:
         for service in services.values():
             service.stop()
@@ -401,6 +423,9 @@ def main() -> None:
         print(f"answers of {name} and current: rank 1 the same for {answers['same_rank1_pose']} queries (largest "
               f"gap {answers['rank1_gap_m_max']} m, {answers['rank1_heading_gap_deg_max']} deg); median latency "
               f"{answers['speedup_p50']}x current's; a location differs: {answers['different_photos']}")  # fmt: skip
+        paired = answers["paired_latency"]
+        print(f"  paired latency of {name} over current ({paired['pairs']} pairs, geometric mean): "
+              f"{paired['ratio']}x [{paired['ratio_95'][0]}, {paired['ratio_95'][1]}] (95 %)")  # fmt: skip
     current = "current"
     q, lab = figures["queries"][current], figures["labelling"][current]
     figures["targets"] = {
