@@ -24,11 +24,11 @@ environment), and each ``--variant`` one more service of this checkout with othe
    (``/proc/PID/clear_refs``), while answering queries.
 5. Answers: each query's ranked locations on every other service next to this checkout's (rank 1 position
    and heading, the number of locations), which must agree: the speed-ups do not change what the method
-   computes. Each other service's latency is also paired query by query with this checkout's: a geometric mean
-   ratio with a 95 % bootstrap interval (:func:`paired_latency`), which resolves differences of a few per cent
-   that the medians' noise hides. With ``--compare-eval EVAL.json`` (``geoloc eval world``'s JSON of
-   ``--world``), this checkout's answers of the first round are also compared with the evaluation's
-   ``ours/gps`` (:mod:`eval_agreement`).
+   computes. Each other service's latency is also paired query by query with this checkout's: a geometric
+   mean ratio with a 95 % bootstrap interval (:func:`answer_pairs.paired_latency`), which resolves
+   differences of a few per cent that the medians' noise hides. With ``--compare-eval EVAL.json``
+   (``geoloc eval world``'s JSON of ``--world``), this checkout's answers of the first round are also
+   compared with the evaluation's ``ours/gps`` (:mod:`eval_agreement`).
 6. The floor (issue 23): the segmentation network's own CPU per query photo, measured in this process after
    the queries (:func:`segmentation_cpu`: the workers' session and threads, the median per photo); each
    service's worker CPU per query over it, and each stage's median over the service's segmentation stage.
@@ -57,6 +57,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from answer_pairs import compare_answers, distance_m, paired_latency
 from baseline import export_commit, service_checks
 from eval_agreement import query_agreement
 from local_service import REPO_ROOT, LocalService, status_mb
@@ -226,53 +227,6 @@ def concurrent_queries(service: Service, photos: list[Path]) -> dict[str, Any]:
     }
 
 
-def _distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:
-    dy = (a[0] - b[0]) * 111_195.0
-    dx = (a[1] - b[1]) * 111_195.0 * np.cos(np.radians((a[0] + b[0]) / 2))
-    return float(np.hypot(dx, dy))
-
-
-def compare_answers(other: list[dict[str, Any]], current: list[dict[str, Any]]) -> dict[str, Any]:
-    """How far the rank-1 answers of the same queries lie apart on two services."""
-    pairs = list(zip(other, current, strict=True))
-    gaps = [_distance_m(a["locations"][0][:2], b["locations"][0][:2]) for a, b in pairs if a["locations"]]
-    headings = [
-        abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) for a, b in pairs if a["locations"]
-    ]
-    different = [a["photo"] for a, b in pairs if a["locations"] != b["locations"]]  # exactly: every location
-    same = sum(
-        len(a["locations"]) == len(b["locations"])
-        and (not a["locations"] or (_distance_m(a["locations"][0][:2], b["locations"][0][:2]) < 0.05
-                                    and abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) < 0.05))
-        for a, b in pairs
-    )  # fmt: skip
-    return {
-        "same_rank1_pose": f"{same}/{len(pairs)}",
-        "rank1_gap_m_max": round(max(gaps, default=0.0), 3),
-        "rank1_heading_gap_deg_max": round(max(headings, default=0.0), 3),
-        "different": len(different),
-        "different_photos": sorted(set(different)),
-    }
-
-
-def paired_latency(other: list[dict[str, Any]], current: list[dict[str, Any]], seed: int = 0) -> dict[str, Any]:
-    """Each query's latency on ``other`` over the same query's on ``current``, paired.
-
-    The pairs are the same photo in the same round, posted back to back; the result is their geometric mean ratio
-    with a 95 % bootstrap interval, which resolves what a ratio of two medians cannot when the run-to-run noise is
-    as large as the difference sought.
-    """
-    log_ratios = np.log([a["wall_ms"] / b["wall_ms"] for a, b in zip(other, current, strict=True)])
-    rng = np.random.default_rng(seed)
-    boot = log_ratios[rng.integers(0, len(log_ratios), (10_000, len(log_ratios)))].mean(axis=1)
-    low, high = np.exp(np.percentile(boot, [2.5, 97.5]))
-    return {
-        "pairs": len(log_ratios),
-        "ratio": round(float(np.exp(log_ratios.mean())), 4),
-        "ratio_95": [round(float(low), 4), round(float(high), 4)],
-    }
-
-
 def summarize(runs: list[dict[str, Any]]) -> dict[str, Any]:
     walls = [r["wall_ms"] for r in runs]
     stages = sorted({stage for r in runs for stage in r["timings_ms"]}, key=list(runs[0]["timings_ms"]).index)
@@ -380,7 +334,7 @@ def main() -> None:
         if args.compare_eval is not None:  # this checkout's first round against the evaluation's ours/gps
             truth = {im.path.name: (im.record["pose"]["lat"], im.record["pose"]["lon"]) for im in world.queries}
             errors = {
-                Path(r["photo"]).stem: _distance_m(r["locations"][0][:2], truth[r["photo"]]) if r["locations"] else None
+                Path(r["photo"]).stem: distance_m(r["locations"][0][:2], truth[r["photo"]]) if r["locations"] else None
                 for r in runs["current"][: len(queries)]
             }
             agreement = query_agreement(errors, json.loads(args.compare_eval.read_text()))
