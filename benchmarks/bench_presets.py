@@ -51,8 +51,8 @@ def ask(service: LocalService, map_id: int, photo: WorldImage, preset: QueryPres
     if query.status != "done" or query.result is None:
         raise SystemExit(f"query {photo.name} ({preset}): {query.status} {query.error}")
     search = query.result.search
-    if search.get("preset") != preset or query.params.get("preset") != preset:
-        raise SystemExit(f"query {photo.name}: asked {preset}, answered with {search.get('preset')}")
+    if search.preset != preset or query.params.get("preset") != preset:
+        raise SystemExit(f"query {photo.name}: asked {preset}, answered with {search.preset}")
     best = query.result.locations[0]
     return {
         "photo": photo.name,

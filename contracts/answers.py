@@ -14,8 +14,6 @@ here too (the OpenAPI reference then shows it), and a NaN never reaches a client
 
 from __future__ import annotations
 
-from typing import Any
-
 from pydantic import BaseModel, ConfigDict, Field
 
 
@@ -23,6 +21,11 @@ class _Answer(BaseModel):
     """Base of the answer models: unknown fields and NaN/infinity are errors."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+def _absent(value: object) -> bool:
+    """An optional part that was not recorded is left out of the JSON (as answers stored before it have it)."""
+    return value is None
 
 
 class BoundingBox(_Answer):
@@ -110,6 +113,79 @@ class ReferenceUsed(_Answer):
     inliers: int = Field(description="Geometrically verified matches", examples=[41])
 
 
+class GridSearch(_Answer):
+    """How the likelihood's grid search ran (``geoloc.localize.grid.localize``): its region, grid and priors."""
+
+    region: str = Field(
+        description="How the candidate region was chosen: 'identified_buildings' (around the buildings the "
+        "identities name), 'position_prior' (around the prior) or 'whole_map'",
+        examples=["identified_buildings"],
+    )
+    buildings: list[int] = Field(description="The map's buildings that defined the region", examples=[[212, 37]])
+    positions: int = Field(description="Candidate positions searched", examples=[412])
+    yaws: int = Field(description="Headings searched at each position", examples=[120])
+    cell_m: float = Field(description="The grid's cell (m)", examples=[10.0])
+    identity: bool = Field(description="Whether the likelihood weighed building identities (else geometry only)")
+    position_prior: bool = Field(description="Whether a position prior (GPS fix, place) weighed the poses")
+    position_prior_shaped: bool | None = Field(
+        default=None,
+        exclude_if=_absent,
+        description="Whether that prior had a place's shape (absent from answers stored before it was recorded)",
+    )
+    heading_prior: bool = Field(description="Whether a heading prior (compass) weighed the poses")
+
+
+class AnchorsUsed(_Answer):
+    """The anchored pose (PnP on map-anchored reference keypoints): whether it was trusted and why."""
+
+    trusted: bool = Field(description="Whether the anchored pose was kept as the rank-1 answer")
+    inliers: int = Field(description="Its PnP inliers (0 when no reference gave a pose)", examples=[46])
+    references: list[str] = Field(description="The references its keypoints came from", examples=[["17", "23"]])
+    checks: dict[str, int | float] = Field(
+        description="The value of each trust check (inliers, height_m, pitch_deg, prior_distance_m, likelihood, "
+        "likelihood_best)",
+        examples=[{"inliers": 46, "height_m": 1.58, "pitch_deg": 2.1, "likelihood": 0.82, "likelihood_best": 0.9}],
+    )
+
+
+class QuerySearch(GridSearch):
+    """How a query was answered: the grid search, the identities' trust, the anchored pose and the configuration.
+
+    ``preset``, ``device`` and ``segmentation`` are the service's: None, and absent from the JSON, in the
+    evaluation's answers, in a track's frames and in answers stored before they were recorded (as
+    ``identity_trust`` and ``position_prior_shaped`` are in those stored before them).
+    """
+
+    identity_trust: float | None = Field(
+        default=None,
+        exclude_if=_absent,
+        description="How far the transferred identities were trusted (0-1)",
+        examples=[0.83],
+    )
+    anchors: AnchorsUsed
+    config: dict[str, int | float | bool] = Field(
+        description="The query stage's configuration (docs/method.md)", examples=[{"k": 4, "cell_m": 10.0}]
+    )
+    preset: str | None = Field(default=None, exclude_if=_absent, description="The preset that chose the configuration")
+    device: str | None = Field(
+        default=None, exclude_if=_absent, description="Where segmentation and ALIKED ran: cpu or cuda"
+    )
+    segmentation: str | None = Field(
+        default=None,
+        exclude_if=_absent,
+        description="The segmentation network that labelled the photo (its input size)",
+    )
+
+
+class CameraUsed(_Answer):
+    """The camera model used: the field of view, where the focal length came from, the uploaded photo's size."""
+
+    hfov_deg: float = Field(description="Horizontal field of view (deg)", examples=[63.4])
+    focal_source: str = Field(description="Where the focal length came from", examples=["exif_35mm"])
+    width: int = Field(description="The uploaded photo's width (px)", examples=[1024])
+    height: int = Field(description="The uploaded photo's height (px)", examples=[768])
+
+
 class QueryResult(_Answer):
     """The answer to a query photo."""
 
@@ -117,14 +193,8 @@ class QueryResult(_Answer):
     heatmap: Heatmap
     buildings: list[BuildingInPhoto]
     references: list[ReferenceUsed]
-    search: dict[str, Any] = Field(
-        description="How the answer was searched: region, grid, whether identities and priors were used",
-        examples=[{"region": "identified_buildings", "positions": 412, "yaws": 120, "identity": True}],
-    )
-    camera: dict[str, Any] = Field(
-        description="The camera model used (field of view and where the focal length came from)",
-        examples=[{"hfov_deg": 63.4, "focal_source": "exif_35mm", "width": 1024, "height": 768}],
-    )
+    search: QuerySearch
+    camera: CameraUsed
     timings_ms: dict[str, float]
 
 
@@ -158,9 +228,22 @@ class TrackFrameResult(_Answer):
     buildings: list[BuildingInPhoto] = Field(default_factory=list, description="The buildings identified in it")
 
 
+class TrackSearch(_Answer):
+    """What the track stage did (``geoloc.localize.track``): the smoother, its edges and the frames it set apart."""
+
+    smoother: str = Field(description="The smoother that placed the frames together", examples=["gtsam"])
+    edges: int = Field(description="Relative poses between frames in its graph", examples=[7])
+    joined: int = Field(description="Frames with at least one edge", examples=[8])
+    outliers: list[int] = Field(description="Frames the track disagrees with (indices)", examples=[[3]])
+    anchored_priors: list[int] = Field(description="Frames whose anchored pose was a prior (indices)")
+    preset: str | None = Field(
+        default=None, exclude_if=_absent, description="The preset that chose the query configuration"
+    )
+
+
 class TrackResult(_Answer):
     """The answer to a track: one :class:`TrackFrameResult` per frame, in order, and how it was searched."""
 
     frames: list[TrackFrameResult]
-    search: dict[str, Any] = Field(description="What the track stage did", examples=[{"smoother": "none"}])
+    search: TrackSearch = Field(description="What the track stage did")
     timings_ms: dict[str, float]

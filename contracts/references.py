@@ -179,3 +179,104 @@ class ReferenceLabelArrays:
     def mask(self) -> np.ndarray:
         """The (H, W) boolean building mask, unpacked."""
         return np.unpackbits(self.building_mask, axis=1, count=self.width).astype(bool)
+
+
+_WALK_FRAME_SCALARS: Final[dict[str, type[Any]]] = {
+    "intrinsics_source": str,
+    "building_mask_width": int,
+    "features_scale": float,
+    "features_method": str,
+    "model_bin_deg": float,
+}
+_WALK_FRAME_SHAPES: Final = ("features_image_shape", "original_size")
+
+
+@dataclass(frozen=True)
+class WalkFrameArrays:
+    """A walk reference's label alone as stored for the sequence job, which reads it instead of labelling again.
+
+    The method's side converts (``geoloc.localize.sequence.frames.FrameLabel.stored`` and ``.from_stored``);
+    :mod:`db.references` keeps it in the reference's labels blob. Every array is stored in its own dtype (no
+    float16 descriptors, unlike :class:`ReferenceKeypoints`), so what is read back is bit-identical to what the
+    label job computed. pose (3,) float64: x_m, y_m (local metres of the map's frame), yaw_deg (bearing);
+    position_covariance (2, 2) m^2; anchor_*: the label's keypoints on the map's facades (as
+    :class:`ReferenceKeypoints`'); intrinsics (5,) float64: width, height (px), focal_px, cx, cy of the
+    working-size photo, intrinsics_source where the focal length came from; building_mask_bits (H, ceil(W / 8))
+    uint8: the building pixels bit-packed along rows, building_mask_width W; rotation_upright_from_cam (3, 3);
+    features_*: the local features (xy pixels of the working-size photo, ``features_scale`` working over original
+    size); model_*: the photo's image model per column bin (``model_bin_deg`` wide), the optional ones when set;
+    timings_ms: its label's timings (stored as ``timing_names`` and ``timing_values_ms``); original_size: the
+    uploaded photo's (width, height) in pixels.
+    """
+
+    pose: np.ndarray
+    position_covariance: np.ndarray
+    anchor_xyz: np.ndarray
+    anchor_facade_id: np.ndarray
+    anchor_building_id: np.ndarray
+    anchor_distance_m: np.ndarray
+    intrinsics: np.ndarray
+    intrinsics_source: str
+    building_mask_bits: np.ndarray
+    building_mask_width: int
+    rotation_upright_from_cam: np.ndarray
+    features_xy: np.ndarray
+    features_descriptors: np.ndarray
+    features_sizes: np.ndarray
+    features_angles: np.ndarray
+    features_responses: np.ndarray
+    features_image_shape: tuple[int, int]
+    features_scale: float
+    features_method: str
+    model_offsets_deg: np.ndarray
+    model_facade_present: np.ndarray
+    model_orientation_deg: np.ndarray
+    model_bin_deg: float
+    timings_ms: dict[str, float]
+    original_size: tuple[int, int]
+    model_identity_building_ids: np.ndarray | None = None
+    model_identity_prob: np.ndarray | None = None
+    model_distance_m: np.ndarray | None = None
+    model_top_tan_elevation: np.ndarray | None = None
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays to store, named by the fields (scalars as 0-d arrays; unset optional fields left out)."""
+        arrays: dict[str, np.ndarray] = {}
+        for spec in fields(self):
+            value = getattr(self, spec.name)
+            if value is None:
+                continue
+            if spec.name == "timings_ms":
+                arrays["timing_names"] = np.array(list(value), dtype=str)
+                arrays["timing_values_ms"] = np.array(list(value.values()), np.float64)
+            elif spec.name in _WALK_FRAME_SHAPES or _WALK_FRAME_SCALARS.get(spec.name) is int:
+                arrays[spec.name] = np.array(value, np.int64)
+            elif _WALK_FRAME_SCALARS.get(spec.name) is float:
+                arrays[spec.name] = np.array(value, np.float64)
+            else:
+                arrays[spec.name] = np.asarray(value)
+        return arrays
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> WalkFrameArrays:
+        """The walk frame from its stored arrays (a dict or an ``np.load`` result), arrays as stored.
+
+        Raises KeyError naming the first required array that is missing.
+        """
+        values: dict[str, Any] = {}
+        for spec in fields(cls):
+            name = spec.name
+            if name == "timings_ms":
+                names, ms = arrays["timing_names"], arrays["timing_values_ms"]
+                values[name] = {str(k): float(v) for k, v in zip(names, ms, strict=True)}
+            elif name not in arrays:
+                if spec.default is not None:
+                    raise KeyError(f"walk frame: no {name!r} array stored")
+                values[name] = None
+            elif name in _WALK_FRAME_SCALARS:
+                values[name] = _WALK_FRAME_SCALARS[name](arrays[name])
+            elif name in _WALK_FRAME_SHAPES:
+                values[name] = tuple(int(v) for v in arrays[name])
+            else:
+                values[name] = arrays[name]
+        return cls(**values)

@@ -7,13 +7,10 @@ degrees, headings degrees clockwise from true north, times ISO 8601 as the photo
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
-import numpy as np
-
-from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
+from contracts.references import ReferenceKeypoints, ReferenceLabelArrays, WalkFrameArrays
 
 
 @dataclass(frozen=True)
@@ -65,4 +62,4 @@ class ReferenceLabel:
     buildings_seen: list[dict[str, Any]]
     timings: dict[str, float]
     placement: Literal["alone", "sequence"]
-    walk_frame: Mapping[str, np.ndarray] | None = None
+    walk_frame: WalkFrameArrays | None = None

@@ -13,13 +13,12 @@ from __future__ import annotations
 import io
 import json
 import time
-from collections.abc import Mapping
 from typing import Any, cast
 
 import numpy as np
 
 from contracts.jobs import WORK_STATUSES, reported_status
-from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
+from contracts.references import ReferenceKeypoints, ReferenceLabelArrays, WalkFrameArrays
 from db.blobs import pack_arrays, unpack_arrays
 from db.connection import Database
 from db.jobs import cancel_queued_jobs
@@ -220,19 +219,19 @@ WALK_FRAME_PREFIX = "walk_"
 
 
 def save_labels(
-    db: Database, reference_id: int, labels: ReferenceLabelArrays, walk_frame: Mapping[str, np.ndarray] | None = None
+    db: Database, reference_id: int, labels: ReferenceLabelArrays, walk_frame: WalkFrameArrays | None = None
 ) -> None:
     """Store (replace) a reference's identity map arrays, and the arrays of its label alone when it may join a walk.
 
     walk_frame: what the sequence job needs of the reference labelled alone
-    (:func:`geoloc.localize.sequence.frames.frame_arrays`), stored in the same blob under
+    (:class:`contracts.references.WalkFrameArrays`), stored in the same blob under
     :data:`WALK_FRAME_PREFIX` (no schema change; it goes with the labels row, deleted with the reference). A blob
     with a walk frame is stored uncompressed: zlib on its float32 descriptors cost 15 ms of CPU per label job
     (a 180 kB blob; 660 kB uncompressed, packed in 1 ms).
     """
     arrays = labels.to_arrays()
     if walk_frame is not None:
-        arrays.update({WALK_FRAME_PREFIX + name: value for name, value in walk_frame.items()})
+        arrays.update({WALK_FRAME_PREFIX + name: value for name, value in walk_frame.to_arrays().items()})
     db.execute(
         "INSERT INTO labels (reference_id, identity_npz, created_at) VALUES (?, ?, ?) ON CONFLICT (reference_id)"
         " DO UPDATE SET identity_npz = excluded.identity_npz, created_at = excluded.created_at",
@@ -254,14 +253,16 @@ def load_labels(db: Database, reference_id: int) -> ReferenceLabelArrays | None:
         return ReferenceLabelArrays.from_arrays(npz)
 
 
-def load_walk_frame(db: Database, reference_id: int) -> dict[str, np.ndarray] | None:
+def load_walk_frame(db: Database, reference_id: int) -> WalkFrameArrays | None:
     """The arrays of a reference's label alone stored by :func:`save_labels`, or None (labelled without them)."""
     blob = _labels_blob(db, reference_id)
     if blob is None:
         return None
     with np.load(io.BytesIO(blob), allow_pickle=False) as npz:
         names = [name for name in npz.files if name.startswith(WALK_FRAME_PREFIX)]
-        return {name[len(WALK_FRAME_PREFIX) :]: npz[name] for name in names} or None
+        if not names:
+            return None
+        return WalkFrameArrays.from_arrays({name[len(WALK_FRAME_PREFIX) :]: npz[name] for name in names})
 
 
 def save_keypoints(db: Database, reference_id: int, keypoints: ReferenceKeypoints) -> None:

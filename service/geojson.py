@@ -10,8 +10,9 @@ A query's collection, in this order:
 - one ``Point`` per ranked pose (``feature_type: "pose"``; ``rank``, ``heading_deg``, ``uncertainty_radius_m``,
   ``probability``, ``source``, ``inliers`` as the JSON answer has them);
 - one ``Polygon`` view cone per pose (``feature_type: "view_cone"``): the apex at the camera, opening the
-  photo's horizontal field of view (``result.camera.hfov_deg``; :data:`DEFAULT_FOV_DEG` when the answer has
-  none), :data:`VIEW_CONE_LENGTH_M` long, its far edge an arc of :data:`CONE_ARC_POINTS` points;
+  photo's horizontal field of view (``result.camera.hfov_deg``; a track's frame's ``hfov_deg``, or
+  :data:`DEFAULT_FOV_DEG` when the frame has none), :data:`VIEW_CONE_LENGTH_M` long, its far edge an arc of
+  :data:`CONE_ARC_POINTS` points;
 - one feature per identified building (``feature_type: "building"``), its footprint from the map (a
   ``Polygon``, or a ``MultiPolygon`` where the map's footprint is one) with ``building_id``, ``osm_id``,
   ``name``, ``pixel_share`` and ``probability``.
@@ -116,7 +117,7 @@ def query_collection(out: QueryOut, footprints: dict[int, dict[str, Any]]) -> di
             collection["error"] = out.error
         return collection
     result = out.result
-    fov_deg = float(result.camera.get("hfov_deg") or DEFAULT_FOV_DEG)
+    fov_deg = result.camera.hfov_deg
     locations = [loc.model_dump(mode="json") for loc in result.locations]
     cones = [
         {

@@ -35,8 +35,6 @@ CONE_LENGTH_M = 40.0
 MARGIN_M = 20.0
 """Room around the grid and the poses (m)."""
 MAX_CONES = 5
-DEFAULT_FOV_DEG = 60.0
-"""The cones' opening (deg) when the answer states no field of view."""
 
 BACKGROUND = (250, 250, 246)
 STREET = (208, 210, 222)
@@ -105,7 +103,7 @@ def view_cones(city_map: CityMap, result: QueryResult) -> list[np.ndarray]:
         return []
     x, y = city_map.frame.to_local(np.array([p.lat for p in top]), np.array([p.lon for p in top]))
     bearings = city_map.frame.heading_to_bearing(np.array([p.heading_deg for p in top]), x, y)
-    fov = float(result.camera.get("hfov_deg") or DEFAULT_FOV_DEG)
+    fov = result.camera.hfov_deg
     return [cone_polygon(np.array([x[i], y[i]]), float(bearings[i]), fov) for i in range(len(top))]
 
 

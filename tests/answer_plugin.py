@@ -16,6 +16,7 @@ from contracts.answers import QueryResult
 from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload, LocalizeQueryResult
 from db import Database, transaction
 from db import queries as query_store
+from tests.answer_parts import WHOLE_MAP_SEARCH
 from workers.handlers import PermanentJobError, answer_checked, register
 
 WELL_FORMED: dict[str, Any] = {
@@ -51,7 +52,7 @@ WELL_FORMED: dict[str, Any] = {
         }
     ],
     "references": [],
-    "search": {"region": "whole_map", "identity": False},
+    "search": WHOLE_MAP_SEARCH,
     "camera": {"hfov_deg": 60.0, "focal_source": "default_hfov", "width": 640, "height": 480},
     "timings_ms": {"total": 1.0},
 }

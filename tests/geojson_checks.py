@@ -8,7 +8,7 @@ import pytest
 import shapely.geometry
 from pyproj import Geod
 
-from service.geojson import DEFAULT_FOV_DEG, VIEW_CONE_LENGTH_M
+from service.geojson import VIEW_CONE_LENGTH_M
 
 WGS84 = Geod(ellps="WGS84")
 
@@ -32,7 +32,7 @@ def check_query_collection(collection: dict[str, Any], query: dict[str, Any]) ->
         by_type[feature["properties"]["feature_type"]].append(feature)
     locations = result["locations"]
     assert len(by_type["pose"]) == len(by_type["view_cone"]) == len(locations)
-    fov = result["camera"].get("hfov_deg") or DEFAULT_FOV_DEG
+    fov = result["camera"]["hfov_deg"]
     for point, cone, location in zip(by_type["pose"], by_type["view_cone"], locations, strict=True):
         assert point["geometry"] == {"type": "Point", "coordinates": [location["lon"], location["lat"]]}
         for key in ("rank", "heading_deg", "probability", "uncertainty_radius_m", "source", "inliers"):

@@ -16,6 +16,7 @@ from contracts.answers import QueryResult
 from contracts.jobs import LOCALIZE_QUERY, LocalizeQueryPayload, LocalizeQueryResult
 from db import Database, transaction
 from db import queries as query_store
+from tests.answer_parts import WHOLE_MAP_SEARCH
 from workers.handler_helpers import city_map_for
 from workers.handlers import answer_checked, register
 
@@ -66,7 +67,7 @@ def placed_answer(map_xy: tuple[float, float], to_wgs84: ToWgs84) -> dict[str, A
         },
         "buildings": [],
         "references": [],
-        "search": {"region": "whole_map", "identity": False},
+        "search": WHOLE_MAP_SEARCH,
         "camera": {"hfov_deg": 50.0, "focal_source": "default_hfov", "width": 640, "height": 480},
         "timings_ms": {"total": 1.0},
     }

@@ -11,13 +11,22 @@ Used by :mod:`workers.reference_handlers`, :mod:`workers.sequence_handlers`, :mo
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from functools import lru_cache
-from typing import Any
+from typing import cast
 
 import numpy as np
 
-from contracts.answers import BoundingBox, BuildingInPhoto, Heatmap, LatLon, QueryResult, RankedLocation, ReferenceUsed
+from contracts.answers import (
+    BoundingBox,
+    BuildingInPhoto,
+    CameraUsed,
+    Heatmap,
+    LatLon,
+    QueryResult,
+    RankedLocation,
+    ReferenceUsed,
+)
 from contracts.queries import PriorPosition, QueryParams
 from contracts.settings import data_dir, get_settings
 from db import Database, database_key, sbow, transaction
@@ -25,6 +34,7 @@ from db import maps as map_store
 from db.files import open_store
 from db.rows import ReferenceRow
 from geoloc.localize.grid import PositionPrior
+from geoloc.localize.identity import BuildingExtent
 from geoloc.localize.query import QueryAnswer
 from geoloc.localize.reference import heading_prior_at
 from geoloc.localize.retrieval import Vocabulary, default_vocabulary
@@ -159,9 +169,7 @@ def query_priors(
     return position_prior, heading
 
 
-def describe_buildings(
-    city: CityMap, extents: Sequence[Mapping[str, Any]], column_scale: float
-) -> list[BuildingInPhoto]:
+def describe_buildings(city: CityMap, extents: Sequence[BuildingExtent], column_scale: float) -> list[BuildingInPhoto]:
     """Building extents with their OSM ids and names, columns in the uploaded photo's pixels."""
     out = []
     for entry in extents:
@@ -223,15 +231,18 @@ def query_result(city: CityMap, photo: Photo, answer: QueryAnswer, timings_ms: d
         heatmap=heatmap,
         buildings=describe_buildings(city, answer.buildings, scale),
         references=[
-            ReferenceUsed(reference_id=r["reference_id"], score=r["score"], matches=r["matches"], inliers=r["inliers"])
+            # the service's reference store keys references by their integer ids
+            ReferenceUsed(
+                reference_id=cast(int, r.reference_id), score=r.score, matches=r.n_matches, inliers=r.n_inliers
+            )
             for r in answer.references
         ],
         search=answer.search,
-        camera={
-            "hfov_deg": round(photo.intrinsics.hfov_deg, 2),
-            "focal_source": photo.intrinsics.source,
-            "width": photo.original_size[0],
-            "height": photo.original_size[1],
-        },
+        camera=CameraUsed(
+            hfov_deg=round(photo.intrinsics.hfov_deg, 2),
+            focal_source=photo.intrinsics.source,
+            width=photo.original_size[0],
+            height=photo.original_size[1],
+        ),
         timings_ms=timings_ms,
     )

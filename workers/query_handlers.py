@@ -58,9 +58,9 @@ def localize_query(db: Database, payload: LocalizeQueryPayload) -> LocalizeQuery
         top_n=params.top_n,
         context=context,
     )
-    answer.search["preset"] = params.preset_name  # beside search.config: which preset chose it
-    answer.search["device"] = used_device(context.device)  # where segmentation and ALIKED ran: cpu or cuda
-    answer.search["segmentation"] = network_name(context)  # which network (its input size) labelled the photo
+    answer.search.preset = params.preset_name  # beside search.config: which preset chose it
+    answer.search.device = used_device(context.device)  # where segmentation and ALIKED ran: cpu or cuda
+    answer.search.segmentation = network_name(context)  # which network (its input size) labelled the photo
     timings_ms = {
         **{k: round(v, 1) for k, v in answer.timings_ms.items()},
         "total": round(1e3 * (time.perf_counter() - t0), 1),

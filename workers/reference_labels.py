@@ -11,13 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-import numpy as np
-
 from contracts.answers import EstimatedPose, ReferenceLabels
+from contracts.references import WalkFrameArrays
 from db.records import ReferenceLabel
 from db.rows import ReferenceRow
 from geoloc.localize.reference import LabelledReference, label_reference_photo
-from geoloc.localize.sequence.frames import FrameLabel, frame_arrays
+from geoloc.localize.sequence.frames import FrameLabel
 from geoloc.maps import CityMap
 from geoloc.photos.heading_prior import HeadingPrior
 from geoloc.photos.photo import Photo
@@ -40,13 +39,9 @@ class AloneLabel:
         """Uploaded photo's pixels per working-size pixel (:func:`reference_labels`)."""
         return column_scale(self.photo.original_size, self.photo.intrinsics.width)
 
-    def walk_frame(self) -> dict[str, np.ndarray]:
-        """What the sequence job needs of this label (:func:`geoloc.localize.sequence.frames.frame_arrays`).
-
-        With the uploaded photo's (width, height) as ``original_size``, stored beside the labels.
-        """
-        frame = frame_arrays(FrameLabel.of(self.labelled, self.photo.intrinsics))
-        return frame | {"original_size": np.array(self.photo.original_size, np.int64)}
+    def walk_frame(self) -> WalkFrameArrays:
+        """What the sequence job needs of this label (:meth:`geoloc.localize.sequence.frames.FrameLabel.stored`)."""
+        return FrameLabel.of(self.labelled, self.photo.intrinsics).stored(self.photo.original_size)
 
 
 def label_alone(city: CityMap, ref: ReferenceRow) -> AloneLabel:
@@ -80,7 +75,7 @@ def label_record(
     labelled: LabelledReference,
     labels: ReferenceLabels,
     placement: Literal["alone", "sequence"],
-    walk_frame: dict[str, np.ndarray] | None = None,
+    walk_frame: WalkFrameArrays | None = None,
 ) -> ReferenceLabel:
     """What is stored of a labelled reference (:func:`db.references.save_label`); it is then ``done``.
 

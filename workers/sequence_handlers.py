@@ -18,15 +18,14 @@ from __future__ import annotations
 import time
 from datetime import datetime
 
-import numpy as np
-
 from contracts.jobs import PLACE_SEQUENCE, PlaceSequencePayload, PlaceSequenceResult
+from contracts.references import WalkFrameArrays
 from db import Database, transaction
 from db import references as reference_store
 from db.rows import ReferenceRow
 from geoloc.core.geo import LocalFrame
 from geoloc.localize.sequence import SequenceMember, group_sequences, place_labelled_sequence
-from geoloc.localize.sequence.frames import frame_from_arrays
+from geoloc.localize.sequence.frames import FrameLabel
 from geoloc.localize.sequence.stage import LabelledFrame, PlacedSequence, capture_seconds
 from geoloc.maps import CityMap
 from workers.handler_helpers import city_map_for, column_scale, reference_priors
@@ -61,27 +60,27 @@ def _members(rows: list[ReferenceRow], frame: LocalFrame) -> list[SequenceMember
     return members
 
 
-def _walk_frame(db: Database, city: CityMap, row: ReferenceRow) -> tuple[dict[str, np.ndarray], LabelledFrame]:
-    """A walk reference's stored label alone (its arrays) and the placement's frame of it (module docstring)."""
-    arrays = reference_store.load_walk_frame(db, row["id"])
-    if arrays is None:  # labelled before the label job stored it: label it alone again
-        arrays = label_alone(city, row).walk_frame()
+def _walk_frame(db: Database, city: CityMap, row: ReferenceRow) -> tuple[WalkFrameArrays, LabelledFrame]:
+    """A walk reference's stored label alone and the placement's frame of it (module docstring)."""
+    stored = reference_store.load_walk_frame(db, row["id"])
+    if stored is None:  # labelled before the label job stored it: label it alone again
+        stored = label_alone(city, row).walk_frame()
     gps_xy, prior = reference_priors(city, row)
     time_s = capture_seconds(_capture_time(row["capture_time"]))
-    return arrays, LabelledFrame(frame_from_arrays(arrays), gps_xy, heading_prior=prior, capture_time_s=time_s)
+    return stored, LabelledFrame(FrameLabel.from_stored(stored), gps_xy, heading_prior=prior, capture_time_s=time_s)
 
 
 def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> PlacedSequence:
     """Place one wholly labelled walk and store it (module docstring)."""
     t0 = time.perf_counter()
-    arrays, frames = zip(*(_walk_frame(db, city, row) for row in walk), strict=True)
+    stored_frames, frames = zip(*(_walk_frame(db, city, row) for row in walk), strict=True)
     placed = place_labelled_sequence(city, frames)
     observe_stage(PLACE_SEQUENCE, "placement", time.perf_counter() - t0)
     total_ms = 1e3 * (time.perf_counter() - t0) / len(walk)
     # A frame that keeps its own label comes back as None: its stored label stands (and is marked placed).
     moved = {
         row["id"]: (ref, reference_labels(city, _scale(stored, frame), ref, total_ms), stored)
-        for row, stored, frame, ref in zip(walk, arrays, frames, placed.references, strict=True)
+        for row, stored, frame, ref in zip(walk, stored_frames, frames, placed.references, strict=True)
         if ref is not None
     }
     with transaction(db):
@@ -98,9 +97,9 @@ def _place_walk(db: Database, city: CityMap, walk: list[ReferenceRow]) -> Placed
     return placed
 
 
-def _scale(arrays: dict[str, np.ndarray], frame: LabelledFrame) -> float:
+def _scale(stored: WalkFrameArrays, frame: LabelledFrame) -> float:
     """Uploaded photo's pixels per working-size pixel of a stored walk frame."""
-    return column_scale(arrays["original_size"], frame.alone.intrinsics.width)
+    return column_scale(stored.original_size, frame.alone.intrinsics.width)
 
 
 @register(PLACE_SEQUENCE, PlaceSequencePayload)

@@ -64,7 +64,7 @@ def frame_result(
         uncertainty_radius_m=None if best is None else best.uncertainty_radius_m,
         source=None if best is None else best.source,
         outlier=outlier,
-        hfov_deg=result.camera.get("hfov_deg"),
+        hfov_deg=result.camera.hfov_deg,
         buildings=result.buildings,
     )
 
@@ -115,7 +115,7 @@ def locate_track_job(db: Database, payload: LocateTrackPayload) -> LocateTrackRe
                 frame_result(i, row, capture_times[i], result, frame.outlier)
                 for i, (row, result, frame) in enumerate(zip(rows, results, answer.frames, strict=True))
             ],
-            search={**answer.search, "preset": preset},
+            search=answer.search.model_copy(update={"preset": preset}),
             timings_ms={**{k: round(v, 1) for k, v in answer.timings_ms.items()}, "total": total_ms},
         )
     with transaction(db):

@@ -7,7 +7,7 @@ from typing import Any
 
 from pydantic import ConfigDict, Field
 
-from contracts.answers import QueryResult, TrackFrameResult
+from contracts.answers import QueryResult, TrackFrameResult, TrackSearch
 from contracts.api.base import ApiModel, Attribution
 from contracts.jobs import WorkStatus
 from contracts.queries import QueryPreset
@@ -38,7 +38,7 @@ class TrackOut(ApiModel):
     job_id: int | None = Field(default=None, examples=[120])
     params: dict[str, Any] = Field(examples=[{"order": "sent", "top_n": 10, "k": 4, "preset": "balanced"}])
     frames: list[TrackFrameResult]
-    search: dict[str, Any] | None = None
+    search: TrackSearch | None = None
     timings_ms: dict[str, float] | None = None
     attribution: Attribution
     created_at: datetime | None = None

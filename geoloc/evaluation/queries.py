@@ -227,17 +227,17 @@ def answer_run(
             "error_m": round(errors[0], 2),
             "heading_error_deg": round(angle_difference_deg(best.yaw_deg, pose.yaw_deg), 2),
             "source": best.source,
-            "inliers": answer.search["anchors"]["inliers"],
-            "anchors_trusted": answer.search["anchors"]["trusted"],
-            "anchor_checks": answer.search["anchors"]["checks"],
+            "inliers": answer.search.anchors.inliers,
+            "anchors_trusted": answer.search.anchors.trusted,
+            "anchor_checks": answer.search.anchors.checks,
             "uncertainty_radius_m": round(best.uncertainty_radius_m, 2),
             "inside_radius": bool(errors[0] <= best.uncertainty_radius_m),
             "identity_accuracy": round(identity_accuracy(answer.identity.pixel_ids(), gt["building_id"]), 4),
             "transferred_identity_accuracy": round(
                 identity_accuracy(answer.transferred.pixel_ids(), gt["building_id"]), 4
             ),
-            "references_used": [str(r["reference_id"]) for r in answer.references],
-            "anchor_references": answer.search["anchors"]["references"],
+            "references_used": [str(r.reference_id) for r in answer.references],
+            "anchor_references": answer.search.anchors.references,
             "best_of_top_n_m": [
                 round(v, 2) for v in np.minimum.accumulate(errors + [errors[-1]] * (TOP_N - len(errors)))
             ],

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import shapely
 from shapely.ops import unary_union
 
+from contracts.answers import GridSearch
 from geoloc.localize.labeling import resolve_heading_prior
 from geoloc.localize.likelihood import default_yaws_deg
 from geoloc.localize.map_likelihood import MapLikelihood
@@ -141,7 +141,7 @@ class Localization:
     heatmap: np.ndarray
     poses: list[RankedPose]
     likelihood: np.ndarray
-    search: dict[str, Any] = field(default_factory=dict)
+    search: GridSearch
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -226,17 +226,17 @@ def localize(
     has_identity = image_model.identity_prob is not None and float(image_model.identity_prob.sum()) > 0
     # Without any identity evidence the identity-aware likelihood is zero everywhere: use geometry.
     identity_likelihood = bool(likelihood.options.use_identity and has_identity)
-    search: dict[str, Any] = {
-        "region": reason,
-        "buildings": buildings,
-        "positions": int(len(positions)),
-        "yaws": n_yaws,
-        "cell_m": cell_m,
-        "identity": identity_likelihood,
-        "position_prior": position_prior is not None,
-        "position_prior_shaped": position_prior is not None and position_prior.shape is not None,  # a place's
-        "heading_prior": yaw_prior is not None,
-    }
+    search = GridSearch(
+        region=reason,
+        buildings=buildings,
+        positions=int(len(positions)),
+        yaws=n_yaws,
+        cell_m=cell_m,
+        identity=identity_likelihood,
+        position_prior=position_prior is not None,
+        position_prior_shaped=position_prior is not None and position_prior.shape is not None,  # a place's
+        heading_prior=yaw_prior is not None,
+    )
     if len(positions) == 0:
         raise ValueError("no candidate positions: the search region lies entirely inside buildings")
     timings["grid"] = 1e3 * (time.perf_counter() - t0)

@@ -86,7 +86,7 @@ def test_a_walk_is_located_as_a_track(tmp_path: Path, built_models: Path, walk_d
                 frame.source,
             )
             assert [b.building_id for b in frame.buildings] == [b.building_id for b in query.result.buildings]
-        assert track.search is not None and "smoother" in track.search and track.timings_ms is not None
+        assert track.search is not None and track.search.smoother == "gtsam" and track.timings_ms is not None
 
         geojson = client.get_track_geojson(track.id)
         kinds = [f.properties["feature_type"] for f in geojson.features]

@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
+from contracts.answers import QuerySearch
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.absolute_pose import PoseEstimate
 from geoloc.localize.grid import Localization
-from geoloc.localize.identity import IdentityMap
+from geoloc.localize.identity import BuildingExtent, IdentityMap
 from geoloc.localize.labeling import column_building_ids, identity_from_poses
 from geoloc.localize.map_likelihood import MapLikelihood
-from geoloc.maps import CityMap
+from geoloc.localize.matching import ReferenceMatch
 
 
 @dataclass
@@ -40,18 +40,19 @@ class QueryAnswer:
 
     localization: the likelihood's grid search (its heatmap is the answer's probability map). identity:
     the query's per-column identities (read from the map at the anchored pose when one is trusted, else
-    transferred). transferred: the paper's transferred identities. anchored: the PnP estimate (trusted or
-    not) and ``search`` says which.
+    transferred). transferred: the paper's transferred identities. buildings: the buildings ``identity``
+    names, with their column extents (working-size pixels). references: the retrieved references' verified
+    matches, best first. anchored: the PnP estimate (trusted or not) and ``search`` says which.
     """
 
     poses: list[AnswerPose]
     localization: Localization
     identity: IdentityMap
     transferred: IdentityMap
-    buildings: list[dict[str, Any]]
-    references: list[dict[str, Any]]
+    buildings: list[BuildingExtent]
+    references: list[ReferenceMatch]
     anchored: PoseEstimate | None
-    search: dict[str, Any]
+    search: QuerySearch
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -66,12 +67,3 @@ def identity_at(
     panorama = likelihood.panoramas(np.array([[pose.x_m, pose.y_m]]))
     ids = column_building_ids(panorama, np.array([pose.yaw_deg]), intrinsics, model.offsets_deg, model.bin_deg)
     return identity_from_poses(ids[0, 0][None, :], np.ones(1), building_mask)
-
-
-def building_entries(city_map: CityMap, identity: IdentityMap) -> list[dict[str, Any]]:
-    """The buildings an identity map names, with their extents, OSM ids and names."""
-    buildings: list[dict[str, Any]] = []
-    for entry in identity.building_extents():
-        building = city_map.buildings[entry["building_id"]]
-        buildings.append({**entry, "osm_id": building.osm_id, "name": building.name})
-    return buildings

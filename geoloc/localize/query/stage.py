@@ -10,8 +10,8 @@ from __future__ import annotations
 import time
 from collections.abc import Hashable
 from dataclasses import dataclass
-from typing import Any
 
+from contracts.answers import AnchorsUsed, QuerySearch
 from geoloc.core.context import MethodContext
 from geoloc.localize.grid import PositionPrior, localize
 from geoloc.localize.identity import IdentityMap
@@ -19,7 +19,7 @@ from geoloc.localize.likelihood import LikelihoodOptions
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.matching import ReferenceMatch
 from geoloc.localize.query.anchored import anchored_pose
-from geoloc.localize.query.answer import AnswerPose, QueryAnswer, building_entries, identity_at
+from geoloc.localize.query.answer import AnswerPose, QueryAnswer, identity_at
 from geoloc.localize.query.config import SPARE_POSES, QueryConfig
 from geoloc.localize.query.fusion import anchored_answer, likelihood_answers, rank_poses
 from geoloc.localize.query.retrieve import identity_trust, retrieve, transfer
@@ -153,7 +153,7 @@ def locate(
 
     t0 = time.perf_counter()
     # The checks and refinements use the likelihood the grid used (geometry only without identity evidence).
-    likelihood = likelihood.with_options(use_identity=bool(localization.search["identity"]))
+    likelihood = likelihood.with_options(use_identity=localization.search.identity)
     choice = choose_anchored(likelihood, candidates, localization, position_prior, config)
     poses: list[AnswerPose] = []
     if choice.trusted and choice.estimate is not None:
@@ -165,15 +165,15 @@ def locate(
     final_identity = identity
     if choice.trusted and use.read_at_trusted_pose:
         final_identity = identity_at(likelihood, poses[0], evidence.building_mask, photo.intrinsics)
-    search: dict[str, Any] = dict(localization.search)
-    search.update(
+    search = QuerySearch(
+        **localization.search.model_dump(),
         identity_trust=round(trust, 4),
-        anchors={
-            "trusted": bool(choice.trusted),
-            "inliers": 0 if choice.estimate is None else choice.estimate.n_inliers,
-            "references": [str(r) for r in choice.references],
-            "checks": choice.checks,
-        },
+        anchors=AnchorsUsed(
+            trusted=bool(choice.trusted),
+            inliers=0 if choice.estimate is None else choice.estimate.n_inliers,
+            references=[str(r) for r in choice.references],
+            checks=choice.checks,
+        ),
         config=config.as_dict(),
     )
     return QueryAnswer(
@@ -181,8 +181,8 @@ def locate(
         localization,
         final_identity,
         transferred,
-        building_entries(city_map, final_identity),
-        [m.as_dict() for m in matches[: max(config.k, config.anchor_references)]],
+        final_identity.building_extents(),
+        matches[: max(config.k, config.anchor_references)],
         choice.estimate,
         search,
         timings,

@@ -25,7 +25,7 @@ class AnchorChoice:
     estimate: PoseEstimate | None = None
     references: list[Hashable] = field(default_factory=list)
     trusted: bool = False
-    checks: dict[str, object] = field(default_factory=dict)
+    checks: dict[str, int | float] = field(default_factory=dict)
 
 
 def choose_anchored(
@@ -52,10 +52,10 @@ def trust_anchored(
     localization: Localization,
     position_prior: PositionPrior | None,
     config: QueryConfig,
-) -> tuple[bool, dict[str, object], float]:
+) -> tuple[bool, dict[str, int | float], float]:
     """Whether the anchored pose is trusted, the value of each check, and the likelihood at the pose."""
     pose = anchored.pose
-    checks: dict[str, object] = {
+    checks: dict[str, int | float] = {
         "inliers": anchored.n_inliers,
         "height_m": round(pose.height_m, 2),
         "pitch_deg": round(anchored.pitch_deg, 2),

@@ -1,21 +1,21 @@
 """What a walk's placement needs of a frame labelled alone (:class:`FrameLabel`), and that as stored arrays.
 
 The workers' label job stores a walk reference's :class:`FrameLabel` beside its labels
-(:func:`frame_arrays`), and the sequence job reads it back (:func:`frame_from_arrays`) instead of analysing
-and labelling the photo again. Every array is stored in its own dtype (descriptors float32, anchors
-float64/int64: not the query format's float16/float32; the building mask bit-packed along rows), so what is
-read back is bit-identical to what the label job computed and the placement's answer is the same as when the
-photo is labelled again. Frames: pose in local metres and bearings (deg) of the map; pixels of the
-working-size photo.
+(:meth:`FrameLabel.stored`: a :class:`contracts.references.WalkFrameArrays`), and the sequence job reads it back
+(:meth:`FrameLabel.from_stored`) instead of analysing and labelling the photo again. Every array is stored in
+its own dtype (descriptors float32, anchors float64/int64: not the query format's float16/float32; the building
+mask bit-packed along rows), so what is read back is bit-identical to what the label job computed and the
+placement's answer is the same as when the photo is labelled again. Frames: pose in local metres and bearings
+(deg) of the map; pixels of the working-size photo.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from contracts.references import WalkFrameArrays
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.anchors import MapAnchors
 from geoloc.localize.labeling import LabelOptions, says_little
@@ -35,9 +35,6 @@ The label's own grid: on Helsinki seed 1's walks, +-15 m at 1 m placed the refer
 0.57 against 0.58) for ten times the CPU (33 against 3.5 ms a frame)."""
 MAP_SPREAD_YAW_OFFSETS_DEG = (-1.0, 0.0, 1.0)
 """Headings around the label's at which the spread is weighed (deg)."""
-
-_OPTIONAL_MODEL_ARRAYS = ("identity_building_ids", "identity_prob", "distance_m", "top_tan_elevation")
-"""The image model's optional arrays, stored only when set."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +73,77 @@ class FrameLabel:
             labelled.analysis,
         )
 
+    def stored(self, original_size: tuple[int, int]) -> WalkFrameArrays:
+        """The frame label as stored, every array in its own dtype (module docstring; the analysis is not stored).
+
+        original_size: the uploaded photo's (width, height) in pixels, stored beside it.
+        """
+        features, model, intr = self.cues.features, self.cues.image_model, self.intrinsics
+        return WalkFrameArrays(
+            pose=np.array([self.x_m, self.y_m, self.yaw_deg], np.float64),
+            position_covariance=np.asarray(self.position_covariance),
+            anchor_xyz=self.anchors.xyz,
+            anchor_facade_id=self.anchors.facade_id,
+            anchor_building_id=self.anchors.building_id,
+            anchor_distance_m=self.anchors.distance_m,
+            intrinsics=np.array([intr.width, intr.height, intr.focal_px, intr.cx, intr.cy], np.float64),
+            intrinsics_source=intr.source,
+            building_mask_bits=np.packbits(self.cues.building_mask, axis=1),
+            building_mask_width=int(self.cues.building_mask.shape[1]),
+            rotation_upright_from_cam=np.asarray(self.cues.rotation_upright_from_cam),
+            features_xy=features.xy,
+            features_descriptors=features.descriptors,
+            features_sizes=features.sizes,
+            features_angles=features.angles,
+            features_responses=features.responses,
+            features_image_shape=(int(features.image_shape[0]), int(features.image_shape[1])),
+            features_scale=float(features.scale),
+            features_method=features.method,
+            model_offsets_deg=model.offsets_deg,
+            model_facade_present=model.facade_present,
+            model_orientation_deg=model.orientation_deg,
+            model_bin_deg=float(model.bin_deg),
+            timings_ms=dict(self.timings_ms),
+            original_size=original_size,
+            model_identity_building_ids=model.identity_building_ids,
+            model_identity_prob=model.identity_prob,
+            model_distance_m=model.distance_m,
+            model_top_tan_elevation=model.top_tan_elevation,
+        )
+
+    @classmethod
+    def from_stored(cls, stored: WalkFrameArrays) -> FrameLabel:
+        """The frame label :meth:`stored` wrote (bit-identical arrays; no full analysis)."""
+        x_m, y_m, yaw_deg = (float(v) for v in stored.pose)
+        width, height, focal_px, cx, cy = (float(v) for v in stored.intrinsics)
+        intrinsics = Intrinsics(int(width), int(height), focal_px, cx, cy, stored.intrinsics_source)
+        features = Features(
+            stored.features_xy,
+            stored.features_descriptors,
+            stored.features_sizes,
+            stored.features_angles,
+            stored.features_responses,
+            (stored.features_image_shape[0], stored.features_image_shape[1]),
+            stored.features_scale,
+            stored.features_method,
+        )
+        model = ImageModel(
+            stored.model_offsets_deg,
+            stored.model_facade_present,
+            stored.model_orientation_deg,
+            identity_building_ids=stored.model_identity_building_ids,
+            identity_prob=stored.model_identity_prob,
+            distance_m=stored.model_distance_m,
+            top_tan_elevation=stored.model_top_tan_elevation,
+            bin_deg=stored.model_bin_deg,
+        )
+        anchors = MapAnchors(
+            stored.anchor_xyz, stored.anchor_facade_id, stored.anchor_building_id, stored.anchor_distance_m
+        )
+        mask = np.unpackbits(stored.building_mask_bits, axis=1, count=stored.building_mask_width).astype(bool)
+        cues = LabelCues(features, model, mask, stored.rotation_upright_from_cam)
+        return cls(x_m, y_m, yaw_deg, stored.position_covariance, anchors, intrinsics, cues, dict(stored.timings_ms))
+
 
 def map_position_covariance(
     city_map: CityMap,
@@ -107,75 +175,3 @@ def map_position_covariance(
     weights = np.power(likelihood.of_poses(positions, yaws).astype(float), options.sharpness).sum(axis=1)
     spread = position_spread(positions, weights, MAP_SPREAD_CELL_M)
     return spread if spread is not None else np.eye(2) * MAP_SPREAD_HALF_SIZE_M**2
-
-
-def frame_arrays(frame: FrameLabel) -> dict[str, np.ndarray]:
-    """The frame label as named arrays, every one in its own dtype (module docstring; the analysis is not stored)."""
-    features, model, intr = frame.cues.features, frame.cues.image_model, frame.intrinsics
-    arrays = {
-        "pose": np.array([frame.x_m, frame.y_m, frame.yaw_deg], np.float64),
-        "position_covariance": np.asarray(frame.position_covariance),
-        "anchor_xyz": frame.anchors.xyz,
-        "anchor_facade_id": frame.anchors.facade_id,
-        "anchor_building_id": frame.anchors.building_id,
-        "anchor_distance_m": frame.anchors.distance_m,
-        "intrinsics": np.array([intr.width, intr.height, intr.focal_px, intr.cx, intr.cy], np.float64),
-        "intrinsics_source": np.array(intr.source),
-        "building_mask_bits": np.packbits(frame.cues.building_mask, axis=1),
-        "building_mask_width": np.array(frame.cues.building_mask.shape[1], np.int64),
-        "rotation_upright_from_cam": np.asarray(frame.cues.rotation_upright_from_cam),
-        "features_xy": features.xy,
-        "features_descriptors": features.descriptors,
-        "features_sizes": features.sizes,
-        "features_angles": features.angles,
-        "features_responses": features.responses,
-        "features_image_shape": np.array(features.image_shape, np.int64),
-        "features_scale": np.array(features.scale, np.float64),
-        "features_method": np.array(features.method),
-        "model_offsets_deg": model.offsets_deg,
-        "model_facade_present": model.facade_present,
-        "model_orientation_deg": model.orientation_deg,
-        "model_bin_deg": np.array(model.bin_deg, np.float64),
-        "timing_names": np.array(list(frame.timings_ms), dtype=str),
-        "timing_values_ms": np.array(list(frame.timings_ms.values()), np.float64),
-    }
-    for name in _OPTIONAL_MODEL_ARRAYS:
-        value = getattr(model, name)
-        if value is not None:
-            arrays[f"model_{name}"] = value
-    return arrays
-
-
-def frame_from_arrays(arrays: Mapping[str, np.ndarray]) -> FrameLabel:
-    """The frame label stored by :func:`frame_arrays` (bit-identical arrays; no full analysis)."""
-    x_m, y_m, yaw_deg = (float(v) for v in arrays["pose"])
-    width, height, focal_px, cx, cy = (float(v) for v in arrays["intrinsics"])
-    intrinsics = Intrinsics(int(width), int(height), focal_px, cx, cy, str(arrays["intrinsics_source"]))
-    features = Features(
-        arrays["features_xy"],
-        arrays["features_descriptors"],
-        arrays["features_sizes"],
-        arrays["features_angles"],
-        arrays["features_responses"],
-        (int(arrays["features_image_shape"][0]), int(arrays["features_image_shape"][1])),
-        float(arrays["features_scale"]),
-        str(arrays["features_method"]),
-    )
-    model = ImageModel(
-        arrays["model_offsets_deg"],
-        arrays["model_facade_present"],
-        arrays["model_orientation_deg"],
-        identity_building_ids=arrays.get("model_identity_building_ids"),
-        identity_prob=arrays.get("model_identity_prob"),
-        distance_m=arrays.get("model_distance_m"),
-        top_tan_elevation=arrays.get("model_top_tan_elevation"),
-        bin_deg=float(arrays["model_bin_deg"]),
-    )
-    anchors = MapAnchors(
-        arrays["anchor_xyz"], arrays["anchor_facade_id"], arrays["anchor_building_id"], arrays["anchor_distance_m"]
-    )
-    width = int(arrays["building_mask_width"])
-    mask = np.unpackbits(arrays["building_mask_bits"], axis=1, count=width).astype(bool)
-    cues = LabelCues(features, model, mask, arrays["rotation_upright_from_cam"])
-    timings = {str(k): float(v) for k, v in zip(arrays["timing_names"], arrays["timing_values_ms"], strict=True)}
-    return FrameLabel(x_m, y_m, yaw_deg, arrays["position_covariance"], anchors, intrinsics, cues, timings)

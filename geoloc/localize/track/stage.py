@@ -15,8 +15,8 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
+from contracts.answers import TrackSearch
 from geoloc.core.context import MethodContext
 from geoloc.localize.grid import PositionPrior
 from geoloc.localize.query import geolocate
@@ -65,7 +65,7 @@ class TrackAnswer:
     """One :class:`FrameAnswer` per frame, in the frames' order; ``search``: what the track stage did."""
 
     frames: list[FrameAnswer]
-    search: dict[str, Any] = field(default_factory=dict)
+    search: TrackSearch
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -176,12 +176,12 @@ def locate_track(
         for a, alone, pose, flag in zip(answers, own, smoothed.poses, smoothed.outliers, strict=True)
     ]
     t2 = time.perf_counter()
-    search = {
-        "smoother": "gtsam",
-        "edges": len(smoothed.edges),
-        "joined": sum(pose.n_edges > 0 for pose in smoothed.poses),
-        "outliers": [k for k, flag in enumerate(smoothed.outliers) if flag],
-        "anchored_priors": [k for k, prior in enumerate(near_anchors) if prior is not None],
-    }
+    search = TrackSearch(
+        smoother="gtsam",
+        edges=len(smoothed.edges),
+        joined=sum(pose.n_edges > 0 for pose in smoothed.poses),
+        outliers=[k for k, flag in enumerate(smoothed.outliers) if flag],
+        anchored_priors=[k for k, prior in enumerate(near_anchors) if prior is not None],
+    )
     timings = {"frames": 1e3 * (t1 - t0), "smoother": 1e3 * (t2 - t1), "total": 1e3 * (t2 - t0)}
     return TrackAnswer(frames=out, search=search, timings_ms=timings)

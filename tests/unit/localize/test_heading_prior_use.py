@@ -79,7 +79,7 @@ def test_prior_yaw_and_its_stated_prior_give_identical_labels_and_grids() -> Non
     grid_old = localize(likelihood, GridOptions(cell_m=10.0), prior_yaw_deg=200.0, top_n=3)
     grid_new = localize(likelihood, GridOptions(cell_m=10.0), heading_prior=stated_heading_prior(200.0), top_n=3)
     assert np.array_equal(grid_old.posterior, grid_new.posterior)
-    assert grid_new.search["heading_prior"] is True
+    assert grid_new.search.heading_prior is True
 
 
 def test_prior_yaw_and_heading_prior_together_are_refused() -> None:

@@ -74,7 +74,7 @@ def test_localize_with_identity_finds_the_right_twin() -> None:
     true_xy, true_yaw = (-70.0, 20.0), 240.0
     model, _ = _clean_model(city, true_xy, true_yaw, with_identity=True)
     found = localize(MapLikelihood(city, model), GridOptions(cell_m=10.0), top_n=3)
-    assert found.search["region"] == "identified_buildings" and found.search["buildings"] == [0]
+    assert found.search.region == "identified_buildings" and found.search.buildings == [0]
     best = found.poses[0]
     assert (best.x_m, best.y_m) == true_xy and abs(best.yaw_deg - true_yaw) < 1e-6
     assert all(p.x_m < 0 for p in found.poses)
@@ -93,7 +93,7 @@ def test_localize_uses_position_prior_and_refinement_reaches_the_true_pose() -> 
     prior = PositionPrior.from_radius(125.0, 15.0, 30.0)
     geometry = MapLikelihood(city, model, LikelihoodOptions(use_identity=False))
     found = localize(geometry, position_prior=prior)
-    assert found.search["region"] == "position_prior" and found.search["position_prior"]
+    assert found.search.region == "position_prior" and found.search.position_prior
     best = found.poses[0]
     assert np.hypot(best.x_m - true_xy[0], best.y_m - true_xy[1]) < 7.5 and abs(best.yaw_deg - true_yaw) <= 3.0
     refined = refine_pose(
@@ -113,7 +113,7 @@ def test_a_prior_whose_region_lies_inside_a_building_grows_to_the_street() -> No
     inside = PositionPrior.from_radius(25.0, 0.0, 10.0)  # a fix 15 m into the east block, stated to 5 m
     assert inside.region(3.0).within(city.buildings[3].polygon.buffer(0.1))  # no open ground within 3 sigma
     found = localize(geometry, position_prior=inside)
-    assert found.search["positions"] > 0 and found.search["region"] == "position_prior"
+    assert found.search.positions > 0 and found.search.region == "position_prior"
     best = found.poses[0]
     assert -10.0 <= best.x_m <= 10.0  # in the street, the nearest open ground
     assert np.hypot(best.x_m - 25.0, best.y_m) < 25.0 + 5.0  # where the region grew to, near the fix

@@ -7,12 +7,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from contracts.references import WalkFrameArrays
 from contracts.settings import shared_path
 from db.blobs import pack_arrays, unpack_arrays
 from geoloc.core.geo import angle_difference_deg
 from geoloc.evaluation.walks import compass_prior_at
 from geoloc.localize.reference import LabelledReference, label_reference_photo
-from geoloc.localize.sequence.frames import FrameLabel, frame_arrays, frame_from_arrays
+from geoloc.localize.sequence.frames import FrameLabel
 from geoloc.localize.sequence.relative import RelativePose
 from geoloc.localize.sequence.stage import (
     COMPASS_AGREES_DEG,
@@ -28,6 +29,8 @@ from geoloc.vision.evidence import analyze_photo
 from workers.context import method_context
 
 pytestmark = pytest.mark.slow  # a walk world labelled by the real method: a minute
+
+ORIGINAL_SIZE = (640, 480)  # the uploaded photo's (width, height), stored beside the frame
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +56,8 @@ def walk(tmp_path_factory: pytest.TempPathFactory) -> tuple[CityMap, list[Labell
 
 def _stored(frame: LabelledFrame) -> LabelledFrame:
     """The frame as the sequence job reads it back: its arrays through the store's blob format."""
-    alone = frame_from_arrays(unpack_arrays(pack_arrays(frame_arrays(frame.alone))))
+    blob = pack_arrays(frame.alone.stored(ORIGINAL_SIZE).to_arrays())
+    alone = FrameLabel.from_stored(WalkFrameArrays.from_arrays(unpack_arrays(blob)))
     return replace(frame, alone=alone)
 
 
@@ -68,11 +72,20 @@ def test_stored_frame_arrays_read_back_bit_identically(walk: tuple[CityMap, list
         assert stored.cues.building_mask.dtype == bool
         np.testing.assert_array_equal(frame.alone.cues.building_mask, stored.cues.building_mask)
         assert (stored.intrinsics, stored.timings_ms) == (frame.alone.intrinsics, frame.alone.timings_ms)
-        before, after = frame_arrays(frame.alone), frame_arrays(stored)
+        before = frame.alone.stored(ORIGINAL_SIZE).to_arrays()
+        after = stored.stored(ORIGINAL_SIZE).to_arrays()
         assert before.keys() == after.keys()
         for name, value in before.items():
             assert value.dtype == after[name].dtype, name
             np.testing.assert_array_equal(value, after[name], err_msg=name)
+
+
+def test_a_walk_frame_without_a_required_array_is_refused_by_name(walk: tuple[CityMap, list[LabelledFrame]]) -> None:
+    arrays = walk[1][0].alone.stored(ORIGINAL_SIZE).to_arrays()
+    assert WalkFrameArrays.from_arrays(arrays).original_size == ORIGINAL_SIZE
+    del arrays["building_mask_width"]
+    with pytest.raises(KeyError, match="building_mask_width"):
+        WalkFrameArrays.from_arrays(arrays)
 
 
 def test_a_walk_placed_from_stored_frames_is_bit_identical(walk: tuple[CityMap, list[LabelledFrame]]) -> None:

@@ -27,15 +27,14 @@ def _query(answer: dict[str, Any] | None, status: str = "done", error: str | Non
     return QueryOut(id=5, map_id=1, status=status, error=error, params={}, result=result, attribution=ATTRIBUTION)
 
 
-@pytest.mark.parametrize("hfov_deg", [73.7, None])
-def test_an_answer_has_a_point_a_cone_per_pose_and_the_buildings(hfov_deg: float | None) -> None:
+def test_an_answer_has_a_point_a_cone_per_pose_and_the_buildings() -> None:
     answer = copy.deepcopy(WELL_FORMED)
     answer["locations"].append({**answer["locations"][0], "rank": 2, "lat": 60.1701, "heading_deg": 355.0})
-    answer["camera"] = {"focal_source": "default"} if hfov_deg is None else {**answer["camera"], "hfov_deg": hfov_deg}
+    answer["camera"]["hfov_deg"] = 73.7
     out = _query(answer)
     collection = query_collection(out, {0: FOOTPRINT})
     by_type = check_query_collection(collection, out.model_dump(mode="json"))
-    assert [c["properties"]["fov_deg"] for c in by_type["view_cone"]] == [hfov_deg or 60.0] * 2
+    assert [c["properties"]["fov_deg"] for c in by_type["view_cone"]] == [73.7] * 2
     (building,) = by_type["building"]
     assert building["geometry"] == FOOTPRINT and building["id"] == 0
     assert building["properties"] == {
