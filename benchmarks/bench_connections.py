@@ -19,26 +19,12 @@ import httpx
 from connection_load import hold_slow_clients
 from local_service import LocalService, run_figures
 
+from testbed.maps import ONE_BUILDING
+
 LIMITS = {
     "GEOLOC_HTTP_HEADER_TIMEOUT_S": "5",
     "GEOLOC_HTTP_BODY_IDLE_S": "5",
     "GEOLOC_HTTP_BODY_TIMEOUT_S": "10",
-}
-HALL = {
-    "type": "FeatureCollection",
-    "features": [
-        {
-            "type": "Feature",
-            "id": "way/1",
-            "properties": {"building": "yes", "name": "Hall"},
-            "geometry": {
-                "type": "Polygon",
-                "coordinates": [
-                    [[24.94, 60.17], [24.9404, 60.17], [24.9404, 60.1702], [24.94, 60.1702], [24.94, 60.17]]
-                ],
-            },
-        }
-    ],
 }
 
 
@@ -54,7 +40,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench-connections-") as tmp:
         service = LocalService(Path(tmp) / "data", workers=1, env=LIMITS)
         try:
-            files = {"file": ("hall.geojson", json.dumps(HALL).encode())}
+            files = {"file": ("hall.geojson", json.dumps(ONE_BUILDING).encode())}
             created = httpx.post(
                 f"{service.url}/v1/maps", files=files, data={"wait_s": "60", "name": "hall"}, timeout=60
             )

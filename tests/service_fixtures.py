@@ -28,6 +28,7 @@ from typing import Any
 import httpx
 
 from contracts.jobs import JobPayload, JobResult
+from testbed.maps import ONE_BUILDING
 from workers.handlers import register
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -338,23 +339,6 @@ def get_job_row(database: Path | str, job_id: int) -> dict[str, Any]:
 
 
 # --- test data ------------------------------------------------------------------------------------
-
-ONE_BUILDING: dict[str, Any] = {
-    "type": "FeatureCollection",
-    "features": [
-        {
-            "type": "Feature",
-            "id": "way/1",
-            "properties": {"building": "yes", "name": "Hall"},
-            "geometry": {
-                "type": "Polygon",
-                "coordinates": [
-                    [[24.94, 60.17], [24.9404, 60.17], [24.9404, 60.1702], [24.94, 60.1702], [24.94, 60.17]]
-                ],
-            },
-        }
-    ],
-}
 
 
 def upload_hall_map(client: httpx.Client) -> int:
