@@ -231,6 +231,11 @@ def answer_run(
             "anchors_trusted": answer.search.anchors.trusted,
             "anchor_checks": answer.search.anchors.checks,
             "uncertainty_radius_m": round(best.uncertainty_radius_m, 2),
+            "probability": round(best.probability, 4),
+            # how far the answer lies from its position prior's centre (the query's GPS fix), None without one
+            "prior_distance_m": None
+            if prior is None
+            else round(math.hypot(best.x_m - prior.x_m, best.y_m - prior.y_m), 2),
             "inside_radius": bool(errors[0] <= best.uncertainty_radius_m),
             "identity_accuracy": round(identity_accuracy(answer.identity.pixel_ids(), gt["building_id"]), 4),
             "transferred_identity_accuracy": round(

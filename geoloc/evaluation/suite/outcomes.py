@@ -12,7 +12,9 @@ The outcomes (all errors in metres or degrees, against the world's truth; ``gps_
 fix against its truth, None without one):
 
 - ``queries``: per single query ``name``, ``kind``, ``shown``, ``error_m``, ``heading_error_deg``,
-  ``radius_m``, ``inside_radius``, ``gps_error_m``;
+  ``radius_m``, ``inside_radius``, ``gps_error_m``, and of its rank-1 answer ``source`` (anchors, likelihood),
+  ``inliers``, ``probability`` and ``prior_distance_m`` (from its GPS fix; None where a tree's evaluation does
+  not report them);
 - ``references``: per reference ``name``, ``error_m``, ``heading_error_deg``, ``gps_error_m``,
   ``mahalanobis``: the truth's distance in the label's stated position covariance (sigmas);
 - ``track_frames``: per track frame ``name``, ``track``, ``error_m``, ``heading_error_deg``, ``alone_error_m``
@@ -31,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-OUTCOMES_VERSION = 1
+OUTCOMES_VERSION = 2
 """Bumped when the outcomes' content changes (part of a result's cache key)."""
 
 
@@ -129,6 +131,10 @@ def evaluate_outcomes(world_dir: Path) -> dict[str, Any]:
             "radius_m": _rounded(row["uncertainty_radius_m"]),
             "inside_radius": bool(row["inside_radius"]),
             "gps_error_m": _rounded(gps[row["name"]]),
+            "source": row.get("source"),
+            "inliers": row.get("inliers"),
+            "probability": _rounded(row.get("probability")),
+            "prior_distance_m": _rounded(row.get("prior_distance_m")),
         }
         for row in result.get("runs", {}).get("ours/gps", {}).get("per_query", [])
     ]
