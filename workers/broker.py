@@ -93,7 +93,14 @@ def celery_app(broker_url: str) -> Celery:
         broker_connection_retry_on_startup=True,
         broker_connection_max_retries=None,
         broker_connection_timeout=3,
-        broker_transport_options={"visibility_timeout": VISIBILITY_TIMEOUT_S, "socket_connect_timeout": 3},
+        broker_transport_options={
+            "visibility_timeout": VISIBILITY_TIMEOUT_S,
+            "socket_connect_timeout": 3,
+            # A publish tries the connection once: with Redis down kombu would retry it for broker_connection_timeout
+            # plus its retry interval (6 s per upload, holding an API thread); the reconciler publishes the job later.
+            # The worker's consumer reconnects by its own retries (broker_connection_max_retries).
+            "max_retries": 0,
+        },
     )
     return app
 
