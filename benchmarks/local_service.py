@@ -96,7 +96,98 @@ IDLE_CPU_S = 0.1
 IDLE_WINDOW_S = 2.0
 
 
-class LocalService:
+def prepare_data_dir(data_dir: Path, *, fresh: bool = True) -> None:
+    """Empty ``data_dir`` and link the built models in (when ``fresh``, or when they are not linked there yet)."""
+    if fresh or not (data_dir / "cache" / "models").exists():
+        shutil.rmtree(data_dir, ignore_errors=True)
+        (data_dir / "cache").mkdir(parents=True)
+        (data_dir / "cache" / "models").symlink_to(cache_dir() / "models", target_is_directory=True)
+
+
+def start_geoloc(
+    argv: list[str], data_dir: Path, env: dict[str, str] | None, source: Path, log_path: Path, *, append: bool
+) -> subprocess.Popen[bytes]:
+    """``geoloc ARGV`` run from ``source`` on ``data_dir``, in its own session, output to ``log_path``; no API keys."""
+    environment = {**os.environ, "GEOLOC_DATA_DIR": str(data_dir), "PYTHONPATH": str(source), **(env or {})}
+    environment.pop("GEOLOC_API_KEYS", None)
+    exit_on_sigterm()
+    with log_path.open("ab" if append else "wb") as log:
+        return subprocess.Popen(
+            [sys.executable, "-c", "from cli.main import app; app()", *argv],
+            cwd=source,
+            env=environment,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+
+
+class Supervised:
+    """A ``geoloc`` supervisor process (``process``) and the processes under it."""
+
+    process: subprocess.Popen[bytes]
+
+    def pids(self, role: bytes) -> list[int]:
+        """Its processes running module ``role`` or one in it: ``b"workers"`` (built-in or Celery), ``b"service"``."""
+        found = []
+        for pid in descendants(self.process.pid):
+            try:
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if any(part == role or part.startswith(role + b".") for part in cmdline):
+                found.append(pid)
+        return found
+
+    def worker_roles(self) -> dict[str, list[int]]:
+        """Its worker processes by role: ``pool`` and ``worker``.
+
+        ``pool``: a parent of other worker processes, which runs no jobs itself (the forking pool,
+        :mod:`workers.pool`, or a Celery worker's main process); ``worker``: the processes that run jobs (the
+        pool's children, spawned ``python -m workers`` processes, Celery's pool processes).
+        """
+        workers = self.pids(b"workers")
+        parents = {parent_pid(pid) for pid in workers}  # a pool's workers are its own children
+        pools = [pid for pid in workers if pid in parents]
+        return {"pool": pools, "worker": [pid for pid in workers if pid not in pools]}
+
+    def stop(self) -> None:
+        """SIGTERM the supervisor (it stops its children), then SIGKILL the group if it lingers."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait()
+
+
+class LocalWorkers(Supervised):
+    """``geoloc worker --concurrency N`` on ``data_dir`` (see :func:`prepare_data_dir`); started, not waited for.
+
+    The workers alone, beside API processes started with ``workers=0`` (whose ``/readyz`` waits for a worker's
+    heartbeat). env and source as for :class:`LocalService`; the log goes to ``log_path`` (default ``worker.log``
+    beside ``data_dir``).
+    """
+
+    def __init__(
+        self,
+        data_dir: Path,
+        *,
+        concurrency: int,
+        env: dict[str, str] | None = None,
+        source: Path = REPO_ROOT,
+        log_path: Path | None = None,
+    ) -> None:
+        if problems := model_problems():
+            raise SystemExit("the built models are not usable: " + " ".join(problems))
+        self.data_dir = data_dir
+        self.log_path = log_path or data_dir.parent / "worker.log"
+        argv = f"worker --concurrency {concurrency} --log-level warning".split()
+        self.process = start_geoloc(argv, data_dir, env, source, self.log_path, append=False)
+
+
+class LocalService(Supervised):
     """``geoloc serve --workers N`` on a fresh data folder ``data_dir``, ready when constructed.
 
     env: extra environment (e.g. the distributed profile's URLs); API keys are removed, so it needs none.
@@ -119,28 +210,14 @@ class LocalService:
     ) -> None:
         if problems := model_problems():
             raise SystemExit("the built models are not usable: " + " ".join(problems))
-        if fresh or not (data_dir / "cache" / "models").exists():
-            shutil.rmtree(data_dir, ignore_errors=True)
-            (data_dir / "cache").mkdir(parents=True)
-            (data_dir / "cache" / "models").symlink_to(cache_dir() / "models", target_is_directory=True)
+        prepare_data_dir(data_dir, fresh=fresh)
         self.name = name
         self.data_dir = data_dir
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        environment = {**os.environ, "GEOLOC_DATA_DIR": str(data_dir), "PYTHONPATH": str(source), **(env or {})}
-        environment.pop("GEOLOC_API_KEYS", None)
         self.log_path = log_path or data_dir.parent / "serve.log"
         serve = f"serve --host 127.0.0.1 --port {self.port} --workers {workers} --log-level warning".split()
-        exit_on_sigterm()
-        with self.log_path.open("wb" if fresh else "ab") as log:
-            self.process = subprocess.Popen(
-                [sys.executable, "-c", "from cli.main import app; app()", *serve],
-                cwd=source,
-                env=environment,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                start_new_session=True,
-            )
+        self.process = start_geoloc(serve, data_dir, env, source, self.log_path, append=not fresh)
         self.client = Client(self.url, timeout_s=600.0)
         deadline = time.monotonic() + ready_timeout_s
         while time.monotonic() < deadline:
@@ -160,18 +237,6 @@ class LocalService:
     def database_path(self) -> Path:
         """The embedded profile's SQLite file."""
         return self.data_dir / "geoloc.sqlite3"
-
-    def pids(self, role: bytes) -> list[int]:
-        """Its processes running module ``role`` or one in it: ``b"workers"`` (built-in or Celery), ``b"service"``."""
-        found = []
-        for pid in descendants(self.process.pid):
-            try:
-                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-            except OSError:
-                continue
-            if any(part == role or part.startswith(role + b".") for part in cmdline):
-                found.append(pid)
-        return found
 
     def worker_cpu_s(self) -> float:
         """CPU seconds its worker processes have used (user and system, :func:`cpu_seconds`)."""
@@ -193,25 +258,7 @@ class LocalService:
             before, since = now, time.perf_counter()
         raise SystemExit(f"the workers were still busy after {timeout_s:.0f} s")
 
-    def worker_roles(self) -> dict[str, list[int]]:
-        """Its worker processes by role: ``pool`` and ``worker``.
-
-        ``pool``: a parent of other worker processes, which runs no jobs itself (the forking pool,
-        :mod:`workers.pool`, or a Celery worker's main process); ``worker``: the processes that run jobs (the
-        pool's children, spawned ``python -m workers`` processes, Celery's pool processes).
-        """
-        workers = self.pids(b"workers")
-        parents = {parent_pid(pid) for pid in workers}  # a pool's workers are its own children
-        pools = [pid for pid in workers if pid in parents]
-        return {"pool": pools, "worker": [pid for pid in workers if pid not in pools]}
-
     def stop(self) -> None:
-        """SIGTERM the supervisor (it stops its children), then SIGKILL the group if it lingers."""
+        """Close its client, then stop it (:meth:`Supervised.stop`)."""
         self.client.close()
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGTERM)
-            try:
-                self.process.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.process.pid, signal.SIGKILL)
-                self.process.wait()
+        super().stop()

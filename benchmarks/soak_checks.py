@@ -5,7 +5,8 @@ MB; beside it PSS and USS from ``/proc/PID/smaps_rollup``, reported, not judged)
 (``/proc/PID/fd``), the database size (the SQLite file with its ``-wal`` and ``-shm``, or PostgreSQL's
 ``pg_database_size``), the store size (bytes under the data folder, less the database files and the linked
 models) and the queue depth (jobs ``queued``). :func:`verdict` turns a run's
-samples and counts into the issue's checks.
+samples and counts into the issue's checks; in the distributed profile, whose run restarts PostgreSQL and Redis,
+:func:`unexcused_errors` says which errors no outage excuses.
 
 Decisions: a process's *level* is the median of its samples in a window (a sixth of the mark, at least three
 samples), so that one sample taken while a worker holds a query's images does not decide. A worker's samples say
@@ -21,6 +22,11 @@ descriptors that leak never close, so they raise the floor, while the API's conn
 above it (one more socket open at the end than at the mark is load, not a leak). A process that was not alive at
 both ends (a worker restarted) fails its checks: a restart hides a leak. Only the samples taken while the load ran
 count (not those of the drain and the retention check after it).
+
+Outages (the distributed profile): an error is excused when it is a ``503`` whose request, from sending to its
+answer, overlaps an outage window (from the server's stop to its being back) widened by :data:`OUTAGE_GRACE_S`
+after its end; any other status (a ``500``, no answer at all) is not, nor is a ``503`` outside every window. A job
+is *lost* unless it ended ``done``, or ``failed`` with a reason.
 """
 
 from __future__ import annotations
@@ -88,10 +94,11 @@ BUSY_SQL = "SELECT pid FROM workers WHERE stopped_at IS NULL AND current_job_id 
 """The worker processes running a job now (their pids)."""
 
 
-def database_figures(data_dir: Path, database_url: str | None) -> tuple[int, int, set[int]]:
+def database_figures(data_dir: Path, database_url: str | None) -> tuple[int, int, set[int]] | None:
     """(database bytes, queued jobs, busy workers' pids) of the SQLite file in ``data_dir`` or of ``database_url``.
 
-    The busy workers are those whose row names a current job.
+    The busy workers are those whose row names a current job. None while PostgreSQL cannot be reached (the
+    distributed soak restarts it).
     """
     if database_url is not None:
         return _postgres_figures(database_url)
@@ -105,25 +112,32 @@ def database_figures(data_dir: Path, database_url: str | None) -> tuple[int, int
     return size, int(row[0]), busy
 
 
-def _postgres_figures(database_url: str) -> tuple[int, int, set[int]]:
-    """(``pg_database_size``, queued jobs, busy workers' pids) of the distributed profile's database."""
+def _postgres_figures(database_url: str) -> tuple[int, int, set[int]] | None:
+    """(``pg_database_size``, queued jobs, busy workers' pids) of the distributed profile's database; None if away."""
     import psycopg  # only the distributed profile needs it
 
-    with psycopg.connect(database_url, autocommit=True) as conn:
-        size = conn.execute("SELECT pg_database_size(current_database())").fetchone()
-        queued = conn.execute(QUEUED_SQL).fetchone()
-        busy = {int(pid) for (pid,) in conn.execute(BUSY_SQL).fetchall()}
+    try:
+        with psycopg.connect(database_url, autocommit=True, connect_timeout=5) as conn:
+            size = conn.execute("SELECT pg_database_size(current_database())").fetchone()
+            queued = conn.execute(QUEUED_SQL).fetchone()
+            busy = {int(pid) for (pid,) in conn.execute(BUSY_SQL).fetchall()}
+    except psycopg.OperationalError:  # stopped or restarting: the sample has no database figures
+        return None
     return int(size[0] if size else 0), int(queued[0] if queued else 0), busy
 
 
 def sample(t_s: float, roles: dict[str, list[int]], data_dir: Path, database_url: str | None) -> dict[str, Any]:
-    """One sample at ``t_s`` seconds into the run; ``roles``: ``{"api": [pid, ...], "worker": [...]}``."""
-    db_bytes, queued, busy = database_figures(data_dir, database_url)
+    """One sample at ``t_s`` seconds into the run; ``roles``: ``{"api": [pid, ...], "worker": [...]}``.
+
+    With the database away, ``db_bytes`` and ``queued`` are None and whether a worker is busy is unknown (None).
+    """
+    figures_now = database_figures(data_dir, database_url)
+    db_bytes, queued, busy = figures_now if figures_now is not None else (None, None, None)
     processes = {}
     for role, pids in roles.items():
         for pid in pids:
             if (figures := process_figures(pid)) is not None:
-                processes[f"{role} {pid}"] = {**figures, "busy": pid in busy}
+                processes[f"{role} {pid}"] = {**figures, "busy": None if busy is None else pid in busy}
     return {"t_s": round(t_s, 1), "processes": processes, "db_bytes": db_bytes,
             "store_bytes": store_bytes(data_dir), "queued": queued}  # fmt: skip
 
@@ -212,19 +226,70 @@ def under_load(report: dict[str, Any]) -> list[dict[str, Any]]:
     return [s for s in report["samples"] if s["t_s"] <= report.get("duration_s", float("inf"))]
 
 
+OUTAGE_GRACE_S = 15.0
+"""Seconds after an outage's end in which a ``503`` is still the outage's: an API process finds its pooled connections
+to the restarted server dead as it next uses them, and a request that waited through the outage answers after it."""
+
+
+def unexcused_errors(
+    events: list[dict[str, Any]], outages: list[dict[str, Any]], grace_s: float = OUTAGE_GRACE_S
+) -> list[dict[str, Any]]:
+    """The error ``events`` that no outage excuses, in their order.
+
+    events: ``{"t_s", "end_s", "status", ...}`` per failed request (sent and answered, seconds into the run; status
+    0 when nothing answered); outages: ``{"start_s", "end_s", ...}`` per window. A ``503`` is excused when
+    ``[t_s, end_s]`` overlaps some ``[start_s, end_s + grace_s]``; nothing else is.
+    """
+
+    def excused(event: dict[str, Any]) -> bool:
+        return event["status"] == 503 and any(
+            event["t_s"] <= window["end_s"] + grace_s and event["end_s"] >= window["start_s"] for window in outages
+        )
+
+    return [event for event in events if not excused(event)]
+
+
+def lost_jobs(jobs: dict[str, Any]) -> int:
+    """Accepted jobs that did not end ``done`` or ``failed`` with a reason (unfinished, cancelled, gone, no reason)."""
+    ended = jobs["done"] + jobs["failed"] - jobs.get("failed_without_reason", 0)
+    return int(jobs["accepted"] - ended)
+
+
+def outage_checks(report: dict[str, Any]) -> list[tuple[str, bool]]:
+    """The distributed profile's error and job checks (``outages``, ``error_events``, ``jobs``): (name, met)."""
+    outages, events = report["outages"], report["error_events"]
+    grace = report.get("outage_grace_s", OUTAGE_GRACE_S)
+    kinds = sorted(window["server"] for window in outages)
+    unavailable = [event for event in events if event["status"] == 503]
+    unexcused = unexcused_errors(events, outages, grace)
+    return [
+        ("PostgreSQL and Redis each restarted once", kinds == ["postgres", "redis"]),
+        (f"errors only 503s inside an outage (or {grace:.0f} s after it)", not unexcused),
+        ("every 503 carries Retry-After", all(event.get("retry_after_s") for event in unavailable)),
+        ("0 lost jobs (each accepted job done, or failed with a reason)",
+         report["jobs"]["accepted"] > 0 and lost_jobs(report["jobs"]) == 0),
+    ]  # fmt: skip
+
+
 def verdict(report: dict[str, Any]) -> list[tuple[str, bool]]:
     """The issue's checks on a run's report (``samples``, ``mark_s``, ``errors``, ``jobs``): (name, met).
 
-    The memory and fd checks look at the samples :func:`under_load` (an idle tail would hide a growth in fds).
+    A report with ``outages`` (the distributed profile) is judged by :func:`outage_checks` on errors and jobs, and
+    must have sampled two API processes. The memory and fd checks look at the samples :func:`under_load` (an idle
+    tail would hide a growth in fds).
     """
     processes = process_checks(under_load(report), report["mark_s"])
     jobs = report["jobs"]
-    roles = {name.split()[0] for name in processes}
-    checks = [
-        ("0 errors other than documented 429s", sum(report["errors"].values()) == 0),
-        ("every accepted job done", jobs["accepted"] > 0 and jobs["done"] == jobs["accepted"]),
-        ("an API and a worker process sampled", {"api", "worker"} <= roles),
-    ]
+    roles = [name.split()[0] for name in processes]
+    if "outages" in report:
+        checks = [*outage_checks(report), ("two API processes and a worker sampled",
+                                           roles.count("api") >= 2 and "worker" in roles)]  # fmt: skip
+    else:
+        checks = [
+            ("0 errors other than documented 429s", sum(report["errors"].values()) == 0),
+            ("every accepted job done", jobs["accepted"] > 0 and jobs["done"] == jobs["accepted"]),
+            ("an API and a worker process sampled", {"api", "worker"} <= set(roles)),
+        ]
     if "retention" in report:  # queries left to retention are gone once older than it
         old, pruned = report["retention"]["older_than_retention"], report["retention"]["pruned"]
         checks.append(("retention pruned every query older than it", old > 0 and pruned == old))

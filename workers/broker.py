@@ -18,7 +18,10 @@ with replace semantics), so a job delivered twice never stores a reference or an
 A message is acknowledged when a worker process starts its task (early acknowledgement, prefetch of
 one per process): a worker killed mid-job is recovered by the job's lease in the database, not by the
 broker redelivering, so no acknowledgement is ever owed to a broker that restarted meanwhile (a late
-acknowledgement that failed during a Redis outage left the Celery consumer stuck in our fault test).
+acknowledgement that failed during a Redis outage left the Celery consumer stuck in our fault test). An early
+acknowledgement can fail too, for a message that waited in the worker for a free process while Redis went away:
+kombu's Redis transport then kept it counted against the prefetch limit, which stalled the consumer; the transport
+of :mod:`workers.redis_transport` frees the slot.
 
 The embedded profile has no broker: its workers claim straight from the table (:class:`NoPublisher`).
 """
@@ -49,6 +52,8 @@ REPUBLISH_AFTER_S = 5.0
 """With the broker's queue empty, a claimable job published longer ago than this lost its message."""
 RECONCILE_INTERVAL_S = 1.0
 """How often each worker process reconciles the table with the broker."""
+REDIS_TRANSPORT = "workers.redis_transport:Transport"
+"""The kombu transport of the ``redis://`` broker URL (:mod:`workers.redis_transport`)."""
 VISIBILITY_TIMEOUT_S = 3600
 """Redis gives a message reserved but not yet acknowledged (its worker died before starting it) to another
 worker after this long; the reconciler usually publishes such a job again much sooner."""
@@ -74,6 +79,7 @@ def celery_app(broker_url: str) -> Celery:
 
     app = Celery("geoloc", broker=broker_url, set_as_current=False)
     app.conf.update(
+        broker_transport=REDIS_TRANSPORT,  # kombu's, but a failed acknowledgement frees its prefetch slot
         task_default_queue=QUEUE,
         task_acks_late=False,  # a job whose worker died comes back through its lease, not the broker
         worker_cancel_long_running_tasks_on_connection_loss=False,  # a running job keeps its lease
@@ -87,7 +93,14 @@ def celery_app(broker_url: str) -> Celery:
         broker_connection_retry_on_startup=True,
         broker_connection_max_retries=None,
         broker_connection_timeout=3,
-        broker_transport_options={"visibility_timeout": VISIBILITY_TIMEOUT_S, "socket_connect_timeout": 3},
+        broker_transport_options={
+            "visibility_timeout": VISIBILITY_TIMEOUT_S,
+            "socket_connect_timeout": 3,
+            # A publish tries the connection once: with Redis down kombu would retry it for broker_connection_timeout
+            # plus its retry interval (6 s per upload, holding an API thread); the reconciler publishes the job later.
+            # The worker's consumer reconnects by its own retries (broker_connection_max_retries).
+            "max_retries": 0,
+        },
     )
     return app
 

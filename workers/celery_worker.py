@@ -20,8 +20,9 @@ killed after that comes back through its lease the same way.
 A watchdog in the main process (:func:`watch_consumer`) restarts the worker when its consumer stalls:
 messages wait in the queue while a pool process is free, for :data:`CONSUMER_STALL_S`. Measured: when an
 acknowledgement fails during a Redis outage, Celery 5.7's Redis consumer logs "Couldn't ack" and never
-takes another message; the supervisor starts a fresh worker instead, and leases bring back any job the
-restart interrupts.
+takes another message (kombu kept the message counted against the prefetch limit; the broker's transport,
+:mod:`workers.redis_transport`, now frees it); the watchdog stays for a stall of any other cause: the supervisor
+starts a fresh worker, and leases bring back any job the restart interrupts.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """Faults in the distributed profile (PostgreSQL, Celery on Redis), with real servers and processes.
 
-A worker SIGKILLed mid-job, Redis restarted (every message lost) mid-ingest while uploads go on, an API
-process killed and restarted by its supervisor, and two API processes receiving the same photo at once:
-after each, every reference ends ``done`` exactly once (one row, one job, done) and no job is lost.
+A worker SIGKILLed mid-job, Redis restarted (every message lost) mid-ingest while uploads go on, Redis killed
+while a message waits for the worker's busy process (its acknowledgement fails), an API process killed and
+restarted by its supervisor, and two API processes receiving the same photo at once: after each, every reference
+ends ``done`` exactly once (one row, one job, done) and no job is lost.
 
 Labelling is the quick stand-in of ``tests/fault_plugin.py`` (a sleep, then the same single-transaction
 write); the job machinery is the real one. Each test has its own Redis, so restarting it touches nothing else.
@@ -33,6 +34,7 @@ from tests.service_fixtures import (
     upload_hall_map,
     wait_for,
 )
+from workers.celery_worker import CONSUMER_STALL_S
 
 pytestmark = pytest.mark.slow
 
@@ -153,6 +155,57 @@ def test_worker_killed_and_redis_restarted_mid_ingest_lose_nothing(
     jobs = _assert_each_done_exactly_once(service.database, ids)
     killed = next(j for j in jobs if j["id"] == victim_job["id"])
     assert killed["attempts"] == 2 and killed["lease_owner"] != victim_job["lease_owner"], "taken again after its lease"
+
+
+def test_an_acknowledgement_lost_with_redis_does_not_stall_the_consumer(
+    tmp_path: Path, built_models: Path, deployment: tuple[dict[str, str], RedisServer]
+) -> None:
+    """An acknowledgement that fails with Redis down does not leave the consumer stuck (workers/redis_transport.py).
+
+    Redis is killed while a message waits in the worker for its one busy process; the message's early
+    acknowledgement fails once the process takes it. The consumer takes new messages once Redis is back, well
+    before its watchdog would restart it (``CONSUMER_STALL_S``), and the worker is the same process throughout.
+    """
+    env, redis = deployment
+    with (
+        running_service(tmp_path / "data", workers=1, models=built_models, **{**env, "GEOLOC_TEST_LABEL_S": "3.0"})
+        as service,
+        service.client() as client,
+    ):  # fmt: skip
+        map_id = upload_hall_map(client)
+        celery = [p for p in _children(service) if "workers.celery_worker" in p[1]]
+        ids = [_accepted(_upload(client, map_id, seed)) for seed in range(3)]
+        wait_for(lambda: read_rows(service.database, "SELECT id FROM jobs WHERE status = 'running'"), 30, what="a job")
+        time.sleep(0.5)  # the next message is taken meanwhile, and waits for the busy process
+        redis.stop()
+        time.sleep(4.0)  # the running job ends, the process takes the waiting message: its acknowledgement fails
+        redis.start()
+        back = time.monotonic()
+        ids += [_accepted(_upload(client, map_id, seed)) for seed in range(3, 5)]
+        wait_for(
+            lambda: _all_done(client, map_id, len(ids)),
+            timeout=CONSUMER_STALL_S,
+            what=lambda: f"{len(ids)} references done: {_job_states(service.database)}\n{service.log_tail(80)}",
+        )
+        assert time.monotonic() - back < CONSUMER_STALL_S
+        assert [p for p in _children(service) if "workers.celery_worker" in p[1]] == celery, "the worker restarted"
+        log = service.log_path.read_text(errors="replace")
+        assert "Couldn't ack" in log, "the fault did not happen: no acknowledgement failed"
+        assert "consumer stalled" not in log
+    _assert_each_done_exactly_once(service.database, ids)
+
+
+def _children(service: RunningProcess) -> list[tuple[int, str]]:
+    """(pid, command line) of the supervisor's direct children."""
+    children = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) != service.process.pid:
+                continue
+            children.append((int(stat.parent.name), (stat.parent / "cmdline").read_bytes().decode(errors="replace")))
+        except (OSError, ValueError):
+            continue
+    return sorted(children)
 
 
 def test_two_api_processes_same_photo_at_once_and_an_api_restart(

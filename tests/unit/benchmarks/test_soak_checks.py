@@ -1,10 +1,14 @@
-"""The soak benchmark's verdict (``benchmarks/soak_checks.py``) on synthetic samples: growth flagged, flat passes."""
+"""The soak benchmark's verdict (``benchmarks/soak_checks.py``) on synthetic samples: growth flagged, flat passes.
+
+The distributed profile's checks on synthetic outages: a 503 inside an outage window (or its grace) is excused,
+anything else is not; a job that did not end done, or failed with a reason, is lost.
+"""
 
 from __future__ import annotations
 
 from typing import Any
 
-from benchmarks.soak_checks import process_checks, verdict
+from benchmarks.soak_checks import lost_jobs, process_checks, unexcused_errors, verdict
 
 MARK_S = 600.0
 
@@ -116,3 +120,72 @@ def test_shared_and_private_memory_are_reported_beside_the_resident_size() -> No
     assert figures["uss_mark_mb"] < figures["uss_end_mb"] and figures["uss_ratio"] > 1.5
     assert 1.1 < figures["pss_ratio"] < figures["uss_ratio"]
     assert "uss_ratio" not in process_checks(samples({"worker 2": FLAT}, {"worker 2": FDS}), MARK_S)["worker 2"]
+
+
+OUTAGES = [{"server": "postgres", "start_s": 1200.0, "down_s": 1201.0, "end_s": 1222.0},
+           {"server": "redis", "start_s": 2400.0, "down_s": 2400.1, "end_s": 2420.5}]  # fmt: skip
+
+
+def event(t_s: float, status: int = 503, took_s: float = 0.1, retry_after_s: float | None = 5.0) -> dict[str, Any]:
+    """A failed request sent at ``t_s`` and answered ``took_s`` later."""
+    return {"t_s": t_s, "end_s": t_s + took_s, "status": status, "key": f"GET /v1/maps {status}",
+            "retry_after_s": retry_after_s}  # fmt: skip
+
+
+def test_only_503s_overlapping_an_outage_or_its_grace_are_excused() -> None:
+    inside = [event(1200.5), event(1221.9), event(2410.0, retry_after_s=None)]
+    in_grace = [event(1236.9), event(2435.4)]  # up to 15 s after the end
+    spanning = [event(1190.0, took_s=10.5), event(2300.0, took_s=200.0)]  # sent before, answered inside or after
+    assert unexcused_errors([*inside, *in_grace, *spanning], OUTAGES) == []
+    after_grace, before = event(1237.1), event(1190.0, took_s=9.9)
+    server_error, unreachable, not_found = event(1210.0, 500), event(1210.0, 0), event(2410.0, 404)
+    wrong = [after_grace, before, server_error, unreachable, not_found, event(30.0)]
+    assert unexcused_errors([*inside, *wrong, *in_grace], OUTAGES) == wrong
+    assert unexcused_errors(in_grace, OUTAGES, grace_s=5.0) == in_grace
+    assert unexcused_errors(inside, []) == inside
+
+
+def test_a_job_is_lost_unless_done_or_failed_with_a_reason() -> None:
+    ended = {"accepted": 10, "done": 8, "failed": 2, "failed_without_reason": 0, "gone": 0, "unfinished": 0}
+    assert lost_jobs(ended) == 0
+    assert lost_jobs(ended | {"failed_without_reason": 1}) == 1
+    assert lost_jobs(ended | {"done": 6, "unfinished": 1, "gone": 1}) == 2
+
+
+def distributed(**changes: Any) -> dict[str, Any]:
+    """A distributed run's report: two APIs, the Celery parent and a worker, flat; both restarts; 503s inside them."""
+    names = ["api 1", "api 2", "pool 3", "worker 4"]
+    base = report(samples({n: FLAT for n in names}, {n: FDS for n in names}),
+                  outages=OUTAGES, outage_grace_s=15.0, errors={"GET /v1/maps 503 database_unavailable": 2},
+                  error_events=[event(1205.0), event(1230.0)],
+                  jobs={"accepted": 10, "done": 9, "failed": 1, "failed_without_reason": 0})  # fmt: skip
+    return base | changes
+
+
+def test_a_distributed_run_passes_with_503s_inside_its_outages_and_fails_without_them() -> None:
+    assert failed(verdict(distributed())) == []
+    errors_check = "errors only 503s inside an outage (or 15 s after it)"
+    assert failed(verdict(distributed(error_events=[event(1205.0), event(1800.0)]))) == [errors_check]
+    assert failed(verdict(distributed(error_events=[event(1205.0, 500)]))) == [errors_check]
+    assert failed(verdict(distributed(error_events=[event(1205.0, retry_after_s=None)]))) == [
+        "every 503 carries Retry-After"
+    ]
+    assert failed(verdict(distributed(outages=OUTAGES[:1]))) == ["PostgreSQL and Redis each restarted once"]
+    lost = {"accepted": 10, "done": 9, "failed": 1, "failed_without_reason": 1}
+    assert failed(verdict(distributed(jobs=lost))) == ["0 lost jobs (each accepted job done, or failed with a reason)"]
+    one_api = samples({"api 1": FLAT, "worker 4": FLAT}, {"api 1": FDS, "worker 4": FDS})
+    assert failed(verdict(distributed(samples=one_api))) == ["two API processes and a worker sampled"]
+    assert "0 errors other than documented 429s" in failed(verdict(report(distributed()["samples"], errors={"x": 1})))
+
+
+def test_samples_without_the_database_do_not_count_as_between_jobs() -> None:
+    """While PostgreSQL is down whether a worker is busy is unknown (None): such samples make no between-jobs level."""
+    idle, job = 300.0, 420.0
+    series = samples({"worker 2": [job if i % 2 else idle for i in range(121)]}, {"worker 2": FDS})
+    for i, sample in enumerate(series):
+        sample["processes"]["worker 2"]["busy"] = None if i % 2 else False
+    assert process_checks(series, MARK_S)["worker 2"]["rss_level_from"] == "between jobs"
+    assert process_checks(series, MARK_S)["worker 2"]["rss_mark_mb"] == idle
+    for sample in series:
+        sample["processes"]["worker 2"]["busy"] = None
+    assert process_checks(series, MARK_S)["worker 2"]["rss_level_from"] == "all samples"
