@@ -312,15 +312,22 @@ def release_job(db: Database, job_id: int, worker_id: str) -> bool:
     return cursor.rowcount == 1
 
 
-def cancel_queued_jobs(db: Database, *, map_id: int | None = None, reference_id: int | None = None) -> int:
-    """Cancel the queued jobs of a map or reference being deleted; returns how many."""
+def cancel_queued_jobs(
+    db: Database, *, map_id: int | None = None, reference_id: int | None = None, job_id: int | None = None
+) -> int:
+    """Cancel the queued jobs of a map, reference, query or track being deleted; returns how many.
+
+    A query's or a track's job is named by its ``job_id`` (the jobs table keeps no query or track id).
+    """
     now = time.time()
-    if reference_id is not None:
+    if job_id is not None:
+        where, value = "id = ?", job_id
+    elif reference_id is not None:
         where, value = "reference_id = ?", reference_id
     elif map_id is not None:
         where, value = "map_id = ?", map_id
     else:
-        raise ValueError("map_id or reference_id is required")
+        raise ValueError("map_id, reference_id or job_id is required")
     cursor = db.execute(
         f"UPDATE jobs SET status = 'cancelled', updated_at = ?, finished_at = ? WHERE {where} AND status = 'queued'",
         (now, now, value),

@@ -12,6 +12,7 @@ from typing import Any, cast
 
 from contracts.queries import QueryParams
 from db.connection import Database
+from db.jobs import cancel_queued_jobs
 from db.rows import QueryRow
 
 QUERY_PHOTOS_LOCK = "geoloc:query-photos"
@@ -76,10 +77,15 @@ def update_query_result(
 
 
 def delete_query(db: Database, query_id: int) -> QueryRow | None:
-    """Delete a query; returns its row (``image_path`` to remove after commit), or None."""
+    """Delete a query and cancel its job if still queued.
+
+    Returns its row (``image_path`` to remove after commit), or None.
+    """
     row = get_query(db, query_id)
     if row is not None:
         db.execute("DELETE FROM queries WHERE id = ?", (query_id,))
+        if row["job_id"] is not None:  # else a worker would take it and fail it: "query N no longer exists"
+            cancel_queued_jobs(db, job_id=row["job_id"])
     return row
 
 

@@ -16,6 +16,7 @@ import time
 from typing import Any, cast
 
 from db.connection import Database
+from db.jobs import cancel_queued_jobs
 from db.queries import decode_query_row
 from db.rows import QueryRow, TrackRow
 
@@ -84,9 +85,15 @@ def _delete_tracks(db: Database, track_ids: list[int]) -> list[str | None]:
 
 
 def delete_track(db: Database, track_id: int) -> list[str | None] | None:
-    """Delete a track with its frames (inside a transaction); their image paths to remove after, or None."""
-    if get_track(db, track_id) is None:
+    """Delete a track with its frames (inside a transaction) and cancel its job if still queued.
+
+    Returns the frames' image paths to remove after, or None.
+    """
+    track = get_track(db, track_id)
+    if track is None:
         return None
+    if track["job_id"] is not None:
+        cancel_queued_jobs(db, job_id=track["job_id"])
     return _delete_tracks(db, [track_id])
 
 

@@ -15,12 +15,24 @@ import numpy as np
 import pytest
 from pydantic import ConfigDict
 
-from contracts.jobs import LABEL_REFERENCE, LOAD_MAP, JobPayload, LabelReferencePayload
+from contracts.jobs import (
+    LABEL_REFERENCE,
+    LOAD_MAP,
+    LOCALIZE_QUERY,
+    LOCATE_TRACK,
+    JobPayload,
+    LabelReferencePayload,
+    LocalizeQueryPayload,
+    LocateTrackPayload,
+)
+from contracts.queries import QueryParams
 from contracts.references import ReferenceKeypoints, ReferenceLabelArrays
 from db import LATEST_VERSION, Database, connect, migrate, migrations, sbow, schema_version, transaction
 from db import jobs as job_store
 from db import maps as map_store
+from db import queries as query_store
 from db import references as reference_store
+from db import tracks as track_store
 from db.records import NewReference
 from db.stats import table_counts
 from tests.conftest import Profile
@@ -303,6 +315,31 @@ def test_map_round_trip_and_cascading_delete(db) -> None:
     counts = table_counts(db)
     assert all(counts[t] == 0 for t in counts if t != "jobs"), counts
     assert [j["status"] for j in job_store.list_jobs(db)] == ["cancelled"]
+
+
+def test_deleting_a_query_or_a_track_cancels_its_queued_job_and_leaves_a_running_one(db) -> None:
+    map_id = add_map(db)
+    with transaction(db):
+        query_ids = [query_store.insert_query(db, map_id=map_id, params=QueryParams(top_n=5, k=4)) for _ in range(2)]
+        track_id = track_store.insert_track(db, map_id=map_id, params={})
+        jobs = [
+            job_store.enqueue_job(db, LOCALIZE_QUERY, LocalizeQueryPayload(query_id=q, map_id=map_id), map_id=map_id)
+            for q in query_ids
+        ]
+        jobs.append(
+            job_store.enqueue_job(db, LOCATE_TRACK, LocateTrackPayload(track_id=track_id, map_id=map_id), map_id=map_id)
+        )
+        for query_id, job_id in zip(query_ids, jobs, strict=False):
+            query_store.set_query_job(db, query_id, job_id)
+        track_store.set_track_job(db, track_id, jobs[2])
+    running = job_store.claim_job(db, "w1", 60.0, kinds=[LOCALIZE_QUERY])
+    assert running is not None and running["id"] == jobs[0]
+    with transaction(db):
+        query_store.delete_query(db, query_ids[0])  # running: its worker finds the query gone and says so
+        query_store.delete_query(db, query_ids[1])
+        track_store.delete_track(db, track_id)
+    statuses = {j["id"]: j["status"] for j in job_store.list_jobs(db)}
+    assert statuses == {jobs[0]: "running", jobs[1]: "cancelled", jobs[2]: "cancelled"}
 
 
 def ranked_references(db, map_id: int, query_words: np.ndarray) -> list[int]:
