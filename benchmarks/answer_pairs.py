@@ -6,6 +6,8 @@ from typing import Any
 
 import numpy as np
 
+from geoloc.core.geo import angle_difference_deg
+
 
 def distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:
     """Metres between two WGS84 (lat, lon) points close together (equirectangular)."""
@@ -14,24 +16,25 @@ def distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:
     return float(np.hypot(dx, dy))
 
 
+def _rank1_gap(a: dict[str, Any], b: dict[str, Any]) -> tuple[float, float]:
+    """(m, deg) between the rank-1 poses of one query's two answers (``a`` has at least one location)."""
+    (lat_a, lon_a, heading_a), (lat_b, lon_b, heading_b) = a["locations"][0], b["locations"][0]
+    return distance_m((lat_a, lon_a), (lat_b, lon_b)), angle_difference_deg(heading_a, heading_b)
+
+
 def compare_answers(other: list[dict[str, Any]], current: list[dict[str, Any]]) -> dict[str, Any]:
     """How far the rank-1 answers of the same queries lie apart on two services."""
     pairs = list(zip(other, current, strict=True))
-    gaps = [distance_m(a["locations"][0][:2], b["locations"][0][:2]) for a, b in pairs if a["locations"]]
-    headings = [
-        abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) for a, b in pairs if a["locations"]
-    ]
+    gaps = {i: _rank1_gap(a, b) for i, (a, b) in enumerate(pairs) if a["locations"]}
     different = [a["photo"] for a, b in pairs if a["locations"] != b["locations"]]  # exactly: every location
     same = sum(
-        len(a["locations"]) == len(b["locations"])
-        and (not a["locations"] or (distance_m(a["locations"][0][:2], b["locations"][0][:2]) < 0.05
-                                    and abs((a["locations"][0][2] - b["locations"][0][2] + 180) % 360 - 180) < 0.05))
-        for a, b in pairs
-    )  # fmt: skip
+        len(a["locations"]) == len(b["locations"]) and (not a["locations"] or max(gaps[i]) < 0.05)
+        for i, (a, b) in enumerate(pairs)
+    )
     return {
         "same_rank1_pose": f"{same}/{len(pairs)}",
-        "rank1_gap_m_max": round(max(gaps, default=0.0), 3),
-        "rank1_heading_gap_deg_max": round(max(headings, default=0.0), 3),
+        "rank1_gap_m_max": round(max((m for m, _ in gaps.values()), default=0.0), 3),
+        "rank1_heading_gap_deg_max": round(max((d for _, d in gaps.values()), default=0.0), 3),
         "different": len(different),
         "different_photos": sorted(set(different)),
     }
