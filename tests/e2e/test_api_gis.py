@@ -83,6 +83,12 @@ def _upload_map(client: httpx.Client, name: str, content: bytes, **fields: str) 
     return dict(response.json())
 
 
+@pytest.fixture(scope="module")
+def one_building_map(answering: httpx.Client) -> dict[str, Any]:
+    """:data:`ONE_BUILDING` stored once per service (tests of this module on one xdist worker share it)."""
+    return _upload_map(answering, "one.geojson", json.dumps(ONE_BUILDING).encode(), attribution=STATED)
+
+
 def test_maps_carry_the_stated_attribution_else_openstreetmaps(answering: httpx.Client) -> None:
     osm = _upload_map(answering, "tiny.osm", TINY_OSM)
     plain = _upload_map(answering, "plain.geojson", json.dumps(BERLIN_BUILDING).encode())
@@ -117,8 +123,10 @@ def test_about_lists_the_licences(answering: httpx.Client) -> None:
     assert all(entry["license"] and entry["source"] for entry in about["licenses"])
 
 
-def test_an_answer_as_geojson_has_poses_view_cones_and_the_buildings(answering: httpx.Client) -> None:
-    map_row = _upload_map(answering, "one.geojson", json.dumps(ONE_BUILDING).encode(), attribution=STATED)
+def test_an_answer_as_geojson_has_poses_view_cones_and_the_buildings(
+    answering: httpx.Client, one_building_map: dict[str, Any]
+) -> None:
+    map_row = one_building_map
     query = answering.post(
         f"/v1/maps/{map_row['id']}/queries",
         files={"image": ("q.jpg", jpeg_bytes(seed=1))},
@@ -141,9 +149,10 @@ def test_an_answer_as_geojson_has_poses_view_cones_and_the_buildings(answering: 
     assert bad.status_code == 422 and "format" in bad.text
 
 
-def test_a_failed_query_as_geojson_is_an_empty_collection_with_the_reason(answering: httpx.Client) -> None:
-    # its own map: under xdist the module's other tests may run in another process, on another service
-    map_id = _upload_map(answering, "one.geojson", json.dumps(ONE_BUILDING).encode(), attribution=STATED)["id"]
+def test_a_failed_query_as_geojson_is_an_empty_collection_with_the_reason(
+    answering: httpx.Client, one_building_map: dict[str, Any]
+) -> None:
+    map_id = one_building_map["id"]
     failed = answering.post(
         f"/v1/maps/{map_id}/queries", files={"image": ("q.jpg", jpeg_bytes())}, data={"top_n": "2", "wait_s": "30"}
     ).json()
