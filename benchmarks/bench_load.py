@@ -43,7 +43,7 @@ import httpx
 import numpy as np
 from local_service import LocalService
 
-from client import ApiError, AsyncClient, Query, RetryPolicy, Sent, ServiceUnreachableError, calls
+from client import ApiError, AsyncClient, Query, RetryPolicy, Sent, ServiceUnreachableError, calls, pool_limits
 from client.calls import Call
 from contracts.settings import shared_path
 
@@ -246,7 +246,7 @@ async def run(args: argparse.Namespace, url: str, db_path: Path | None) -> dict[
     stats = Stats()
     # No pool limit: answers awaited in the background hold a connection each (up to wait_s), and a read
     # queued behind them in the client's pool would measure the pool, not the service.
-    limits = httpx.Limits(max_connections=None, max_keepalive_connections=None)
+    limits = pool_limits(max_connections=None)
     async with AsyncClient(url, timeout_s=120.0, limits=limits) as http:
         map_id = (await http.upload_map(shared_path("data", "osm", "helsinki.osm.pbf"), "helsinki")).id
         rngs = [random.Random(args.seed * 1000 + i) for i in range(args.clients)]

@@ -63,12 +63,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import httpx
 from local_service import LocalService, LocalWorkers, Supervised, prepare_data_dir
 from soak_checks import OUTAGE_GRACE_S, process_checks, sample, under_load, unexcused_errors, verdict
 from soak_load import DRAIN_TIMEOUT_S, Load
 
-from client import AsyncClient
+from client import AsyncClient, pool_limits
 from contracts.settings import shared_path
 from geoloc.sim.world import WorldOptions, generate_world
 from workers.retention import purge_interval_s
@@ -157,7 +156,7 @@ async def outage(server: str, at_s: float, down_s: float, halt: Callable[[], Non
 
 async def run(args: argparse.Namespace, deployment: Deployment, servers: list[Any]) -> dict[str, Any]:
     """The load, the samples and (``servers``: PostgreSQL and Redis, distributed) their restarts; the report."""
-    limits = httpx.Limits(max_connections=None, max_keepalive_connections=None)
+    limits = pool_limits(max_connections=None)
     async with contextlib.AsyncExitStack() as stack:
         https = [await stack.enter_async_context(AsyncClient(api.url, timeout_s=120.0, limits=limits))
                  for api in deployment.apis]  # fmt: skip

@@ -82,7 +82,8 @@ class Load:
         if len(self.stats.error_samples) < 50:
             self.stats.error_samples.append(f"{key}: {text}"[:300])
         self.stats.error_events.append({"t_s": round(sent - self.t0, 2), "end_s": round(time.monotonic() - self.t0, 2),
-                                        "status": status, "key": key, "retry_after_s": retry_after_s})  # fmt: skip
+                                        "status": status, "key": key, "retry_after_s": retry_after_s,
+                                        "text": text[:200]})  # fmt: skip
 
     async def request(self, call: Call[T], endpoint: str, *, retry_503: bool = False) -> Sent[T] | None:
         """One try of ``call``; None (and counted) when it did not answer 2xx.

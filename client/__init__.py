@@ -6,6 +6,7 @@ the benchmarks talk to the service through it. ``geoloc.client`` is its deprecat
 """
 
 from client.asynchronous import AsyncClient
+from client.base import IDLE_CONNECTION_EXPIRY_S, pool_limits
 from client.calls import Call, MapFields, QueryFields, ReferenceFields, Sent, TrackFields, Upload
 from client.errors import (
     ApiError,
@@ -47,6 +48,7 @@ __all__ = [
     "Feature",
     "FeatureCollection",
     "GeolocClientError",
+    "IDLE_CONNECTION_EXPIRY_S",
     "Health",
     "InvalidRequestError",
     "Job",
@@ -69,4 +71,5 @@ __all__ = [
     "ServiceUnreachableError",
     "Upload",
     "WaitTimeoutError",
+    "pool_limits",
 ]

@@ -16,6 +16,21 @@ DEFAULT_TIMEOUT_S = 120.0
 """Seconds one HTTP request may take (connect: 10 s); a query with ``wait_s`` adds that to it."""
 POLL_SLACK_S = 15.0
 """Extra read time for a long poll, on top of its ``wait_s``."""
+IDLE_CONNECTION_EXPIRY_S = 2.0
+"""Seconds a pooled connection may sit idle before the client drops it rather than reuse it.
+
+Below the service's ``GEOLOC_HTTP_KEEP_ALIVE_S`` (default 5 s) on purpose: a client that reuses a connection just
+as the service closes it for idleness sends its request into a closing socket and gets no answer (httpx's own
+default, 5 s, equals the service's and did so once in the distributed hour's 100,000 requests).
+"""
+
+
+def pool_limits(max_connections: int | None = 100) -> httpx.Limits:
+    """Pool limits for httpx with :data:`IDLE_CONNECTION_EXPIRY_S` (``max_connections`` None: no cap)."""
+    keep = None if max_connections is None else min(max_connections, 20)
+    return httpx.Limits(
+        max_connections=max_connections, max_keepalive_connections=keep, keepalive_expiry=IDLE_CONNECTION_EXPIRY_S
+    )
 
 
 class ClientOptions(TypedDict, total=False):
@@ -30,8 +45,8 @@ class ClientBase:
     """A client of one service (``base_url``), with an optional API key (sent as ``X-API-Key``).
 
     Options (:class:`ClientOptions`): ``timeout_s`` for one request (default 120 s), ``retry`` (default
-    ``RetryPolicy()``), ``limits`` (httpx's connection-pool limits). The sync and the async client add
-    ``transport`` (an httpx transport, for tests) and ``sleep`` (how to wait, for tests).
+    ``RetryPolicy()``), ``limits`` (httpx's connection-pool limits, default :func:`pool_limits`). The sync and the
+    async client add ``transport`` (an httpx transport, for tests) and ``sleep`` (how to wait, for tests).
     """
 
     def __init__(self, base_url: str, api_key: str | None, **options: Unpack[ClientOptions]) -> None:
@@ -40,7 +55,7 @@ class ClientBase:
         self._timeout_s = options.get("timeout_s", DEFAULT_TIMEOUT_S)
         self._timeout = httpx.Timeout(self._timeout_s, connect=10.0)
         self._headers = {"X-API-Key": api_key} if api_key else {}
-        self._limits = options.get("limits") or httpx.Limits()
+        self._limits = options.get("limits") or pool_limits()
 
     def _http_args(self) -> dict[str, Any]:
         """The httpx client's arguments: base URL, headers, timeout, pool limits."""

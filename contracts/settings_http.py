@@ -25,7 +25,7 @@ class HttpSettings(BaseSettings):
         default=10.0,
         ge=0.1,
         description="a request's headers must be complete within this long of the connection opening (or of the "
-        "previous response); a connection that sends none or too slowly is closed",
+        "previous response plus the keep-alive time); a connection that sends none or too slowly is closed",
     )
     http_max_header_bytes: int = Field(default=32768, ge=1024, description="largest request head (`400` above)")
     http_body_idle_s: float = Field(

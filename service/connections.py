@@ -5,7 +5,9 @@ uvicorn closes an idle keep-alive connection (``timeout_keep_alive``) and caps c
 and for a body that stops or trickles. Here:
 
 - :func:`protocol_class` gives uvicorn an h11 protocol that closes a connection whose request head is not
-  complete ``GEOLOC_HTTP_HEADER_TIMEOUT_S`` after the connection opened or the previous response ended;
+  complete ``GEOLOC_HTTP_HEADER_TIMEOUT_S`` after the connection opened, or ``GEOLOC_HTTP_KEEP_ALIVE_S`` plus that
+  after the previous response ended (an idle keep-alive connection is uvicorn's to close, at its keep-alive
+  timeout: the deadline must not cut it sooner, when a client may be reusing it);
 - :class:`BodyDeadline` (ASGI middleware) answers ``408`` ``request_timeout`` (and closes the connection) when
   no body bytes came for ``GEOLOC_HTTP_BODY_IDLE_S`` or the whole body took over ``GEOLOC_HTTP_BODY_TIMEOUT_S``.
 
@@ -35,17 +37,18 @@ class HeaderDeadlineProtocol(H11Protocol):
     """uvicorn's h11 protocol with a deadline for each request's head (:attr:`header_timeout_s` seconds)."""
 
     header_timeout_s = 10.0
+    keep_alive_s = 5.0
     _header_timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         """Start the head's deadline as the connection opens."""
         super().connection_made(transport)
-        self._arm_header_deadline()
+        self._arm_header_deadline(self.header_timeout_s)
 
     def on_response_complete(self) -> None:
-        """Start the next head's deadline as a response ends (a keep-alive connection waits for the next)."""
+        """Start the next head's deadline as a response ends (after the keep-alive time the next may wait)."""
         super().on_response_complete()
-        self._arm_header_deadline()
+        self._arm_header_deadline(self.keep_alive_s + self.header_timeout_s)
 
     def connection_lost(self, exc: Exception | None) -> None:
         """Drop the deadline with the connection."""
@@ -54,11 +57,11 @@ class HeaderDeadlineProtocol(H11Protocol):
             self._header_timer = None
         super().connection_lost(exc)
 
-    def _arm_header_deadline(self) -> None:
+    def _arm_header_deadline(self, after_s: float) -> None:
         if self._header_timer is not None:
             self._header_timer.cancel()
         if not self.transport.is_closing():
-            self._header_timer = self.loop.call_later(self.header_timeout_s, self._header_deadline)
+            self._header_timer = self.loop.call_later(after_s, self._header_deadline)
 
     def _header_deadline(self) -> None:
         """Close the connection if it is still waiting for a complete request head (no request is running)."""
@@ -71,7 +74,8 @@ class HeaderDeadlineProtocol(H11Protocol):
 
 def protocol_class(settings: Settings) -> type[HeaderDeadlineProtocol]:
     """The protocol uvicorn runs (its ``http=`` argument), with the settings' header deadline."""
-    return type("GeolocH11Protocol", (HeaderDeadlineProtocol,), {"header_timeout_s": settings.http_header_timeout_s})
+    deadlines = {"header_timeout_s": settings.http_header_timeout_s, "keep_alive_s": settings.http_keep_alive_s}
+    return type("GeolocH11Protocol", (HeaderDeadlineProtocol,), deadlines)
 
 
 def uvicorn_options(settings: Settings) -> dict[str, Any]:

@@ -27,6 +27,7 @@ from client import (
     WaitTimeoutError,
     models,
 )
+from contracts.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[3]
 QUEUED_QUERY = {"id": 5, "map_id": 1, "status": "queued", "params": {}, "attribution": "© OSM"}
@@ -192,3 +193,11 @@ def test_the_models_are_the_api_s_own(model: type[BaseModel], schema: str) -> No
     assert set(model.model_fields) == set(component["properties"])
     required = {name for name, info in model.model_fields.items() if info.is_required()}
     assert required == set(component.get("required", []))
+
+
+def test_the_client_drops_an_idle_connection_before_the_service_closes_it() -> None:
+    service_keep_alive_s = Settings.model_fields["http_keep_alive_s"].default
+    with Client("http://127.0.0.1:1") as client:
+        expiry_s = client._limits.keepalive_expiry
+    # a reused connection the service is closing for idleness takes the request with it, unanswered
+    assert expiry_s is not None and expiry_s <= service_keep_alive_s - 2.0
