@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 
 from geoloc.core.geo import angle_difference_deg
-from geoloc.localize.labeling import KnownPose
+from geoloc.localize.labeling import KnownPose, stated_position_covariance
 from geoloc.localize.reference import LabelledReference, label_at_pose, label_from_cues
 from geoloc.localize.sequence.frames import FrameLabel, map_position_covariance
 from geoloc.localize.sequence.placement import (
@@ -122,7 +122,8 @@ def place_labelled_sequence(
         if keeps_own_label(pose, alone.x_m, alone.y_m):  # its own label (or its compass's) stands
             references.append(relabelled.get(k))
             continue
-        known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, pose.position_covariance)
+        stated = stated_position_covariance(pose.position_covariance, (pose.x_m, pose.y_m), frame.gps_xy)
+        known = KnownPose(pose.x_m, pose.y_m, pose.yaw_deg, stated)
         placed = label_at_pose(city_map, alone.intrinsics, alone.cues, alone.timings_ms, known, analysis=alone.analysis)
         placed.timings_ms["sequence"] = share_ms
         references.append(placed)
