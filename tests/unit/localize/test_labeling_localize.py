@@ -6,7 +6,15 @@ import pytest
 
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.grid import GridOptions, PositionPrior, localize
-from geoloc.localize.labeling import LabelOptions, column_building_ids, label_reference, says_little
+from geoloc.localize.labeling import (
+    GPS_DISAGREEMENT_WEIGHT,
+    STATED_SIGMA_SCALE,
+    LabelOptions,
+    column_building_ids,
+    label_reference,
+    says_little,
+    stated_position_covariance,
+)
 from geoloc.localize.likelihood import LikelihoodOptions, image_model_from_map
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.posterior import sharpened_likelihood
@@ -49,6 +57,26 @@ def test_reference_labelling_recovers_heading_position_and_identities() -> None:
     # Marginal probabilities are probabilities.
     prob = label.marginalized.column_prob
     assert prob.min() >= 0 and prob.sum(axis=1).max() <= 1 + 1e-5
+
+
+def test_a_label_states_more_doubt_the_further_it_lies_from_its_own_gps_fix() -> None:
+    """The stated covariance: the posterior's scaled, plus the squared disagreement with the fix (dev-split fit)."""
+    posterior = np.array([[1.0, 0.5], [0.5, 2.0]])
+    on_fix = stated_position_covariance(posterior, (3.0, 4.0), (3.0, 4.0))
+    np.testing.assert_allclose(on_fix, STATED_SIGMA_SCALE**2 * posterior)
+    off_fix = stated_position_covariance(posterior, (3.0, 4.0), (0.0, 0.0))  # 5 m from its fix
+    np.testing.assert_allclose(off_fix - on_fix, GPS_DISAGREEMENT_WEIGHT * 25.0 * np.eye(2))
+    # What label_reference reports is that statement about its refined pose and the GPS it was given.
+    city = street_canyon()
+    model, truth = _clean_model(city, (0.0, -10.0), 48.0)
+    mask = np.zeros((480, 640), dtype=bool)
+    mask[100:300, truth >= 0] = True
+    gps = (6.0, -6.0)
+    label = label_reference(city, model, mask, INTRINSICS, gps, options=LabelOptions(cell_m=3.0, half_size_m=6.0))
+    disagreement_m2 = (label.x_m - gps[0]) ** 2 + (label.y_m - gps[1]) ** 2
+    assert disagreement_m2 > 1.0
+    floor = GPS_DISAGREEMENT_WEIGHT * disagreement_m2
+    assert np.linalg.eigvalsh(label.position_covariance).min() >= floor - 1e-9
 
 
 def test_heading_prior_picks_among_ambiguous_headings() -> None:
