@@ -1,7 +1,8 @@
 """Reference labelling on photos: a geo-tagged photo -> its pose on the map, identities and map anchors.
 
 :func:`label_reference_photo` is the labelling stage's entry (the workers' label job and ``geoloc eval world``):
-heading and corrected position (:func:`geoloc.localize.labeling.label_reference`), per-column building
+heading and corrected position (:func:`geoloc.localize.labeling.label_reference`; the position's covariance as
+:mod:`geoloc.localize.label_covariance` states it), per-column building
 identities (greedy and marginalised), its keypoints' identity probabilities and their 3D anchors on the map's
 facades (:mod:`geoloc.localize.anchors`). Positions are local metres of the map's frame; converting to WGS84
 and compass headings is the caller's (``city_map.frame``).
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Hashable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -21,6 +22,7 @@ from geoloc.core.context import MethodContext
 from geoloc.core.geo import LocalFrame
 from geoloc.localize.anchors import CameraPose, MapAnchors, anchor_keypoints
 from geoloc.localize.identity import IdentityMap
+from geoloc.localize.label_covariance import stated_position_covariance
 from geoloc.localize.labeling import (
     KnownPose,
     LabelOptions,
@@ -182,6 +184,9 @@ def label_from_cues(
         heading_prior=heading_prior,
         options=options or LabelOptions(),
     )
+    # What the label states of its position: its posterior's covariance, calibrated (:mod:`.label_covariance`).
+    stated = stated_position_covariance(label.position_covariance, (label.x_m, label.y_m), gps_xy)
+    label = replace(label, position_covariance=stated)
     timings = dict(timings_ms, **{timing_key: 1e3 * (time.perf_counter() - t0)})
     return _labelled(city_map, intrinsics, cues, label, strategy, timings, analysis)
 

@@ -26,7 +26,8 @@ from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 
 from geoloc.core.geo import angle_difference_deg
-from geoloc.localize.labeling import KnownPose, stated_position_covariance
+from geoloc.localize.label_covariance import stated_position_covariance
+from geoloc.localize.labeling import KnownPose
 from geoloc.localize.reference import LabelledReference, label_at_pose, label_from_cues
 from geoloc.localize.sequence.frames import FrameLabel, map_position_covariance
 from geoloc.localize.sequence.placement import (

@@ -6,23 +6,22 @@ import pytest
 
 from geoloc.core.camera import Intrinsics
 from geoloc.localize.grid import GridOptions, PositionPrior, localize
-from geoloc.localize.labeling import (
+from geoloc.localize.label_covariance import (
     GPS_DISAGREEMENT_WEIGHT,
     STATED_SIGMA_SCALE,
-    LabelOptions,
-    column_building_ids,
-    label_reference,
-    says_little,
     stated_position_covariance,
 )
+from geoloc.localize.labeling import LabelOptions, column_building_ids, label_reference, says_little
 from geoloc.localize.likelihood import LikelihoodOptions, image_model_from_map
 from geoloc.localize.map_likelihood import MapLikelihood
 from geoloc.localize.posterior import sharpened_likelihood
+from geoloc.localize.reference import LabelCues, label_from_cues
 from geoloc.localize.reference import LabelOptions as ReferenceLabelOptions
 from geoloc.localize.refinement import RefineOptions, refine_pose, vanishing_point_yaw
 from geoloc.localize.sequence.frames import MAP_SPREAD_HALF_SIZE_M, map_position_covariance
 from geoloc.maps.raycast import cast_panoramas
 from geoloc.photos.heading_prior import HeadingPrior
+from geoloc.vision.features import Features
 from geoloc.vision.image_model import ImageModel, bin_offsets_deg
 from tests.scenes import street_canyon, twin_buildings
 
@@ -66,17 +65,19 @@ def test_a_label_states_more_doubt_the_further_it_lies_from_its_own_gps_fix() ->
     np.testing.assert_allclose(on_fix, STATED_SIGMA_SCALE**2 * posterior)
     off_fix = stated_position_covariance(posterior, (3.0, 4.0), (0.0, 0.0))  # 5 m from its fix
     np.testing.assert_allclose(off_fix - on_fix, GPS_DISAGREEMENT_WEIGHT * 25.0 * np.eye(2))
-    # What label_reference reports is that statement about its refined pose and the GPS it was given.
+    # The labelling stage states that of its refined pose and the GPS it was given; the posterior stays unscaled.
     city = street_canyon()
     model, truth = _clean_model(city, (0.0, -10.0), 48.0)
     mask = np.zeros((480, 640), dtype=bool)
     mask[100:300, truth >= 0] = True
-    gps = (6.0, -6.0)
-    label = label_reference(city, model, mask, INTRINSICS, gps, options=LabelOptions(cell_m=3.0, half_size_m=6.0))
-    disagreement_m2 = (label.x_m - gps[0]) ** 2 + (label.y_m - gps[1]) ** 2
-    assert disagreement_m2 > 1.0
-    floor = GPS_DISAGREEMENT_WEIGHT * disagreement_m2
-    assert np.linalg.eigvalsh(label.position_covariance).min() >= floor - 1e-9
+    gps, options = (6.0, -6.0), LabelOptions(cell_m=3.0, half_size_m=6.0)
+    cues = LabelCues(Features.empty((480, 640)), model, mask, np.eye(3))
+    stated = label_from_cues(city, INTRINSICS, cues, {}, gps, options=options).label
+    posterior = label_reference(city, model, mask, INTRINSICS, gps, options=options)
+    assert (stated.x_m, stated.y_m) == (posterior.x_m, posterior.y_m)
+    assert (stated.x_m - gps[0]) ** 2 + (stated.y_m - gps[1]) ** 2 > 1.0
+    expected = stated_position_covariance(posterior.position_covariance, (posterior.x_m, posterior.y_m), gps)
+    np.testing.assert_allclose(stated.position_covariance, expected)
 
 
 def test_heading_prior_picks_among_ambiguous_headings() -> None:
