@@ -1,8 +1,6 @@
-"""What a labelled reference states of its position: a covariance calibrated on the accuracy suite's dev split.
+"""What a labelled reference states of its position: its posterior's covariance, calibrated on the accuracy suite.
 
-A label's posterior (its refinement's, or a walk's gtsam marginal) speaks only for a right label; a label the map
-put on the wrong stretch of facade is as sure of itself. :func:`stated_position_covariance` adds what the label's
-disagreement with its own GPS fix says of that chance. Local frame of the map, metres.
+Local frame of the map, metres; the fit and why it has this form: :data:`GPS_DISAGREEMENT_WEIGHT`.
 """
 
 from __future__ import annotations
@@ -25,13 +23,12 @@ figure a label has that grows with its chance of being wrong (labels more than 7
 def stated_position_covariance(
     posterior_covariance: np.ndarray, position_xy: tuple[float, float], gps_xy: tuple[float, float]
 ) -> np.ndarray:
-    """(2, 2) m^2 the covariance a reference states for its pose: calibrated on the suite's dev split.
+    """(2, 2) m^2 the covariance a reference states for its pose.
 
     posterior_covariance: (2, 2) m^2 of the pose's posterior (a label's refinement, or a walk's joint placement);
     position_xy, gps_xy: the pose's position and the photo's own GPS fix (local m). Returns
     :data:`STATED_SIGMA_SCALE` squared times the posterior's plus :data:`GPS_DISAGREEMENT_WEIGHT` times the squared
-    distance between the two, on the diagonal: the posterior alone speaks for a right label and says nothing of
-    the chance that the map chose the wrong one, which the disagreement with the photo's own fix measures.
+    distance between the two, on the diagonal.
     """
     disagreement_m2 = float(np.sum((np.asarray(position_xy, dtype=float) - np.asarray(gps_xy, dtype=float)) ** 2))
     covariance = STATED_SIGMA_SCALE**2 * np.asarray(posterior_covariance, dtype=float)

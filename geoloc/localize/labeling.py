@@ -113,7 +113,8 @@ class ReferenceLabel:
     """What labelling found for one reference photo (local frame, metres and degrees).
 
     x_m, y_m, yaw_deg: the refined best pose (yaw = local bearing of the optical axis).
-    position_covariance: (2, 2) m^2 spread of the refined pose's position posterior; vp_bins: image bins that
+    position_covariance: (2, 2) m^2 spread of the refined pose's position posterior (what a reference states is
+    this calibrated, :mod:`geoloc.localize.label_covariance`); vp_bins: image bins that
     supported the vanishing-point yaw (0: grid yaw); mode_scores: the refined scores of the distinct grid
     modes, best first; alternative: the second distinct refined pose (often the mirror view across the
     street), or None.

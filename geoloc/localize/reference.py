@@ -184,7 +184,6 @@ def label_from_cues(
         heading_prior=heading_prior,
         options=options or LabelOptions(),
     )
-    # What the label states of its position: its posterior's covariance, calibrated (:mod:`.label_covariance`).
     stated = stated_position_covariance(label.position_covariance, (label.x_m, label.y_m), gps_xy)
     label = replace(label, position_covariance=stated)
     timings = dict(timings_ms, **{timing_key: 1e3 * (time.perf_counter() - t0)})
