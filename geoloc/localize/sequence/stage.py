@@ -142,7 +142,9 @@ PLACED_VP_TOLERANCE_DEG = 30.0
 """A placed frame's heading is refined by the vanishing points of the facades it sees from its placed position
 (:func:`geoloc.localize.refinement.vanishing_point_yaw`), each image bin within this of the graph's heading taking
 part. On the accuracy suite's dev split: references' headings within 2 deg +0.042 [+0.013, +0.072] (+0.023
-[-0.001, +0.048] at the labels' own 15 deg; docs/measurements/accuracy.md, "A placed frame's heading")."""
+[-0.001, +0.048] at the labels' own 15 deg; docs/measurements/accuracy.md, "A placed frame's heading from the
+facades it sees")."""
+
 STEPS_OVERRULE_M = 3.0
 """A frame its steps alone join to its walk takes the walk's pose only when that lies farther than this (m) from its
 own label: three sigmas of a walker's step (docs/measurements/accuracy.md, "The walk's pace": steps scatter about
