@@ -34,6 +34,13 @@ VP_BEARING_STEP_DEG = 0.1
 """Bearing step of the panorama that tells which facade each bin sees during the yaw refinement."""
 MIN_VP_BINS = 6
 """Bins that must agree before a vanishing-point yaw replaces the grid yaw."""
+VP_TOLERANCE_DEG = 30.0
+"""The image bins within this of the current yaw take part in the vanishing-point yaw (every use: a label's, a
+query's, a walk's placed frame). 30 deg, not the first 15: poses 5-30 deg off were out of reach at 15, while a
+Manhattan facade's other direction is 90 deg away. On the accuracy suite's dev split: references' headings within
+2 deg +0.019 [+0.005, +0.033], queries' headings within 5 deg +0.022 [+0.005, +0.040], labels and queries at 30
+against 15 (placed frames were already at 30: +0.042 [+0.013, +0.072] against none; docs/measurements/accuracy.md,
+"A placed frame's heading from the facades it sees" and "Every vanishing-point yaw at ±30°")."""
 
 
 @dataclass
@@ -61,7 +68,7 @@ def vanishing_point_yaw(
     y_m: float,
     yaw_deg: float,
     *,
-    tolerance_deg: float = 15.0,
+    tolerance_deg: float = VP_TOLERANCE_DEG,
     passes: int = 2,
 ) -> tuple[float, int]:
     """Yaw (local bearing, deg) from the image's facade orientations and the map's facades seen from (x, y).

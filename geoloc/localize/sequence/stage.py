@@ -5,7 +5,8 @@ Used by the workers' sequence job and by ``geoloc eval world`` (through
 rows): each frame was labelled alone first (:func:`geoloc.localize.reference.label_reference_photo`, as every
 reference is); the walk's frames are then placed
 in one pose graph (:func:`geoloc.localize.sequence.placement.place_sequence`) and each is re-labelled at its
-placed pose, its heading refined by the facades seen from there (:data:`PLACED_VP_TOLERANCE_DEG`;
+placed pose, its heading refined by the facades seen from there
+(:func:`geoloc.localize.refinement.vanishing_point_yaw`;
 :func:`geoloc.localize.reference.label_at_pose`: identities and anchors from there). A frame that
 no relative pose joins to the others keeps its own label unchanged (its label already weighed its GPS and
 compass) unless its steps between capture times place it more than a few metres away (:func:`keeps_own_label`),
@@ -128,22 +129,13 @@ def place_labelled_sequence(
         stated = stated_position_covariance(pose.position_covariance, (pose.x_m, pose.y_m), frame.gps_xy)
         # The graph's heading comes from the neighbours' edges and the label's 2 deg; the facades seen from the
         # placed position say it more sharply, as they do for a label alone.
-        yaw_deg, _ = vanishing_point_yaw(
-            city_map, alone.cues.image_model, pose.x_m, pose.y_m, pose.yaw_deg, tolerance_deg=PLACED_VP_TOLERANCE_DEG
-        )
+        yaw_deg, _ = vanishing_point_yaw(city_map, alone.cues.image_model, pose.x_m, pose.y_m, pose.yaw_deg)
         known = KnownPose(pose.x_m, pose.y_m, yaw_deg, stated)
         placed = label_at_pose(city_map, alone.intrinsics, alone.cues, alone.timings_ms, known, analysis=alone.analysis)
         placed.timings_ms["sequence"] = share_ms
         references.append(placed)
     return PlacedSequence(references, poses, len(edges))
 
-
-PLACED_VP_TOLERANCE_DEG = 30.0
-"""A placed frame's heading is refined by the vanishing points of the facades it sees from its placed position
-(:func:`geoloc.localize.refinement.vanishing_point_yaw`), each image bin within this of the graph's heading taking
-part. On the accuracy suite's dev split: references' headings within 2 deg +0.042 [+0.013, +0.072] (+0.023
-[-0.001, +0.048] at the labels' own 15 deg; docs/measurements/accuracy.md, "A placed frame's heading from the
-facades it sees")."""
 
 STEPS_OVERRULE_M = 3.0
 """A frame its steps alone join to its walk takes the walk's pose only when that lies farther than this (m) from its
