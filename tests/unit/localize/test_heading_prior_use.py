@@ -108,4 +108,8 @@ def test_a_right_compass_narrows_the_heading() -> None:
     before = _yaw_mass_near(unprompted, None, CORNER_YAW_DEG, 15.0)
     after = _yaw_mass_near(narrowed, right, CORNER_YAW_DEG, 15.0)
     assert after > before + 0.05
-    assert narrowed.mode_margin > unprompted.mode_margin
+    # The map alone used to leave a distinct runner-up here (26 deg off and 10 m away, 0.15 of the best, with the
+    # vanishing points at +-15 deg) that the compass ruled out; at +-30 deg (VP_TOLERANCE_DEG) the vanishing points
+    # bring it onto the corner's pose already. The compass must leave no distinct runner-up either.
+    assert narrowed.alternative is None
+    assert narrowed.mode_margin >= unprompted.mode_margin
