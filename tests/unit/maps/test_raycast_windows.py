@@ -14,7 +14,7 @@ import pytest
 from contracts.settings import shared_path
 from geoloc.localize.likelihood import LikelihoodOptions, image_model_from_map
 from geoloc.localize.map_likelihood import MapLikelihood
-from geoloc.localize.refinement import MIN_VP_BINS, VP_BEARING_STEP_DEG, vanishing_point_yaw
+from geoloc.localize.refinement import MIN_VP_BINS, VP_BEARING_STEP_DEG, VP_TOLERANCE_DEG, vanishing_point_yaw
 from geoloc.maps import CityMap, load_map
 from geoloc.maps.raycast import Panoramas, cast_panoramas, window_indices
 from geoloc.vision.image_model import ImageModel
@@ -118,7 +118,7 @@ def _vanishing_point_yaw_full(
         index = np.round(((yaw + model.offsets_deg) % 360.0) / VP_BEARING_STEP_DEG).astype(np.int64) % n_bearings
         normal = panorama.normal_bearing_deg[0, index]
         delta = ((normal - model.orientation_deg) - yaw + 90.0) % 180.0 - 90.0
-        agree = present & np.isfinite(delta) & (np.abs(delta) < 15.0)
+        agree = present & np.isfinite(delta) & (np.abs(delta) < VP_TOLERANCE_DEG)
         support = int(agree.sum())
         if support < MIN_VP_BINS:
             return yaw_deg % 360.0, 0
